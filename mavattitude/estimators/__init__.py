@@ -1,0 +1,20 @@
+"""The attitude estimators, by CLI name. Each module holds one, with its paper in the docstring."""
+from __future__ import annotations
+
+from .alignment import Alignment, align
+from .base import Estimator, params_table
+from .base import needs_compile as _needs_compile
+from .mahony import Mahony
+
+ESTIMATORS: dict[str, type[Estimator]] = {
+    Mahony.name: Mahony,
+}
+
+
+def create(name: str, params=None, declination: float = 0.0) -> Estimator:
+    return ESTIMATORS[name](params=params, declination=declination)
+
+
+def needs_compile(names: list[str]) -> list[str]:
+    """Which of these estimators will compile on first use (numba cache empty)."""
+    return _needs_compile([ESTIMATORS[n] for n in names])

@@ -1,0 +1,76 @@
+"""Where an estimator starts: gyro bias from an initial still period, attitude from gravity
+(and the magnetometer).
+
+Shared by every estimator, so they all start from the same place and differ only in how
+they track.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import quaternion as quat
+from ..flight import GRAVITY
+
+# Still means: the gyro stays within STILL_GYRO_RAD_S of its starting value (so a constant
+# bias is allowed) and the accelerometer within STILL_ACCEL_MS2 of its starting reading.
+# Loose enough for a vehicle on the ground with motors idling, tight enough that a take-off
+# or a hand carry ends the period.
+STILL_GYRO_RAD_S = 0.05  # ≈ 3 °/s
+STILL_ACCEL_MS2 = 1.0
+MAX_PLAUSIBLE_BIAS_RAD_S = 0.1  # ≈ 6 °/s: more than that at rest is motion, not bias
+MIN_STILL_S = 1.0
+MIN_STILL_SAMPLES = 5
+MAX_STILL_S = 60.0  # averaging longer adds nothing; a long wait on the ground is common
+START_SAMPLES = 5  # samples averaged for the initial attitude when the vehicle is not still
+
+
+@dataclass
+class Alignment:
+    q0: np.ndarray  # initial attitude, body -> NED
+    gyro_bias: np.ndarray  # rad/s
+    still_span: tuple[float, float] | None  # (start, end) s, or None when no still period
+    heading_from_mag: bool
+
+
+def detect_still(t, gyro, accel) -> int:
+    """Number of samples at the start during which the vehicle is still (0 if not still)."""
+    n = len(t)
+    k = min(n, max(START_SAMPLES, int(np.searchsorted(t, t[0] + 0.5))))
+    if n < MIN_STILL_SAMPLES:
+        return 0
+    g0 = np.median(gyro[:k], axis=0)
+    a0 = np.median(accel[:k], axis=0)
+    if np.linalg.norm(g0) > MAX_PLAUSIBLE_BIAS_RAD_S or abs(np.linalg.norm(a0) - GRAVITY) > STILL_ACCEL_MS2:
+        return 0
+    moving = (np.linalg.norm(gyro - g0, axis=1) > STILL_GYRO_RAD_S) | \
+             (np.linalg.norm(accel - a0, axis=1) > STILL_ACCEL_MS2)
+    end = int(np.argmax(moving)) if moving.any() else n
+    end = min(end, int(np.searchsorted(t, t[0] + MAX_STILL_S)))
+    if end < MIN_STILL_SAMPLES or t[end - 1] - t[0] < MIN_STILL_S:
+        return 0
+    return end
+
+
+def align(t, gyro, accel, mag=None, declination: float = 0.0) -> Alignment:
+    """Initial attitude and gyro bias from the first samples of a flight.
+
+    ``mag`` is (N, 3) on the IMU timestamps, NaN where absent. Without a still period the
+    gyro bias is taken as zero and the attitude comes from the first few samples.
+    """
+    n_still = detect_still(t, gyro, accel)
+    span = slice(0, n_still if n_still else min(START_SAMPLES, len(t)))
+    bias = gyro[span].mean(axis=0) if n_still else np.zeros(3)
+    roll, pitch = quat.tilt_from_accel(accel[span].mean(axis=0))
+    yaw = 0.0
+    use_mag = False
+    if mag is not None:
+        m = mag[span] if n_still else mag[: max(START_SAMPLES, 1) * 20]
+        m = m[~np.isnan(m).any(axis=1)]
+        if len(m):
+            yaw = float(quat.heading_from_mag(roll, pitch, m.mean(axis=0), declination))
+            use_mag = True
+    q0 = quat.from_euler(roll, pitch, yaw)
+    still_span = (float(t[0]), float(t[n_still - 1])) if n_still else None
+    return Alignment(q0=q0, gyro_bias=bias, still_span=still_span, heading_from_mag=use_mag)

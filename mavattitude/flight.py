@@ -1,0 +1,119 @@
+"""The in-memory flight record every layer shares.
+
+Readers fill it; estimators, metrics and the view only read it. Everything is SI and
+time-stamped on the autopilot's clock, in seconds since it booted:
+
+- body frame FRD, navigation frame NED;
+- angular rate rad/s, specific force m/s² (level and still: [0, 0, -g]);
+- magnetic field tesla, pressure pascal, heights metres;
+- latitude/longitude in degrees (named ``*_deg``: the one non-SI quantity, kept as GPS gives it);
+- attitudes as unit quaternions [w, x, y, z] rotating body to NED.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+
+GRAVITY = 9.80665  # m/s², standard gravity
+
+
+@dataclass
+class ImuSeries:
+    source: str  # e.g. "IMU[0]", "RAW_IMU", "HIGHRES_IMU"
+    t: np.ndarray  # (N,) s
+    gyro: np.ndarray  # (N, 3) rad/s, FRD
+    accel: np.ndarray  # (N, 3) m/s², specific force, FRD
+
+
+@dataclass
+class MagSeries:
+    source: str
+    t: np.ndarray
+    field: np.ndarray  # (N, 3) tesla, FRD
+
+
+@dataclass
+class GpsSeries:
+    source: str
+    t: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_m: np.ndarray  # above mean sea level
+    vel_ned: np.ndarray  # (N, 3) m/s; NaN where the message has no velocity
+    fix_type: np.ndarray  # int: 0-1 no fix, 2 2D, 3 3D, 4+ DGPS/RTK
+    num_sats: np.ndarray  # int
+    h_acc_m: np.ndarray  # horizontal accuracy; NaN where unknown
+
+
+@dataclass
+class BaroSeries:
+    source: str
+    t: np.ndarray
+    pressure_pa: np.ndarray
+    alt_m: np.ndarray  # relative altitude the autopilot reports; NaN where absent
+
+
+@dataclass
+class AttitudeSeries:
+    source: str  # "ATT", "ATTITUDE", "SIMSTATE", "SIM", or an estimator's name
+    t: np.ndarray
+    q: np.ndarray  # (N, 4) unit quaternions [w, x, y, z], body -> NED
+
+
+SERIES_TYPES = (ImuSeries, MagSeries, GpsSeries, BaroSeries, AttitudeSeries)
+
+
+def series_len(series) -> int:
+    return len(series.t)
+
+
+def select(series, mask: np.ndarray):
+    """The same series with only the samples where ``mask`` is true."""
+    return replace(series, **{f.name: getattr(series, f.name)[mask]
+                              for f in fields(series) if f.name != "source"})
+
+
+@dataclass
+class Flight:
+    path: str
+    format: str  # "bin" or "tlog"
+    imu: dict[str, ImuSeries] = field(default_factory=dict)  # every IMU source found
+    mag: dict[str, MagSeries] = field(default_factory=dict)
+    gps: GpsSeries | None = None
+    baro: BaroSeries | None = None
+    attitude: AttitudeSeries | None = None  # the autopilot's own estimate
+    truth: AttitudeSeries | None = None  # simulator ground truth
+    params: dict[str, float] = field(default_factory=dict)
+    vehicle: str | None = None  # e.g. "ArduCopter"
+    firmware: str | None = None  # e.g. "ArduCopter V4.4.4 (865cffa5)"
+    message_counts: dict[str, int] = field(default_factory=dict)
+    # Clock segments: (start, end) in seconds. More than one means the autopilot rebooted
+    # (its clock went back); the record holds the segment ``segment_index`` only.
+    segments: list[tuple[float, float]] = field(default_factory=list)
+    segment_index: int = 0
+    notes: list[str] = field(default_factory=list)  # things the reader fixed or noticed
+
+    def all_series(self):
+        """(kind, series) for every time series in the record."""
+        for name, s in self.imu.items():
+            yield "imu", s
+        for name, s in self.mag.items():
+            yield "mag", s
+        for kind in ("gps", "baro", "attitude", "truth"):
+            s = getattr(self, kind)
+            if s is not None:
+                yield kind, s
+
+    @property
+    def time_span(self) -> tuple[float, float]:
+        starts = [s.t[0] for _, s in self.all_series() if len(s.t)]
+        ends = [s.t[-1] for _, s in self.all_series() if len(s.t)]
+        if not starts:
+            return (0.0, 0.0)
+        return (float(min(starts)), float(max(ends)))
+
+    @property
+    def duration(self) -> float:
+        a, b = self.time_span
+        return b - a

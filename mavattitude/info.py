@@ -1,0 +1,99 @@
+"""What a log holds: ``mavattitude info``, as a dict (for --json) and as text."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .flight import GRAVITY, Flight
+from .pipeline import LOW_IMU_RATE_HZ
+from .readers import best_imu_source, imu_rate
+
+
+def _rate(t: np.ndarray) -> float:
+    return float(1.0 / np.median(np.diff(t))) if len(t) > 1 else 0.0
+
+
+def summarize(flight: Flight) -> dict:
+    start, end = flight.time_span
+    duration = end - start
+    best = best_imu_source(flight)
+    imus = {}
+    for key, s in flight.imu.items():
+        norm = np.linalg.norm(s.accel, axis=1)
+        imus[key] = {
+            "samples": len(s.t),
+            "rate_hz": round(imu_rate(s), 2),
+            "start_s": round(float(s.t[0]), 3),
+            "end_s": round(float(s.t[-1]), 3),
+            "accel_norm_ms2": {"mean": round(float(norm.mean()), 4), "std": round(float(norm.std()), 4),
+                               "min": round(float(norm.min()), 4), "max": round(float(norm.max()), 4),
+                               "median": round(float(np.median(norm)), 4)},
+            "best": key == best,
+        }
+    sensors = {
+        "imu": sorted(flight.imu),
+        "magnetometer": sorted(flight.mag),
+        "gps": flight.gps.source if flight.gps is not None else None,
+        "barometer": flight.baro.source if flight.baro is not None else None,
+        "attitude": flight.attitude.source if flight.attitude is not None else None,
+        "ground_truth": flight.truth.source if flight.truth is not None else None,
+    }
+    rates = {}
+    for kind, s in flight.all_series():
+        rates[s.source if kind in ("imu", "mag") else f"{kind}:{s.source}"] = round(_rate(s.t), 2)
+    warnings = []
+    if imus[best]["rate_hz"] < LOW_IMU_RATE_HZ:
+        warnings.append(f"low IMU rate: {imus[best]['rate_hz']:.1f} Hz (below {LOW_IMU_RATE_HZ:.0f} Hz): "
+                        "estimates will be coarse")
+    if flight.mag and "COMPASS_DEC" not in flight.params:
+        warnings.append("no COMPASS_DEC parameter: pass --declination to compare yaw with a true heading")
+    return {
+        "log": flight.path,
+        "format": flight.format,
+        "size_bytes": os.path.getsize(flight.path),
+        "vehicle": flight.vehicle,
+        "firmware": flight.firmware,
+        "start_s": round(start, 3),
+        "end_s": round(end, 3),
+        "duration_s": round(duration, 3),
+        "clock_segments": [{"start_s": round(a, 3), "end_s": round(b, 3)} for a, b in flight.segments],
+        "segment_used": flight.segment_index,
+        "sensors": sensors,
+        "imu_sources": imus,
+        "best_imu": best,
+        "sample_rates_hz": rates,
+        "message_counts": dict(sorted(flight.message_counts.items())),
+        "message_rates_hz": {k: round(v / duration, 3) if duration > 0 else None
+                             for k, v in sorted(flight.message_counts.items())},
+        "parameters": len(flight.params),
+        "compass_declination_deg": (round(float(np.degrees(flight.params["COMPASS_DEC"])), 3)
+                                    if "COMPASS_DEC" in flight.params else None),
+        "notes": list(flight.notes),
+        "warnings": warnings,
+    }
+
+
+def render(info: dict) -> str:
+    lines = [f"{info['log']}  ({info['format']}, {info['size_bytes'] / 1e6:.1f} MB)"]
+    lines.append(f"  vehicle   {info['vehicle'] or 'unknown'}   firmware {info['firmware'] or 'unknown'}")
+    lines.append(f"  time      {info['start_s']:.1f} - {info['end_s']:.1f} s on the autopilot clock "
+                 f"({info['duration_s']:.1f} s)")
+    if len(info["clock_segments"]) > 1:
+        lines.append(f"  segments  {len(info['clock_segments'])} (autopilot rebooted); using #{info['segment_used']}")
+    s = info["sensors"]
+    lines.append("  sensors   " + ", ".join(f"{k}: {v if v else '-'}" for k, v in (
+        ("magnetometer", ", ".join(s["magnetometer"])), ("gps", s["gps"]), ("baro", s["barometer"]),
+        ("attitude", s["attitude"]), ("truth", s["ground_truth"]))))
+    dec = info["compass_declination_deg"]
+    lines.append(f"  declination {'%.2f°' % dec if dec is not None else 'not in log'}")
+    lines.append("  IMU sources (* = used by default):")
+    for key, imu in info["imu_sources"].items():
+        a = imu["accel_norm_ms2"]
+        lines.append(f"   {'*' if imu['best'] else ' '} {key:16s} {imu['samples']:8d} samples  {imu['rate_hz']:7.1f} Hz"
+                     f"   |accel| mean {a['mean']:.3f} ± {a['std']:.3f} m/s² (g = {GRAVITY})")
+    for note in info["notes"]:
+        lines.append(f"  note: {note}")
+    for warning in info["warnings"]:
+        lines.append(f"  warning: {warning}")
+    return "\n".join(lines)

@@ -1,0 +1,210 @@
+"""Quaternion and frame math: the one place for it.
+
+Conventions (../shared/ALGORITHMS.md "Conventions"): q = [w, x, y, z], Hamilton product,
+rotating body (FRD) to navigation (NED): v_n = C(q) v_b. Euler angles are ZYX
+(yaw, pitch, roll), yaw in [-pi, pi).
+
+Two kinds of function live here:
+- vectorised numpy functions over (N, 4) / (N, 3) arrays, for readers, metrics and the view;
+- small ``@njit`` kernels on single samples, for the compiled estimator loops.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# ---------------------------------------------------------------- vectorised (numpy)
+
+
+def wrap_pi(angle):
+    """Wrap radians to [-pi, pi)."""
+    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def wrap_deg(angle):
+    """Wrap degrees to [-180, 180)."""
+    return (np.asarray(angle) + 180.0) % 360.0 - 180.0
+
+
+def from_euler(roll, pitch, yaw) -> np.ndarray:
+    """ZYX Euler angles (radians, scalars or arrays) to quaternions (..., 4)."""
+    cr, sr = np.cos(np.asarray(roll) / 2), np.sin(np.asarray(roll) / 2)
+    cp, sp = np.cos(np.asarray(pitch) / 2), np.sin(np.asarray(pitch) / 2)
+    cy, sy = np.cos(np.asarray(yaw) / 2), np.sin(np.asarray(yaw) / 2)
+    return np.stack([
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    ], axis=-1)
+
+
+def to_euler(q) -> np.ndarray:
+    """Quaternions (..., 4) to ZYX Euler angles (..., 3) = [roll, pitch, yaw], radians."""
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return np.stack([roll, pitch, wrap_pi(yaw)], axis=-1)
+
+
+def multiply(p, q) -> np.ndarray:
+    """Hamilton product p ⊗ q over the last axis."""
+    p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    ], axis=-1)
+
+
+def conjugate(q) -> np.ndarray:
+    q = np.asarray(q, dtype=float)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def normalize(q) -> np.ndarray:
+    q = np.asarray(q, dtype=float)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def to_dcm(q) -> np.ndarray:
+    """Direction cosine matrices C(q) (..., 3, 3), body -> navigation."""
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=-2)
+
+
+def rotate(q, v) -> np.ndarray:
+    """C(q) v: a body-frame vector expressed in the navigation frame."""
+    return np.einsum("...ij,...j->...i", to_dcm(q), np.asarray(v, dtype=float))
+
+
+def make_continuous(q) -> np.ndarray:
+    """Flip signs so consecutive quaternions lie in the same hemisphere (q and -q are one attitude)."""
+    q = np.array(q, dtype=float)
+    if len(q) < 2:
+        return q
+    flips = np.sum(q[1:] * q[:-1], axis=-1) < 0
+    sign = np.concatenate([[1.0], np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)])
+    return q * sign[:, None]
+
+
+def interpolate(t_src, q_src, t_dst) -> np.ndarray:
+    """Attitude at times ``t_dst`` by normalised linear interpolation (nlerp) of ``q_src``.
+
+    nlerp differs from slerp by less than 1e-4 rad between samples a few degrees apart,
+    which is the case at any IMU rate an estimate is produced at. Outside the source span
+    the result is NaN.
+    """
+    t_src = np.asarray(t_src, dtype=float)
+    t_dst = np.asarray(t_dst, dtype=float)
+    q_src = make_continuous(q_src)
+    out = np.full((len(t_dst), 4), np.nan)
+    if len(t_src) < 2:
+        return out
+    inside = (t_dst >= t_src[0]) & (t_dst <= t_src[-1])
+    td = t_dst[inside]
+    i = np.clip(np.searchsorted(t_src, td, side="right") - 1, 0, len(t_src) - 2)
+    span = t_src[i + 1] - t_src[i]
+    a = np.where(span > 0, (td - t_src[i]) / np.where(span > 0, span, 1.0), 0.0)[:, None]
+    out[inside] = normalize((1 - a) * q_src[i] + a * q_src[i + 1])
+    return out
+
+
+def tilt_from_accel(accel) -> tuple[np.ndarray, np.ndarray]:
+    """Roll and pitch (radians) from specific force, ALGORITHMS.md "Conventions"."""
+    f = np.asarray(accel, dtype=float)
+    roll = np.arctan2(-f[..., 1], -f[..., 2])
+    pitch = np.arctan2(f[..., 0], np.hypot(f[..., 1], f[..., 2]))
+    return roll, pitch
+
+
+def heading_from_mag(roll, pitch, mag, declination=0.0):
+    """True heading (radians) from a body-frame field reading and known roll/pitch.
+
+    Levels the field with roll and pitch, then measures the angle of its horizontal part
+    from north; adding the declination turns magnetic into true heading.
+    """
+    level = from_euler(roll, pitch, np.zeros_like(np.asarray(roll, dtype=float)))
+    m_level = rotate(level, mag)
+    return wrap_pi(-np.arctan2(m_level[..., 1], m_level[..., 0]) + declination)
+
+
+# ---------------------------------------------------------------- compiled kernels (numba)
+# Single-sample helpers for the estimator loops; inputs and outputs are float64 arrays.
+
+
+@njit(cache=True)
+def qmul(p, q):
+    out = np.empty(4)
+    out[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
+    out[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2]
+    out[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1]
+    out[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0]
+    return out
+
+
+@njit(cache=True)
+def qnormalize(q):
+    return q / np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+
+
+@njit(cache=True)
+def qdcm(q):
+    """C(q), body -> navigation."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    c = np.empty((3, 3))
+    c[0, 0] = 1 - 2 * (y * y + z * z)
+    c[0, 1] = 2 * (x * y - w * z)
+    c[0, 2] = 2 * (x * z + w * y)
+    c[1, 0] = 2 * (x * y + w * z)
+    c[1, 1] = 1 - 2 * (x * x + z * z)
+    c[1, 2] = 2 * (y * z - w * x)
+    c[2, 0] = 2 * (x * z - w * y)
+    c[2, 1] = 2 * (y * z + w * x)
+    c[2, 2] = 1 - 2 * (x * x + y * y)
+    return c
+
+
+@njit(cache=True)
+def cross(a, b):
+    out = np.empty(3)
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+    return out
+
+
+@njit(cache=True)
+def omega_matrix(w):
+    """Ω(ω) with q̇ = ½ Ω(ω) q (ALGORITHMS.md "Conventions")."""
+    m = np.zeros((4, 4))
+    m[0, 1], m[0, 2], m[0, 3] = -w[0], -w[1], -w[2]
+    m[1, 0], m[1, 2], m[1, 3] = w[0], w[2], -w[1]
+    m[2, 0], m[2, 1], m[2, 3] = w[1], -w[2], w[0]
+    m[3, 0], m[3, 1], m[3, 2] = w[2], w[1], -w[0]
+    return m
+
+
+@njit(cache=True)
+def integrate_gyro(q, w, dt):
+    """Rotate q by body rate w over dt, exactly for constant w: q ⊗ Exp(w dt)."""
+    angle = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) * dt
+    dq = np.empty(4)
+    if angle < 1e-12:
+        dq[0] = 1.0
+        dq[1], dq[2], dq[3] = 0.5 * w[0] * dt, 0.5 * w[1] * dt, 0.5 * w[2] * dt
+    else:
+        s = np.sin(0.5 * angle) / (angle / dt)
+        dq[0] = np.cos(0.5 * angle)
+        dq[1], dq[2], dq[3] = w[0] * s, w[1] * s, w[2] * s
+    return qnormalize(qmul(q, dq))

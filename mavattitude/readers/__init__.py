@@ -1,0 +1,198 @@
+"""Log readers: a file in, a :class:`~mavattitude.flight.Flight` out (SI units, autopilot clock).
+
+``read_log(path)`` picks the format from the file's first bytes, decodes it with pymavlink
+(``dataflash`` or ``tlog``), and turns the collected rows into clean series: one clock
+segment (the longest, unless asked), sorted, without repeated timestamps or empty samples.
+"""
+from __future__ import annotations
+
+import os
+import re
+
+import numpy as np
+
+from .. import quaternion as quat
+from ..errors import InputError
+from ..flight import (AttitudeSeries, BaroSeries, Flight, GpsSeries, ImuSeries, MagSeries)
+from .collect import Collector
+from .dataflash import read_dataflash
+from .tlog import read_tlog
+
+DATAFLASH_MAGIC = b"\xa3\x95"
+MAVLINK_MAGIC = (0xFE, 0xFD)  # MAVLink 1, MAVLink 2 start bytes
+
+# IMU sources, best first, among those with the same sample rate: float SI data beats
+# integer mG/mrad/s, and the primary instance beats the others.
+IMU_PREFERENCE = ["HIGHRES_IMU", "IMU[0]", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "IMU[1]",
+                  "SCALED_IMU3", "IMU[2]"]
+
+
+def sniff_format(path: str) -> str:
+    """'bin' or 'tlog' from the file's content; InputError if it is neither."""
+    if not os.path.exists(path):
+        raise InputError(path, "no such file")
+    if os.path.isdir(path):
+        raise InputError(path, "is a folder, not a log file")
+    with open(path, "rb") as f:
+        head = f.read(64)
+    if not head:
+        raise InputError(path, "empty file")
+    if head[:2] == DATAFLASH_MAGIC:
+        return "bin"
+    if len(head) > 8 and head[8] in MAVLINK_MAGIC:
+        return "tlog"
+    ext = os.path.splitext(path)[1].lower()
+    kind = {".bin": "DataFlash .bin", ".tlog": "telemetry .tlog"}.get(ext, "MAVLink log")
+    raise InputError(path, f"not a {kind} file (it starts with bytes {head[:10].hex(' ')}; "
+                           "expected a DataFlash header a3 95 or a tlog record)")
+
+
+def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
+    """Read a .bin or .tlog. ``segment``: which clock segment to keep when the autopilot
+    rebooted during the log (0-based); default the longest."""
+    path = str(path)
+    fmt = sniff_format(path)
+    if fmt == "bin":
+        col, params, texts, counts = read_dataflash(path, progress)
+        notes = []
+    else:
+        col, params, texts, counts, notes = read_tlog(path, progress)
+    if progress is not None:
+        progress(1.0)
+    segments = col.segments
+    if not segments:
+        raise InputError(path, "no time-stamped sensor or attitude messages found")
+    if segment is None:
+        segment = col.longest_segment()
+    elif not 0 <= segment < len(segments):
+        raise InputError(path, f"has {len(segments)} clock segment(s); segment {segment} does not exist")
+    if len(segments) > 1:
+        spans = ", ".join(f"#{i}: {a:.1f}-{b:.1f} s" for i, (a, b) in enumerate(segments))
+        notes.append(f"the autopilot clock went back (reboot): {len(segments)} segments ({spans}); "
+                     f"using segment {segment}")
+    flight = Flight(path=path, format=fmt, params=params, message_counts=counts,
+                    segments=segments, segment_index=segment, notes=notes)
+    _fill_series(flight, col, segment)
+    flight.vehicle, flight.firmware = _identify(texts, counts)
+    if not flight.imu:
+        raise InputError(path, "no IMU data (looked for IMU/IMU2/IMU3 in .bin; RAW_IMU, SCALED_IMU/2/3 "
+                               "and HIGHRES_IMU in .tlog)")
+    return flight
+
+
+def _fill_series(flight: Flight, col: Collector, segment: int) -> None:
+    def columns(kind, key):
+        t, v, stats = col.columns(kind, key, segment)
+        if stats["duplicates"]:
+            flight.notes.append(f"{key}: dropped {stats['duplicates']} samples with repeated timestamps")
+        if stats["reordered"]:
+            flight.notes.append(f"{key}: sorted {stats['reordered']} out-of-order samples")
+        return t, v
+
+    for key in col.keys("imu"):
+        t, v = columns("imu", key)
+        live = np.any(v != 0, axis=1)  # an unfitted sensor sends all zeros
+        if np.count_nonzero(live) >= 2:
+            flight.imu[key] = ImuSeries(key, t[live], v[live, :3], v[live, 3:6])
+    for key in col.keys("mag"):
+        t, v = columns("mag", key)
+        live = np.any(v != 0, axis=1)
+        if np.count_nonzero(live) >= 2:
+            flight.mag[key] = MagSeries(key, t[live], _earth_field_scale(flight, key, v[live]))
+    for key in col.keys("gps"):
+        t, v = columns("gps", key)
+        if len(t):
+            flight.gps = GpsSeries(key, t, v[:, 0], v[:, 1], v[:, 2], v[:, 3:6],
+                                   v[:, 6].astype(int), v[:, 7].astype(int), v[:, 8])
+    for key in col.keys("baro"):
+        t, v = columns("baro", key)
+        if len(t):
+            flight.baro = BaroSeries(key, t, v[:, 0], v[:, 1])
+    flight.attitude = _attitude(col, "att", segment, columns)
+    flight.truth = _attitude(col, "truth", segment, columns)
+
+
+def _earth_field_scale(flight: Flight, key: str, field: np.ndarray) -> np.ndarray:
+    """Fix a magnetometer whose unit is off by powers of 1000.
+
+    Earth's field is 0.25-0.65 gauss (25-65 µT) everywhere. ArduPilot 4.7 sends HIGHRES_IMU
+    xmag..zmag at 1e6 times the gauss the message defines (seen: 580000 for 0.58 G), so a
+    median strength far outside any plausible field is rescaled by the power of 1000 that
+    brings it back, and the note says so. Heading only needs the direction, but a field in
+    the wrong unit must not leave the reader.
+    """
+    strength = float(np.median(np.linalg.norm(field, axis=1)))
+    if strength <= 0:
+        return field
+    power = round(np.log10(strength / 50e-6) / 3)
+    if power == 0:
+        return field
+    flight.notes.append(f"{key}: magnetometer strength {strength * 1e4:.4g} G is implausible; "
+                        f"rescaled by 1e{-3 * power} to {strength * 1e4 * 10.0 ** (-3 * power):.3g} G")
+    return field * 10.0 ** (-3 * power)
+
+
+def _attitude(col: Collector, prefix: str, segment: int, columns) -> AttitudeSeries | None:
+    """The attitude series with most samples among the Euler and quaternion messages."""
+    best = None
+    for kind in (f"{prefix}_euler", f"{prefix}_quat"):
+        for key in col.keys(kind):
+            t, v = columns(kind, key)
+            if not len(t):
+                continue
+            q = quat.from_euler(v[:, 0], v[:, 1], v[:, 2]) if kind.endswith("euler") else quat.normalize(v)
+            if best is None or len(t) > len(best.t):
+                best = AttitudeSeries(key, t, q)
+    return best
+
+
+def _identify(texts: list[str], counts: dict) -> tuple[str | None, str | None]:
+    """(vehicle, firmware) from the version strings the autopilot wrote."""
+    for text in texts:
+        m = re.search(r"(Ardu(?:Copter|Plane|Rover|Sub)|APM:(?:Copter|Plane|Rover)|PX4)[^\n]*", text)
+        if m:
+            firmware = m.group(0).strip()
+            vehicle = m.group(1).replace("APM:", "Ardu")
+            return vehicle, firmware
+    version = next((t[len("version "):] for t in texts if t.startswith("version ")), None)
+    for text in texts:
+        if text.startswith("heartbeat "):
+            _, _, mav_type, _, autopilot = text.split()
+            vehicle = _enum_name("MAV_TYPE", int(mav_type))
+            autopilot_name = _enum_name("MAV_AUTOPILOT", int(autopilot))
+            return vehicle, " ".join(x for x in (autopilot_name, version) if x)
+    return None, version
+
+
+def _enum_name(enum: str, value: int) -> str:
+    """'QUADROTOR' for MAV_TYPE 2: MAVLink's own name, without its prefix."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+    entry = mavlink.enums.get(enum, {}).get(value)
+    return entry.name.replace(enum + "_", "") if entry else f"{enum} {value}"
+
+
+def imu_rate(series: ImuSeries) -> float:
+    """Median sample rate, Hz."""
+    if len(series.t) < 2:
+        return 0.0
+    return float(1.0 / np.median(np.diff(series.t)))
+
+
+def best_imu_source(flight: Flight) -> str:
+    """The IMU to estimate from: the highest sample count (within 2 %), then IMU_PREFERENCE."""
+    top = max(len(s.t) for s in flight.imu.values())
+    candidates = [k for k, s in flight.imu.items() if len(s.t) >= 0.98 * top]
+
+    def rank(key):
+        return IMU_PREFERENCE.index(key) if key in IMU_PREFERENCE else len(IMU_PREFERENCE)
+    return sorted(candidates, key=lambda k: (rank(k), k))[0]
+
+
+def mag_for_imu(flight: Flight, imu_source: str) -> str | None:
+    """The magnetometer to pair with an IMU: the one in the same message (tlog), else the first."""
+    if imu_source in flight.mag:
+        return imu_source
+    for key in ("MAG[0]", "HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2"):
+        if key in flight.mag:
+            return key
+    return next(iter(flight.mag), None)

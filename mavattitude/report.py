@@ -1,0 +1,207 @@
+"""Reports of a replay: a terminal table, a JSON summary and per-series CSV files.
+
+All angles are in degrees; times in seconds on the autopilot's clock, as the flight stores them.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .flight import AttitudeSeries
+from .metrics import AXES, AxisMetrics, Comparison
+from .quaternion import to_euler, wrap_deg
+
+BUCKET_KEYS = ("lt_0.5", "0.5_1", "1_2", "gt_2")  # [0,0.5), [0.5,1), [1,2), [2,inf) degrees
+YAW_ALIGNED_NOTE = "* initial yaw aligned: no heading reference"
+CSV_HEADER = "time_s,roll_deg,pitch_deg,yaw_deg"
+CSV_DECIMALS = 6  # µs for time (ArduPilot stamps in µs), 1e-6° for angles
+
+
+# ---------------------------------------------------------------- terminal table
+
+
+def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str:
+    """A fixed-width table: per estimator and axis, n and MAE, RMSE, max |error| (degrees), R².
+
+    Yaw is shown as ``yaw*`` (with a footnote) where the estimator had no heading reference and
+    its initial yaw was aligned; an axis with no scored sample shows "n/a".
+    """
+    name_w = max([len("estimator")] + [len(name) for name in comparisons])
+    cols = ("n", "MAE", "RMSE", "max", "R²")
+    widths = (9, 8, 8, 8, 8)
+
+    def row(name: str, axis: str, cells) -> str:
+        body = "  ".join(f"{c:>{w}}" for c, w in zip(cells, widths))
+        return f"{name:<{name_w}}  {axis:<5}  {body}".rstrip()
+
+    header = row("estimator", "axis", cols)
+    lines = [f"Attitude error against {reference_name} (degrees; R² unitless)",
+             header, "-" * len(header)]
+    any_aligned = False
+    for name, comp in comparisons.items():
+        for k, axis in enumerate(AXES):
+            label = axis
+            if axis == "yaw" and comp.yaw_aligned:
+                label, any_aligned = "yaw*", True
+            m = comp.axes.get(axis)
+            if m is None:
+                cells = ("0", "n/a", "n/a", "n/a", "n/a")
+            else:
+                cells = (f"{m.n:d}", f"{m.mae:.3f}", f"{m.rmse:.3f}", f"{m.max:.3f}",
+                         "n/a" if not np.isfinite(m.r2) else f"{m.r2:.4f}")
+            lines.append(row(name if k == 0 else "", label, cells))
+    if not comparisons:
+        lines.append("(no estimates)")
+    if any_aligned:
+        lines.append(YAW_ALIGNED_NOTE)
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------- JSON summary
+
+
+def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison]) -> dict:
+    """The JSON summary: ``{"log", "reference", "estimators": {name: {"roll": M, "pitch": M, "yaw": M}}}``.
+
+    M holds ``n``, ``mae``, ``rmse``, ``mse`` (deg²), ``r2``, ``max``, ``sigma1``, ``sigma3``
+    (degrees) and ``buckets`` (shares keyed by ``BUCKET_KEYS``); the yaw M also holds
+    ``aligned``. M is null for an axis with no scored sample; a non-finite number is null.
+    """
+    estimators = {}
+    for name, comp in comparisons.items():
+        axes = {}
+        for axis in AXES:
+            m = comp.axes.get(axis)
+            entry = None if m is None else _metrics_dict(m)
+            if entry is not None and axis == "yaw":
+                entry["aligned"] = bool(comp.yaw_aligned)
+            axes[axis] = entry
+        estimators[str(name)] = axes
+    return {"log": str(log), "reference": str(reference), "estimators": estimators}
+
+
+def write_json(path, log: str, reference: str, comparisons: dict[str, Comparison]) -> Path:
+    """Write ``to_json_dict`` to ``path`` (strict JSON: no NaN), creating its directory."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(to_json_dict(log, reference, comparisons), indent=2, allow_nan=False)
+    path.write_text(text + "\n", encoding="utf-8")
+    return path
+
+
+def _metrics_dict(m: AxisMetrics) -> dict:
+    return {
+        "n": int(m.n),
+        "mae": _number(m.mae),
+        "rmse": _number(m.rmse),
+        "mse": _number(m.mse),
+        "r2": _number(m.r2),
+        "max": _number(m.max),
+        "sigma1": _number(m.sigma1),
+        "sigma3": _number(m.sigma3),
+        "buckets": {key: _number(share) for key, share in zip(BUCKET_KEYS, m.buckets)},
+    }
+
+
+def _number(x) -> float | None:
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+# ---------------------------------------------------------------- CSV export
+
+
+def write_csv(directory, reference: AttitudeSeries,
+              estimates: dict[str, AttitudeSeries]) -> dict[str, Path]:
+    """Write ``DIR/reference.csv`` and ``DIR/<estimator>.csv``; returns {"reference"|name: path}.
+
+    Columns ``time_s,roll_deg,pitch_deg,yaw_deg``: time as stored (s, autopilot clock), ZYX
+    Euler angles in degrees with yaw in [-180, 180), six decimals; NaN rows are written as
+    ``nan``. Characters other than letters, digits, ``.``, ``-`` and ``_`` in an estimator's
+    name become ``_`` in its file name. The text is built with array operations (no per-row
+    Python), so 10^6 rows take a fraction of a second.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    targets = {"reference": (directory / "reference.csv", reference)}
+    for name, series in estimates.items():
+        path = directory / f"{_file_stem(name)}.csv"
+        if any(path == p for p, _ in targets.values()):
+            raise ValueError(f"estimator {name!r} would overwrite {path.name}")
+        targets[name] = (path, series)
+    for path, series in targets.values():
+        _write_attitude_csv(path, series)
+    return {name: path for name, (path, _) in targets.items()}
+
+
+def _file_stem(name: str) -> str:
+    stem = re.sub(r"[^A-Za-z0-9._-]", "_", str(name)).lstrip(".")
+    return stem or "_"
+
+
+def _write_attitude_csv(path: Path, series: AttitudeSeries) -> None:
+    t = np.asarray(series.t, dtype=float).reshape(-1)
+    q = np.asarray(series.q, dtype=float).reshape(-1, 4)
+    with np.errstate(invalid="ignore"):
+        euler = np.degrees(to_euler(q))
+    # Round before wrapping so that a yaw of 179.9999999° cannot print as 180.000000.
+    euler[:, 2] = wrap_deg(np.round(euler[:, 2], CSV_DECIMALS))
+    body = _fixed_point_csv(np.column_stack([t, euler]), CSV_DECIMALS)
+    with open(path, "wb") as f:
+        f.write(CSV_HEADER.encode("ascii") + b"\n")
+        f.write(body)
+
+
+def _fixed_point_csv(values: np.ndarray, decimals: int) -> bytes:
+    """Rows of comma-separated fixed-point numbers (``-12.345678``), each row ending in a newline.
+
+    Vectorised: every field is laid out as bytes in a fixed-width (rows, columns, width) array,
+    digits computed by integer arithmetic, unused positions filled with 0 and dropped at the end.
+    Non-finite values are written ``nan``. Values too large for exact int64 scaling (never an
+    attitude or a flight time) fall back to Python's formatting.
+    """
+    values = np.asarray(values, dtype=float)
+    if values.ndim != 2 or decimals < 1:
+        raise ValueError("expected a 2-D array and at least one decimal")
+    if values.size == 0:
+        return b""
+    n_rows, n_cols = values.shape
+    finite = np.isfinite(values)
+    scale = 10 ** decimals
+    scaled = np.round(np.where(finite, values, 0.0) * scale)
+    if np.abs(scaled).max() >= 2.0 ** 53:
+        fmt = ",".join([f"%.{decimals}f"] * n_cols) + "\n"
+        return "".join(fmt % tuple(r) for r in values.tolist()).encode("ascii")
+
+    units = np.abs(scaled).astype(np.uint64)  # value in 10^-decimals
+    whole = units // np.uint64(scale)
+    n_int = max(1, len(str(int(whole.max()))))  # integer digits of the widest value
+    # 32-bit division is about twice as fast; the fraction always fits, the integer part nearly always.
+    frac = (units - whole * np.uint64(scale)).astype(np.uint32)
+    whole = whole.astype(np.uint32) if n_int < 10 else whole
+    width = 1 + n_int + 1 + decimals + 1  # sign, integer part, '.', fraction, separator
+    out = np.zeros((n_rows, n_cols, width), dtype=np.uint8)
+    out[..., 0] = np.where(scaled < 0, ord("-"), 0)
+    ten, zero = whole.dtype.type(10), np.uint8(ord("0"))
+    for pos in range(n_int, 0, -1):  # integer digits, units first; leading zeros stay 0 (dropped)
+        significant = (whole > 0) | (pos == n_int)
+        rest = whole // ten
+        digit = (whole - rest * ten).astype(np.uint8) + zero
+        out[..., pos] = np.where(significant, digit, 0) if pos < n_int else digit
+        whole = rest
+    out[..., n_int + 1] = ord(".")
+    ten = np.uint32(10)
+    for pos in range(width - 2, n_int + 1, -1):  # fraction digits, last first
+        rest = frac // ten
+        out[..., pos] = (frac - rest * ten).astype(np.uint8) + zero
+        frac = rest
+    if not finite.all():
+        bad = ~finite
+        out[bad, :-1] = 0
+        out[bad, -4:-1] = np.frombuffer(b"nan", dtype=np.uint8)
+    out[..., -1] = ord(",")
+    out[:, -1, -1] = ord("\n")
+    return out.tobytes().replace(b"\x00", b"")

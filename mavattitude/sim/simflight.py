@@ -1,0 +1,116 @@
+"""``simulate``: a scenario's true motion, the sensors that observe it, and the autopilot's estimate,
+held in one ``SimFlight`` that the log writers turn into a .tlog or a .bin."""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import earth, sensors
+from .sensors import BaroTrack, GpsTrack, ImuTrack, MagTrack, Rates, SensorParams
+from .trajectory import REGISTRY, TrajectorySample, sample
+
+SIM_VERSION = "0.1"
+IMU_COUNT = 2  # IMU instance 0 (.bin IMU I=0, .tlog RAW_IMU) and 1 (IMU I=1, SCALED_IMU2)
+
+
+@dataclass
+class SimFlight:
+    """A simulated flight: ground truth and sensor data, SI, on the autopilot clock (s since boot).
+
+    ``truth`` is sampled at the IMU timestamps (``truth.t == imu[i].t``): its ``q`` is the true
+    attitude for each IMU sample, its ``omega_b`` the true body rate; ``imu[i].gyro_bias`` is the
+    true gyro bias in each gyro sample.
+    """
+
+    scenario: str
+    seed: int
+    duration: float  # s
+    rates: Rates
+    params: SensorParams
+    home: earth.Home
+    earth_field: earth.EarthField
+    epoch_unix_at_boot: float  # s: UNIX time at autopilot boot (t = 0)
+    still_until: float  # s, autopilot clock: the vehicle is still, on the ground, before this
+    truth: TrajectorySample  # at the IMU timestamps
+    imu: list[ImuTrack]
+    autopilot_q: np.ndarray  # (N, 4) the autopilot's estimate at the IMU timestamps (ATT, ATTITUDE)
+    autopilot_error: np.ndarray  # (N, 3) rad, its [roll, pitch, yaw] error, estimate - truth
+    mag: MagTrack
+    gps: GpsTrack
+    baro: BaroTrack
+    firmware: str  # the firmware string the logs carry (MSG, VER, STATUSTEXT)
+
+    @property
+    def t(self) -> np.ndarray:
+        """IMU timestamps, s since boot."""
+        return self.truth.t
+
+    @property
+    def gyro_bias(self) -> np.ndarray:
+        """(N, 3) rad/s: the true bias of IMU 0, the IMU estimators use by default."""
+        return self.imu[0].gyro_bias
+
+    @property
+    def declination_rad(self) -> float:
+        return float(self.earth_field.declination_rad)
+
+    @property
+    def log_params(self) -> dict[str, float]:
+        """Autopilot parameters the logs carry: declination (rad) and compass offsets (mGauss)."""
+        offsets_mgauss = self.mag.offsets * 1e7  # tesla -> mGauss
+        return {
+            "COMPASS_DEC": self.declination_rad,
+            "COMPASS_OFS_X": float(offsets_mgauss[0]),
+            "COMPASS_OFS_Y": float(offsets_mgauss[1]),
+            "COMPASS_OFS_Z": float(offsets_mgauss[2]),
+        }
+
+
+def simulate(scenario: str, duration: float, seed: int = 0, *, imu_rate: float = 100.0,
+             att_rate: float = 25.0, mag_rate: float = 10.0, gps_rate: float = 5.0,
+             baro_rate: float = 10.0, params: SensorParams | None = None) -> SimFlight:
+    """Simulate ``duration`` seconds of a scenario (see ``SCENARIOS``) with sensor noise from ``seed``.
+
+    Rates are in Hz (``att_rate``: the .bin ATT/SIM rate, see ``Rates``). ``params`` replaces the
+    default sensor error model; the scenario's own overrides apply on top of it. The trajectory
+    does not depend on the seed: only the sensor errors do.
+    """
+    if scenario not in REGISTRY:
+        raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(sorted(REGISTRY))}")
+    rates = Rates(imu=imu_rate, att=att_rate, mag=mag_rate, gps=gps_rate, baro=baro_rate)
+    for name, rate in vars(rates).items():
+        if not np.isfinite(rate) or rate <= 0:
+            raise ValueError(f"{name} rate must be a positive number of Hz, not {rate}")
+    if not np.isfinite(duration) or duration < 2.0 / min(vars(rates).values()):
+        raise ValueError(f"duration {duration} s is too short: need two samples of every sensor")
+    spec = REGISTRY[scenario]
+    params = replace(params or SensorParams(), **spec.sensor_overrides)
+    home, field = earth.Home(), earth.EarthField()
+    rng_imus, rng_mag, rng_gps, rng_baro, rng_ap = _random_streams(seed)
+    t0 = earth.BOOT_TIME_AT_START
+
+    truth = sample(spec, sensors.sample_times(duration, rates.imu))
+    imus = [sensors.imu(truth, params, rates.imu, rng, t0) for rng in rng_imus]
+    autopilot_q, autopilot_error = sensors.autopilot_attitude(truth, params, rng_ap)
+    truth = replace(truth, t=truth.t + t0)  # on the autopilot clock from here on
+
+    def at_rate(rate):
+        return sample(spec, sensors.sample_times(duration, rate))
+
+    mag = sensors.magnetometer(at_rate(rates.mag), field, params, rng_mag, t0)
+    gps = sensors.gps(at_rate(rates.gps), home, params, rng_gps, t0)
+    baro = sensors.barometer(at_rate(rates.baro), home, params, rng_baro, t0)
+    return SimFlight(
+        scenario=scenario, seed=seed, duration=float(duration), rates=rates, params=params,
+        home=home, earth_field=field, epoch_unix_at_boot=earth.EPOCH_UNIX_AT_BOOT,
+        still_until=t0 + min(spec.still_until, duration), truth=truth, imu=imus,
+        autopilot_q=autopilot_q, autopilot_error=autopilot_error, mag=mag, gps=gps, baro=baro,
+        firmware=f"mavattitude-sim {SIM_VERSION} scenario {scenario}",
+    )
+
+
+def _random_streams(seed: int):
+    """Independent generators per sensor, so one sensor's settings never shift another's noise."""
+    children = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(IMU_COUNT + 4)]
+    return children[:IMU_COUNT], *children[IMU_COUNT:]

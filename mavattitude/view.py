@@ -1,0 +1,617 @@
+"""The Rerun view of a replay: one recording per replay, laid out by a blueprint.
+
+Everything time-varying goes through ``rr.send_columns`` (one call per entity and chunk of
+samples); ``rec.log`` is used only for static styling, the summary and the GPS track. The
+helpers take a chunk of samples and always write the same entity paths, so a live session
+(estimates arriving in chunks) reuses ``send_blueprint``, ``setup_series`` and the
+``log_*_columns`` functions unchanged.
+
+Timeline: ``"time"``, a duration in seconds on the autopilot clock (seconds since boot).
+
+Entity paths (``<s>`` is a series key: ``autopilot``, ``truth``, ``reference`` when the
+reference is neither of those, or an estimator's name, escaped for entity paths):
+
+- ``attitude/{roll,pitch,yaw}/<s>``  Scalars, degrees (+ static SeriesLines: colour, label)
+- ``error/{roll,pitch,yaw}/<s>``  Scalars, estimate - reference, degrees, scored samples
+- ``error/{roll,pitch,yaw}/<s>/unscored``  the samples the statistics skip (warm-up), faded
+- ``world``  static ViewCoordinates FRD: the 3D world is NED (x north, y east, z down)
+- ``world/<s>``  static Transform3D: the series' slot, side by side along east
+- ``world/<s>/body``  Transform3D quaternion column (body -> NED), static Boxes3D + axes
+- ``world/<s>/reference``  the reference attitude again, as a grey wireframe "ghost" in
+  every other slot, so an estimate's error is visible as the gap between box and ghost
+- ``map/track``  static GeoLineStrings of the GPS track; ``map/position`` GeoPoints over time
+- ``events``  TextLog of the replay's events (and one metrics line per comparison at the end)
+- ``summary``  static TextDocument (markdown): the flight and the metrics table
+
+Decimation (what the viewer gets; the metrics are always computed on every sample):
+
+- attitude scalars: every sample while a series' mean rate is <= ``SCALAR_MAX_HZ`` (200 Hz);
+  faster series keep the first sample of each 1/200 s bin. Long logs are further capped at
+  ``SCALAR_MAX_POINTS`` per series (the rate becomes ``SCALAR_MAX_POINTS / duration``:
+  200 Hz up to 20 min, 100 Hz for an hour);
+- error scalars: the same rate, but peak-preserving: the minimum and the maximum of each
+  bin of two output samples, so no error spike disappears;
+- 3D transforms: at most ``TRANSFORM_MAX_HZ`` (50 Hz), first sample per bin;
+- GPS marker at most ``GPS_MARKER_MAX_HZ`` (10 Hz); the static track at most
+  ``GPS_TRACK_MAX_POINTS`` points.
+
+Bins are on absolute time (``floor(t * hz)``), so chunks decimate the same way as a whole log.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from . import quaternion as quat
+from .flight import AttitudeSeries, GpsSeries
+from .metrics import AXES
+from .pipeline import Event, ReplayResult
+
+TIMELINE = "time"
+
+SCALAR_MAX_HZ = 200.0
+SCALAR_MAX_POINTS = 240_000
+TRANSFORM_MAX_HZ = 50.0
+GPS_MARKER_MAX_HZ = 10.0
+GPS_TRACK_MAX_POINTS = 5_000
+
+# ---------------------------------------------------------------- colours
+
+Color = tuple[int, int, int]
+
+# Every colour reads on both the viewer's light and dark themes (mid luminance), so the
+# autopilot is a neutral grey rather than black or white.
+AUTOPILOT_COLOR: Color = (140, 140, 140)
+REFERENCE_COLOR: Color = (100, 125, 150)  # a reference that is neither autopilot nor truth
+TRUTH_COLOR: Color = (40, 170, 70)
+GHOST_COLOR = (110, 110, 110, 220)
+TRACK_COLOR: Color = (230, 40, 140)
+POSITION_COLOR: Color = (20, 70, 230)
+ESTIMATOR_COLORS: dict[str, Color] = {  # fixed per known estimator (ALGORITHMS.md)
+    "mahony": (255, 140, 0),
+    "mahony-ekf": (215, 170, 0),
+    "ekf": (30, 136, 229),
+    "eskf": (142, 60, 200),
+    "ncs-eskf": (233, 30, 99),
+    "eq-kf": (0, 170, 190),
+    "cpf-ekf": (215, 50, 40),
+}
+FALLBACK_COLORS: tuple[Color, ...] = (
+    (255, 140, 0), (30, 136, 229), (233, 30, 99), (0, 170, 190), (142, 60, 200),
+    (215, 170, 0), (215, 50, 40), (140, 100, 60), (90, 110, 255), (190, 90, 180),
+)
+ROLE_COLORS: dict[str, Color] = {
+    "autopilot": AUTOPILOT_COLOR, "truth": TRUTH_COLOR, "reference": REFERENCE_COLOR,
+}
+
+
+def assign_colors(names: Iterable[str]) -> dict[str, Color]:
+    """A fixed colour per series: roles and known estimators by name, others from a palette
+    (in the order given, skipping colours already taken)."""
+    names = list(names)
+    out: dict[str, Color] = {}
+    for n in names:
+        if n in ROLE_COLORS:
+            out[n] = ROLE_COLORS[n]
+        elif n in ESTIMATOR_COLORS:
+            out[n] = ESTIMATOR_COLORS[n]
+    free = [c for c in FALLBACK_COLORS if c not in out.values()] or list(FALLBACK_COLORS)
+    i = 0
+    for n in names:
+        if n not in out:
+            out[n] = free[i % len(free)]
+            i += 1
+    return out
+
+
+# ---------------------------------------------------------------- entity paths
+
+
+def _part(name: str) -> str:
+    return rr.escape_entity_path_part(str(name))
+
+
+def attitude_path(axis: str, name: str) -> str:
+    return f"attitude/{axis}/{_part(name)}"
+
+
+def error_path(axis: str, name: str) -> str:
+    return f"error/{axis}/{_part(name)}"
+
+
+def body_path(name: str) -> str:
+    return f"world/{_part(name)}/body"
+
+
+def ghost_path(name: str) -> str:
+    return f"world/{_part(name)}/reference"
+
+
+# ---------------------------------------------------------------- sinks
+
+
+def open_sink(app_id: str, recording_name: str, rrd: str | None = None, spawn: bool = False,
+              connect: str | None = None, web: bool = False, *, web_port: int | None = None,
+              grpc_port: int | None = None, open_browser: bool = True) -> rr.RecordingStream:
+    """A new recording with exactly one sink.
+
+    - ``rrd``: write that file (call ``close_sink`` at the end to finish it);
+    - ``spawn``: start the native viewer and stream to it;
+    - ``connect``: stream to a running viewer, e.g. ``rerun+http://127.0.0.1:9876/proxy``;
+    - ``web``: serve the data over gRPC and the web viewer over HTTP (prints the address on
+      stderr). The servers live as long as the returned stream and the process: the caller
+      keeps both alive (e.g. until Ctrl-C).
+    """
+    chosen = [bool(rrd), bool(spawn), bool(connect), bool(web)]
+    if sum(chosen) != 1:
+        raise ValueError("open_sink: choose exactly one of rrd, spawn, connect, web")
+    rec = rr.RecordingStream(app_id)
+    if rrd:
+        rec.save(rrd)
+    elif spawn:
+        rec.spawn()
+    elif connect:
+        rec.connect_grpc(connect)
+    else:
+        url = rec.serve_grpc(grpc_port=grpc_port)
+        rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
+        port = web_port or 9090
+        print(f"Rerun web viewer: http://localhost:{port}/?url={url}  (data: {url})",
+              file=sys.stderr)
+    rec.send_recording_name(recording_name)
+    return rec
+
+
+def close_sink(rec: rr.RecordingStream) -> None:
+    """Flush everything; for a file sink, also write the .rrd footer."""
+    rec.flush()
+    rec.disconnect()
+
+
+# ---------------------------------------------------------------- blueprint
+
+
+def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=None,
+                   map_zoom: float | None = None, time_span: tuple[float, float] | None = None,
+                   live: bool = False) -> rrb.Blueprint:
+    """The layout: per-axis attitude and error plots on the left (x axes linked), the 3D
+    attitude boxes top right, map / summary / events in tabs below it.
+
+    ``n_slots``: how many boxes stand side by side in the 3D view (frames the camera).
+    ``error_range_deg``: optional {axis: half-range} for the error plots' y axes, so a large
+    warm-up transient does not flatten the scored part (the user can still zoom out).
+    ``map_zoom``: the map's zoom level (``map_zoom_for``); None lets the viewer choose.
+    ``time_span``: (start, end) seconds the plots open on (the whole replay); None: the
+    viewer's default.
+    ``live``: the time panel follows incoming data instead of standing paused.
+
+    One legend (in the roll plot) names every colour; the error plots have none: their
+    lines have the same colours, faded where not scored (the warm-up).
+    """
+    if time_span is not None:
+        whole = rr.TimeRange(start=rrb.TimeRangeBoundary.absolute(seconds=float(time_span[0])),
+                             end=rrb.TimeRangeBoundary.absolute(seconds=float(time_span[1])))
+        link = rrb.TimeAxis(link="LinkToGlobal", view_range=whole)
+    else:
+        link = rrb.TimeAxis(link="LinkToGlobal")
+    rows = []
+    for axis in AXES:
+        err_kwargs = {}
+        if error_range_deg and error_range_deg.get(axis):
+            r = float(error_range_deg[axis])
+            err_kwargs["axis_y"] = rrb.ScalarAxis(range=(-r, r))
+        legend = rrb.PlotLegend(corner="LeftTop", visible=axis == AXES[0])
+        rows.append(rrb.Horizontal(
+            rrb.TimeSeriesView(origin=f"attitude/{axis}", name=f"{axis} (deg)", axis_x=link,
+                               plot_legend=legend),
+            rrb.TimeSeriesView(origin=f"error/{axis}",
+                               name=f"{axis} error: estimate - reference (deg)",
+                               axis_x=link, plot_legend=rrb.PlotLegend(visible=False),
+                               **err_kwargs),
+            column_shares=[3, 2],
+        ))
+    span = SLOT_SPACING * max(n_slots - 1, 0)
+    # Look north from behind and above the row of boxes (NED: up is -z), a little from
+    # the west so the boxes read as 3D; far enough back to frame every slot.
+    d = 0.9 * (span + 3.0)
+    eye = rrb.EyeControls3D(
+        kind="Orbital",
+        position=(-0.85 * d, span / 2 - 0.3 * d, -0.45 * d),
+        look_target=(0.0, span / 2, 0.0),
+        eye_up=(0.0, 0.0, -1.0),
+    )
+    view3d = rrb.Spatial3DView(origin="world", name="attitude, NED (boxes: FRD body)",
+                               eye_controls=eye, line_grid=rrb.LineGrid3D(visible=True,
+                                                                          spacing=1.0))
+    tabs = [rrb.TextDocumentView(origin="summary", name="summary"),
+            rrb.TextLogView(origin="events", name="events")]
+    if has_gps:
+        tabs.insert(0, rrb.MapView(origin="map", name="GPS track", zoom=map_zoom))
+    right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[3, 2])
+    return rrb.Blueprint(
+        rrb.Horizontal(rrb.Vertical(*rows), right, column_shares=[3, 2]),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline=TIMELINE,
+                      play_state="Following" if live else "Paused"),
+    )
+
+
+def send_blueprint(rec: rr.RecordingStream, *, has_gps: bool = True, n_slots: int = 4,
+                   error_range_deg=None, map_zoom: float | None = None,
+                   time_span: tuple[float, float] | None = None, live: bool = False) -> None:
+    """Send ``make_blueprint(...)`` and make it the active and default layout."""
+    rec.send_blueprint(make_blueprint(has_gps=has_gps, n_slots=n_slots,
+                                      error_range_deg=error_range_deg, map_zoom=map_zoom,
+                                      time_span=time_span, live=live),
+                       make_active=True, make_default=True)
+
+
+def map_zoom_for(lat_deg, lon_deg, pixels: float = 380.0) -> float:
+    """The web-map zoom level at which the points' extent spans about ``pixels``."""
+    lat = np.asarray(lat_deg, dtype=float)
+    lon = np.asarray(lon_deg, dtype=float)
+    ok = np.isfinite(lat) & np.isfinite(lon)
+    if not ok.any():
+        return 16.0
+    lat, lon = lat[ok], lon[ok]
+    mid = math.radians(float(np.mean(lat)))
+    extent_m = max(float(np.ptp(lat)) * 111_320.0,
+                   float(np.ptp(lon)) * 111_320.0 * math.cos(mid), 30.0)
+    metres_per_pixel = extent_m / pixels
+    zoom = math.log2(156_543.03 * math.cos(mid) / metres_per_pixel)
+    return float(np.clip(zoom, 2.0, 19.0))
+
+
+# ---------------------------------------------------------------- static set-up
+
+SLOT_SPACING = 2.5  # metres (arbitrary units) between boxes, along east
+BOX_HALF_SIZES = (0.75, 0.5, 0.12)  # forward, right, down: a flat, nose-long box
+AXIS_LENGTH = 1.1
+
+
+def setup_world(rec: rr.RecordingStream) -> None:
+    rec.log("world", rr.ViewCoordinates.FRD, static=True)  # NED: x north, y east, z down
+
+
+def setup_series(rec: rr.RecordingStream, name: str, *, color: Color, label: str | None = None,
+                 slot: int | None = None, ghost: bool = False, errors: bool = False) -> None:
+    """Static styling of one series: its plot lines, and its box at ``slot`` in the 3D view
+    (with a reference ghost when ``ghost``); ``errors`` also styles its error plots."""
+    label = label or name
+    for axis in AXES:
+        rec.log(attitude_path(axis, name),
+                rr.SeriesLines(colors=[color], names=[label], widths=[1.5]), static=True)
+        if errors:
+            rec.log(error_path(axis, name),
+                    rr.SeriesLines(colors=[color], names=[label], widths=[1.5],
+                                   aggregation_policy="MinMax"), static=True)
+            rec.log(error_path(axis, name) + "/unscored",
+                    rr.SeriesLines(colors=[(*color, 90)], names=[f"{label} (not scored)"],
+                                   widths=[1.0], aggregation_policy="MinMax"), static=True)
+    if slot is None:
+        return
+    base = f"world/{_part(name)}"
+    rec.log(base, rr.Transform3D(translation=(0.0, SLOT_SPACING * slot, 0.0)), static=True)
+    rec.log(body_path(name),
+            rr.Boxes3D(half_sizes=[BOX_HALF_SIZES], colors=[(*color, 255)], labels=[label],
+                       fill_mode="Solid"),
+            rr.TransformAxes3D(AXIS_LENGTH),
+            static=True)
+    if ghost:
+        rec.log(ghost_path(name),
+                rr.Boxes3D(half_sizes=[tuple(1.04 * h for h in BOX_HALF_SIZES)],
+                           colors=[GHOST_COLOR], fill_mode="MajorWireframe", radii=[0.012]),
+                static=True)
+
+
+# ---------------------------------------------------------------- decimation
+
+
+def _bin_first(t: np.ndarray, hz: float) -> np.ndarray:
+    """Indices keeping the first sample of each 1/hz bin of absolute time (all of them when
+    the series is not faster than hz on average)."""
+    n = len(t)
+    if n < 2 or hz <= 0:
+        return np.arange(n)
+    span = float(t[-1] - t[0])
+    if n <= hz * span + 1:
+        return np.arange(n)
+    b = np.floor(t * hz)
+    keep = np.empty(n, dtype=bool)
+    keep[0] = True
+    keep[1:] = b[1:] != b[:-1]
+    return np.flatnonzero(keep)
+
+
+def _bin_minmax(t: np.ndarray, y: np.ndarray, hz: float) -> np.ndarray:
+    """Peak-preserving decimation to about hz: the argmin and argmax of y in each 2/hz bin,
+    in time order. NaN samples are kept only if a bin has nothing else."""
+    n = len(t)
+    if n < 2 or hz <= 0:
+        return np.arange(n)
+    span = float(t[-1] - t[0])
+    if n <= hz * span + 1:
+        return np.arange(n)
+    b = np.floor(t * (hz / 2.0))
+    yy = np.where(np.isfinite(y), y, 0.0)
+    order = np.lexsort((yy, b))  # by bin, then value
+    bs = b[order]
+    first = np.ones(n, dtype=bool)
+    first[1:] = bs[1:] != bs[:-1]
+    last = np.ones(n, dtype=bool)
+    last[:-1] = bs[1:] != bs[:-1]
+    return np.unique(order[first | last])
+
+
+def scalar_rate_for(duration_s: float) -> float:
+    """The scalar rate for a log of this length (see the module docstring)."""
+    if duration_s <= 0:
+        return SCALAR_MAX_HZ
+    return min(SCALAR_MAX_HZ, SCALAR_MAX_POINTS / duration_s)
+
+
+# ---------------------------------------------------------------- columnar logging
+
+
+def _time(t: np.ndarray) -> rr.TimeColumn:
+    return rr.TimeColumn(TIMELINE, duration=np.asarray(t, dtype=np.float64))
+
+
+def _break_wraps(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A NaN between consecutive samples more than 180° apart (an angle wrapping at ±180°),
+    so the plot breaks the line there instead of drawing a vertical stroke across it."""
+    jumps = np.flatnonzero(np.abs(np.diff(y)) > 180.0)
+    if len(jumps) == 0:
+        return t, y
+    t_mid = 0.5 * (t[jumps] + t[jumps + 1])
+    return (np.insert(t, jumps + 1, t_mid), np.insert(y, jumps + 1, np.nan))
+
+
+def _send_scalars(rec: rr.RecordingStream, path: str, t: np.ndarray, y: np.ndarray) -> None:
+    if len(t) == 0:
+        return
+    t, y = _break_wraps(np.asarray(t, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    rec.send_columns(path, indexes=[_time(t)],
+                     columns=rr.Scalars.columns(scalars=np.asarray(y, dtype=np.float64)))
+
+
+def log_euler_columns(rec: rr.RecordingStream, name: str, t, q, *,
+                      max_hz: float = SCALAR_MAX_HZ) -> None:
+    """Roll, pitch, yaw (degrees) of quaternions ``q`` (N, 4) at ``t`` to attitude/<axis>/<name>."""
+    t = np.asarray(t, dtype=np.float64)
+    idx = _bin_first(t, max_hz)
+    if len(idx) == 0:
+        return
+    euler = np.degrees(quat.to_euler(np.asarray(q, dtype=np.float64)[idx]))
+    for k, axis in enumerate(AXES):
+        _send_scalars(rec, attitude_path(axis, name), t[idx], euler[:, k])
+
+
+def log_transform_columns(rec: rr.RecordingStream, path: str, t, q, *,
+                          max_hz: float = TRANSFORM_MAX_HZ) -> None:
+    """An animated rotation (body -> NED quaternions [w, x, y, z]) at ``path``."""
+    t = np.asarray(t, dtype=np.float64)
+    idx = _bin_first(t, max_hz)
+    if len(idx) == 0:
+        return
+    qs = np.asarray(q, dtype=np.float64)[idx]
+    ok = np.all(np.isfinite(qs), axis=1)
+    idx, qs = idx[ok], qs[ok]
+    if len(idx) == 0:
+        return
+    xyzw = quat.normalize(qs)[:, [1, 2, 3, 0]].astype(np.float32)
+    rec.send_columns(path, indexes=[_time(t[idx])],
+                     columns=rr.Transform3D.columns(quaternion=xyzw))
+
+
+def log_attitude_columns(rec: rr.RecordingStream, name: str, t, q, *,
+                         scalar_max_hz: float = SCALAR_MAX_HZ,
+                         transform_max_hz: float = TRANSFORM_MAX_HZ,
+                         box: bool = True, ghost_in: Sequence[str] = ()) -> None:
+    """One chunk of an attitude series: its Euler plots and its box in the 3D view; a
+    reference also passes ``ghost_in`` (the other series) to animate their ghosts."""
+    log_euler_columns(rec, name, t, q, max_hz=scalar_max_hz)
+    if box:
+        log_transform_columns(rec, body_path(name), t, q, max_hz=transform_max_hz)
+    for other in ghost_in:
+        log_transform_columns(rec, ghost_path(other), t, q, max_hz=transform_max_hz)
+
+
+def log_error_columns(rec: rr.RecordingStream, name: str, t, error_deg, scored, *,
+                      max_hz: float = SCALAR_MAX_HZ) -> None:
+    """One chunk of a comparison: estimate - reference (degrees, (N, 3)) to error/<axis>/<name>,
+    the unscored samples (warm-up) to error/<axis>/<name>/unscored."""
+    t = np.asarray(t, dtype=np.float64)
+    err = np.asarray(error_deg, dtype=np.float64)
+    scored = np.asarray(scored, dtype=bool)
+    for part, mask in (("", scored), ("/unscored", ~scored)):
+        if not mask.any():
+            continue
+        tm, em = t[mask], err[mask]
+        for k, axis in enumerate(AXES):
+            idx = _bin_minmax(tm, em[:, k], max_hz)
+            _send_scalars(rec, error_path(axis, name) + part, tm[idx], em[idx, k])
+
+
+_LEVELS = {"info": rr.TextLogLevel.INFO, "warn": rr.TextLogLevel.WARN,
+           "warning": rr.TextLogLevel.WARN, "error": rr.TextLogLevel.ERROR,
+           "debug": rr.TextLogLevel.DEBUG}
+
+
+def log_events(rec: rr.RecordingStream, events: Sequence[Event], path: str = "events") -> None:
+    """Events as a TextLog, in one columnar call."""
+    if not events:
+        return
+    ev = sorted(events, key=lambda e: e.t)
+    levels = [_LEVELS.get(e.level.lower(), e.level.upper()) for e in ev]
+    rec.send_columns(path, indexes=[_time([e.t for e in ev])],
+                     columns=rr.TextLog.columns(text=[e.text for e in ev], level=levels))
+
+
+def _gps_fix(gps: GpsSeries) -> tuple[np.ndarray, np.ndarray]:
+    """Times and (lat, lon) of the samples with a usable fix."""
+    lat = np.asarray(gps.lat_deg, dtype=np.float64)
+    lon = np.asarray(gps.lon_deg, dtype=np.float64)
+    fix = np.asarray(gps.fix_type)
+    ok = np.isfinite(lat) & np.isfinite(lon) & (fix >= 2) & ~((lat == 0) & (lon == 0))
+    return np.asarray(gps.t, dtype=np.float64)[ok], np.column_stack([lat[ok], lon[ok]])
+
+
+def log_gps(rec: rr.RecordingStream, gps: GpsSeries) -> bool:
+    """The GPS track (static line) and the vehicle's position over time. False if no fix."""
+    t, ll = _gps_fix(gps)
+    if len(t) == 0:
+        return False
+    stride = max(1, math.ceil(len(ll) / GPS_TRACK_MAX_POINTS))
+    track = ll[::stride]
+    if len(track) and not np.array_equal(track[-1], ll[-1]):
+        track = np.vstack([track, ll[-1:]])
+    rec.log("map/track", rr.GeoLineStrings(lat_lon=[track], radii=rr.Radius.ui_points(2.0),
+                                           colors=[TRACK_COLOR]), static=True)
+    rec.log("map/position", rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(7.0),
+                                                     colors=[POSITION_COLOR]), static=True)
+    idx = _bin_first(t, GPS_MARKER_MAX_HZ)
+    rec.send_columns("map/position", indexes=[_time(t[idx])],
+                     columns=rr.GeoPoints.columns(positions=ll[idx]))
+    return True
+
+
+# ---------------------------------------------------------------- the whole replay
+
+
+def _reference_key(result: ReplayResult) -> str:
+    ref, fl = result.reference, result.flight
+    for key, s in (("truth", fl.truth), ("autopilot", fl.attitude)):
+        if s is None:
+            continue
+        if ref is s or (ref.source == s.source and len(ref.t) == len(s.t)
+                        and np.array_equal(ref.t, s.t)):
+            return key
+    return "reference"
+
+
+def _series(result: ReplayResult) -> list[tuple[str, str, AttitudeSeries]]:
+    """(key, label, series) of every attitude shown: reference first, then the autopilot
+    and truth (where not the reference), then the estimates."""
+    fl = result.flight
+    ref_key = _reference_key(result)
+    out = [(ref_key, f"{ref_key} ({result.reference.source}) = reference", result.reference)]
+    for key, s in (("autopilot", fl.attitude), ("truth", fl.truth)):
+        if s is not None and key != ref_key:
+            out.append((key, f"{key} ({s.source})", s))
+    for name, s in result.estimates.items():
+        out.append((name, name, s))
+    return out
+
+
+def _fmt(x) -> str:
+    return "–" if x is None or not np.isfinite(x) else f"{x:.2f}"
+
+
+def summary_markdown(result: ReplayResult) -> str:
+    fl = result.flight
+    a, b = fl.time_span
+    lines = [
+        "# Replay summary", "",
+        f"- **log**: `{fl.path}` ({fl.format})",
+        f"- **vehicle**: {fl.vehicle or '?'} · **firmware**: {fl.firmware or '?'}",
+        f"- **span**: {a:.1f}–{b:.1f} s ({b - a:.1f} s) on the autopilot clock",
+        f"- **IMU**: {result.imu_source} · **reference**: {result.reference.source}",
+    ]
+    if len(fl.segments) > 1:
+        lines.append(f"- **clock segments**: {len(fl.segments)} (showing #{fl.segment_index})")
+    lines += ["", "## Errors (deg, scored samples): RMSE / max", "",
+              "| estimate | vs | roll | pitch | yaw | n | note |",
+              "|---|---|---|---|---|---|---|"]
+    for name, c in result.comparisons.items():
+        cells = []
+        n = 0
+        for axis in AXES:
+            m = c.axes.get(axis)
+            if m is None:
+                cells.append("–")
+            else:
+                cells.append(f"{_fmt(m.rmse)} / {_fmt(m.max)}")
+                n = max(n, m.n)
+        note = f"warm-up {c.warmup_s:g} s"
+        if c.yaw_aligned:
+            note += f"; yaw offset {c.yaw_offset_deg:+.1f}° removed"
+        lines.append(f"| {name} | {c.reference} | {' | '.join(cells)} | {n} | {note} |")
+    if fl.notes:
+        lines += ["", "## Reader notes", ""] + [f"- {n}" for n in fl.notes]
+    return "\n".join(lines) + "\n"
+
+
+def _summary_events(result: ReplayResult, t_end: float) -> list[Event]:
+    out = []
+    for name, c in result.comparisons.items():
+        parts = []
+        for axis in AXES:
+            m = c.axes.get(axis)
+            parts.append(f"{axis} {_fmt(m.rmse) if m else '–'}")
+        out.append(Event(t_end, "info", f"{name} vs {c.reference}: RMSE deg " + ", ".join(parts)))
+    return out
+
+
+def _error_ranges(result: ReplayResult) -> dict[str, float]:
+    """Half-range of each error plot: the largest scored |error| (at least 1°) plus 15 %."""
+    out = {}
+    for k, axis in enumerate(AXES):
+        peak = 0.0
+        for c in result.comparisons.values():
+            e = np.asarray(c.error_deg)[np.asarray(c.scored, dtype=bool), k]
+            e = e[np.isfinite(e)]
+            if len(e):
+                peak = max(peak, float(np.max(np.abs(e))))
+        if peak > 0:
+            out[axis] = 1.15 * max(peak, 1.0)
+    return out
+
+
+def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool = True) -> None:
+    """Log a whole replay into ``rec`` (one recording), with the blueprint unless told not to."""
+    fl = result.flight
+    series = _series(result)
+    ref_key = series[0][0]
+    names = [k for k, _, _ in series] + [k for k in result.comparisons if k not in
+                                         {s[0] for s in series}]
+    colors = assign_colors(names)
+    gps_t, gps_ll = _gps_fix(fl.gps) if fl.gps is not None else (np.empty(0), None)
+    has_gps = len(gps_t) > 0
+    if blueprint:
+        send_blueprint(rec, has_gps=has_gps, n_slots=len(series),
+                       error_range_deg=_error_ranges(result),
+                       map_zoom=map_zoom_for(gps_ll[:, 0], gps_ll[:, 1]) if has_gps else None,
+                       time_span=fl.time_span)
+
+    a, b = fl.time_span
+    duration = max(b - a, max((float(s.t[-1] - s.t[0]) for _, _, s in series if len(s.t)),
+                              default=0.0))
+    hz = scalar_rate_for(duration)
+
+    setup_world(rec)
+    for slot, (key, label, s) in enumerate(series):
+        setup_series(rec, key, color=colors[key], label=label, slot=slot,
+                     ghost=key != ref_key, errors=key in result.comparisons)
+    for key, c in result.comparisons.items():
+        if key not in {s[0] for s in series}:
+            setup_series(rec, key, color=colors[key], errors=True)
+
+    others = [k for k, _, _ in series if k != ref_key]
+    for key, _, s in series:
+        log_attitude_columns(rec, key, s.t, s.q, scalar_max_hz=hz,
+                             ghost_in=others if key == ref_key else ())
+    for key, c in result.comparisons.items():
+        log_error_columns(rec, key, c.t, c.error_deg, c.scored, max_hz=hz)
+
+    if has_gps:
+        log_gps(rec, fl.gps)
+    rec.log("summary", rr.TextDocument(summary_markdown(result), media_type="text/markdown"),
+            static=True)
+    log_events(rec, list(result.events) + _summary_events(result, b))

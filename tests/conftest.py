@@ -1,0 +1,60 @@
+"""Shared fixtures: the real logs in ../shared/logs (skipped where absent) and simulated flights."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_LOGS = ROOT.parent / "shared" / "logs"
+SAMPLE_LOGS = ROOT / "sample_logs"
+
+
+def shared_log_paths() -> list[Path]:
+    if not SHARED_LOGS.is_dir():
+        return []
+    return sorted(p for p in SHARED_LOGS.iterdir() if p.suffix in (".bin", ".tlog"))
+
+
+def shared_log_params():
+    """pytest params for every shared log; one skipped param when the folder is absent."""
+    paths = shared_log_paths()
+    if not paths:
+        return [pytest.param(None, marks=pytest.mark.skip(
+            reason=f"real logs not found at {SHARED_LOGS} (they live beside the project, not in it)"))]
+    return [pytest.param(p, id=p.name) for p in paths]
+
+
+def shared_log(name: str) -> Path:
+    path = SHARED_LOGS / name
+    if not path.exists():
+        pytest.skip(f"real log {name} not found in {SHARED_LOGS}")
+    return path
+
+
+_flights = {}
+
+
+def read_shared(name: str):
+    """A shared log, read once per test session."""
+    from mavattitude.readers import read_log
+
+    if name not in _flights:
+        _flights[name] = read_log(str(shared_log(name)))
+    return _flights[name]
+
+
+@pytest.fixture(scope="session")
+def sim_logs(tmp_path_factory):
+    """Small simulated logs with known truth, written once per session: {name: (SimFlight, path)}."""
+    from mavattitude.sim import simulate, write_log
+
+    out = tmp_path_factory.mktemp("sim")
+    logs = {}
+    for scenario, duration, suffix, rate in [("static", 40.0, ".bin", 100.0),
+                                             ("figure8", 90.0, ".tlog", 50.0),
+                                             ("figure8", 90.0, ".bin", 100.0)]:
+        sim = simulate(scenario, duration, seed=3, imu_rate=rate)
+        name = f"{scenario}{suffix}"
+        logs[name] = (sim, write_log(sim, out / name))
+    return logs

@@ -1,0 +1,163 @@
+"""Readers: real logs (units, clocks, sources) and simulated logs with exact truth."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import read_shared, shared_log, shared_log_params
+from mavattitude import quaternion as quat
+from mavattitude.errors import InputError
+from mavattitude.flight import GRAVITY
+from mavattitude.readers import best_imu_source, imu_rate, read_log
+from mavattitude.readers.collect import Collector
+
+
+# ---------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize("content, problem", [
+    (b"", "empty file"),
+    (b"hello, this is not a log at all" * 4, "not a DataFlash .bin file"),
+])
+def test_bad_files_name_the_problem(tmp_path, content, problem):
+    path = tmp_path / "broken.bin"
+    path.write_bytes(content)
+    with pytest.raises(InputError) as err:
+        read_log(str(path))
+    assert str(path) in str(err.value) and problem in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_missing_file_and_folder(tmp_path):
+    with pytest.raises(InputError, match="no such file"):
+        read_log(str(tmp_path / "nope.tlog"))
+    with pytest.raises(InputError, match="is a folder"):
+        read_log(str(tmp_path))
+
+
+def test_truncated_dataflash_still_reads_what_is_there(sim_logs, tmp_path):
+    _, path = sim_logs["figure8.bin"]
+    data = path.read_bytes()
+    cut = tmp_path / "cut.bin"
+    cut.write_bytes(data[: len(data) // 2 + 7])  # mid-record
+    flight = read_log(str(cut))
+    full = read_log(str(path))
+    n = len(flight.imu["IMU[0]"].t)
+    assert 0.3 * len(full.imu["IMU[0]"].t) < n < 0.7 * len(full.imu["IMU[0]"].t)
+
+
+# ---------------------------------------------------------------- clocks
+
+
+def test_collector_splits_reboots_sorts_and_dedupes():
+    col = Collector()
+    for t in [10.0, 10.1, 10.3, 10.2, 10.3, 10.4]:  # one reordered, one repeated
+        col.add("imu", "A", t, (t,))
+    for t in [0.5, 0.6, 0.7]:  # the clock went back: a reboot
+        col.add("imu", "A", t, (t,))
+    assert len(col.segments) == 2
+    t, v, stats = col.columns("imu", "A", 0)
+    np.testing.assert_allclose(t, [10.0, 10.1, 10.2, 10.3, 10.4])
+    assert stats == {"reordered": 1, "duplicates": 1}
+    t, _, _ = col.columns("imu", "A", 1)
+    np.testing.assert_allclose(t, [0.5, 0.6, 0.7])
+    assert col.longest_segment() == 0
+
+
+def test_reboot_in_a_real_tlog_keeps_the_longest_segment():
+    flight = read_shared("copter-4.1-flight.tlog")  # three power cycles in one file
+    assert len(flight.segments) == 3
+    assert flight.segment_index == 0
+    assert any("reboot" in n for n in flight.notes)
+    other = read_log(str(shared_log("copter-4.1-flight.tlog")), segment=2)
+    assert other.time_span[1] < flight.time_span[1]
+    with pytest.raises(InputError, match="segment 7 does not exist"):
+        read_log(str(shared_log("copter-4.1-flight.tlog")), segment=7)
+
+
+# ---------------------------------------------------------------- real logs
+
+
+@pytest.mark.parametrize("path", shared_log_params())
+def test_every_shared_log_reads_in_si_units(path):
+    flight = read_shared(path.name)
+    assert flight.imu and flight.attitude is not None
+    for s in flight.imu.values():
+        assert np.all(np.diff(s.t) > 0)
+        # Still or flying, the median specific force is about one g: m/s², not mG or g.
+        assert abs(np.median(np.linalg.norm(s.accel, axis=1)) - GRAVITY) < 0.8
+        assert np.abs(s.gyro).max() < 35.0  # rad/s, not mrad/s or deg/s
+    for s in flight.mag.values():
+        strength = np.median(np.linalg.norm(s.field, axis=1))
+        assert 15e-6 < strength < 80e-6  # tesla: Earth's field
+    np.testing.assert_allclose(np.linalg.norm(flight.attitude.q, axis=1), 1.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name, truth_source", [("sitl-copter-4.7-400hz.bin", "SIM"),
+                                                 ("sitl-copter-4.4.bin", "SIM"),
+                                                 ("sitl-copter-4.7-50hz.tlog", "SIMSTATE"),
+                                                 ("sitl-plane-4.7-circuit.tlog", "SIMSTATE")])
+def test_autopilot_attitude_matches_truth_in_units_and_frame(name, truth_source):
+    """ATT (degrees, yaw 0-360) and ATTITUDE (radians) land in the same frame as the truth."""
+    flight = read_shared(name)
+    assert flight.truth.source == truth_source
+    truth = quat.interpolate(flight.truth.t, flight.truth.q, flight.attitude.t)
+    ok = ~np.isnan(truth[:, 0])
+    err = quat.wrap_deg(np.degrees(quat.to_euler(flight.attitude.q[ok]) - quat.to_euler(truth[ok])))
+    assert np.median(np.abs(err[:, :2])) < 1.0  # EKF3 vs truth: tenths of a degree
+    assert np.median(np.abs(err[:, 2])) < 3.0
+
+
+def test_old_log_clocks_and_gps_boot_time():
+    flight = read_shared("copter-3.3-loiter-rtl.bin")  # TimeMS clock; GPS boot time in T
+    imu = flight.imu["IMU[0]"]
+    assert imu_rate(imu) == pytest.approx(50.0, rel=0.05)
+    assert imu.t[0] <= flight.gps.t[0] < imu.t[-1]
+    assert flight.gps.t[-1] <= imu.t[-1] + 1.0
+    assert flight.vehicle == "ArduCopter"
+
+
+def test_best_imu_prefers_float_data_at_the_same_rate():
+    assert best_imu_source(read_shared("sitl-copter-4.7-50hz.tlog")) == "HIGHRES_IMU"
+    assert best_imu_source(read_shared("sitl-copter-4.7-400hz.bin")) == "IMU[0]"
+    flight = read_shared("sitl-copter-4.7-400hz.bin")
+    assert imu_rate(flight.imu["IMU[0]"]) == pytest.approx(400.0, rel=0.01)
+
+
+def test_highres_imu_magnetometer_unit_is_repaired():
+    flight = read_shared("sitl-copter-4.7-50hz.tlog")
+    highres = np.median(np.linalg.norm(flight.mag["HIGHRES_IMU"].field, axis=1))
+    raw = np.median(np.linalg.norm(flight.mag["RAW_IMU"].field, axis=1))
+    assert highres == pytest.approx(raw, rel=0.01)
+    assert any("HIGHRES_IMU: magnetometer strength" in n for n in flight.notes)
+
+
+def test_declination_parameter_and_firmware():
+    flight = read_shared("sitl-copter-4.7-400hz.bin")
+    assert flight.params["COMPASS_DEC"] == pytest.approx(0.2234, abs=1e-3)
+    assert flight.firmware.startswith("ArduCopter V4.7")
+
+
+# ---------------------------------------------------------------- simulated logs, exact truth
+
+
+@pytest.mark.parametrize("name", ["figure8.tlog", "figure8.bin"])
+def test_simulated_log_round_trips_through_the_reader(sim_logs, name):
+    sim, path = sim_logs[name]
+    flight = read_log(str(path))
+    source = best_imu_source(flight)
+    imu = flight.imu[source]
+    # Same samples, same clock (µs or ms resolution), same units.
+    n = min(len(imu.t), len(sim.t))
+    assert abs(len(imu.t) - len(sim.t)) <= 1
+    np.testing.assert_allclose(imu.t[:n], sim.t[:n], atol=1e-3)
+    tol_gyro, tol_acc = (1.1e-3, 0.011) if name.endswith(".tlog") else (1e-6, 1e-5)  # mrad/s, mG
+    np.testing.assert_allclose(imu.gyro[:n], sim.imu[0].gyro[:n], atol=tol_gyro)
+    np.testing.assert_allclose(imu.accel[:n], sim.imu[0].accel[:n], atol=tol_acc)
+    # Truth in the log matches the simulator's truth.
+    truth = quat.interpolate(sim.t, sim.truth.q, flight.truth.t)
+    ok = ~np.isnan(truth[:, 0])
+    err = quat.wrap_deg(np.degrees(quat.to_euler(flight.truth.q[ok]) - quat.to_euler(truth[ok])))
+    assert np.abs(err).max() < 0.05
+    assert flight.params["COMPASS_DEC"] == pytest.approx(sim.declination_rad, abs=1e-6)
+    assert flight.gps is not None and flight.baro is not None and flight.mag

@@ -1,0 +1,244 @@
+"""The Rerun view, on a synthetic replay (the pipeline is not needed).
+
+Run as a script to write the synthetic recording for a look in a viewer:
+    python tests/test_view.py /tmp/synthetic.rrd [--duration 120]
+"""
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from mavattitude import quaternion as quat  # noqa: E402
+from mavattitude import view  # noqa: E402
+from mavattitude.flight import AttitudeSeries, Flight, GpsSeries, ImuSeries  # noqa: E402
+from mavattitude.metrics import AXES, AxisMetrics, Comparison  # noqa: E402
+from mavattitude.pipeline import Event, ReplayResult  # noqa: E402
+
+# ---------------------------------------------------------------- synthetic replay
+
+
+def _true_euler(t):
+    """A flight that rolls, pitches and turns through north-south (yaw crosses ±180°)."""
+    roll = np.radians(25.0) * np.sin(2 * np.pi * t / 17.0) * np.clip(t / 10.0, 0, 1)
+    pitch = np.radians(12.0) * np.sin(2 * np.pi * t / 11.0 + 0.7)
+    yaw = np.radians(140.0) + np.radians(2.5) * (t - 30.0) + np.radians(20.0) * np.sin(t / 7.0)
+    return roll, pitch, quat.wrap_pi(yaw)
+
+
+def _estimate(t, rng, bias_deg, noise_deg, start_err_deg, tau):
+    roll, pitch, yaw = _true_euler(t)
+    decay = np.exp(-(t - t[0]) / tau)
+    e = [np.radians(bias_deg[k] + start_err_deg[k] * decay) + np.radians(noise_deg)
+         * rng.standard_normal(len(t)) for k in range(3)]
+    return quat.from_euler(roll + e[0], pitch + e[1], yaw + e[2])
+
+
+def _axis_metrics(err):
+    a = np.abs(err)
+    if len(a) == 0:
+        return None
+    hist = np.histogram(a, bins=[0, 0.5, 1.0, 2.0, np.inf])[0] / len(a)
+    return AxisMetrics(n=len(a), mae=float(a.mean()), rmse=float(np.sqrt((a ** 2).mean())),
+                       mse=float((a ** 2).mean()), r2=0.99, max=float(a.max()),
+                       sigma1=float(np.quantile(a, 0.6826)),
+                       sigma3=float(np.quantile(a, 0.9973)), buckets=tuple(hist))
+
+
+def _compare(name, est: AttitudeSeries, ref: AttitudeSeries, warmup_s=10.0):
+    inside = (ref.t >= est.t[0]) & (ref.t <= est.t[-1])
+    t = ref.t[inside]
+    q_est = quat.interpolate(est.t, est.q, t)
+    err = quat.wrap_deg(np.degrees(quat.to_euler(q_est) - quat.to_euler(ref.q[inside])))
+    scored = t >= est.t[0] + warmup_s
+    axes = {axis: _axis_metrics(err[scored, k]) for k, axis in enumerate(AXES)}
+    return Comparison(estimator=name, reference=ref.source, t=t, error_deg=err, scored=scored,
+                      axes=axes, warmup_s=warmup_s)
+
+
+def make_replay(duration=120.0, imu_hz=400.0, att_hz=25.0, truth_hz=50.0,
+                reference="truth", gps=True, t0=30.0, seed=1) -> ReplayResult:
+    rng = np.random.default_rng(seed)
+    t_imu = t0 + np.arange(0.0, duration, 1.0 / imu_hz)
+    n = len(t_imu)
+    imu = ImuSeries("IMU[0]", t_imu, np.zeros((n, 3)),
+                    np.tile([0.0, 0.0, -9.80665], (n, 1)))
+    t_att = t0 + np.arange(0.0, duration, 1.0 / att_hz)
+    t_truth = t0 + np.arange(0.0, duration, 1.0 / truth_hz)
+    truth = AttitudeSeries("SIM", t_truth, quat.from_euler(*_true_euler(t_truth)))
+    att = AttitudeSeries("ATT", t_att, _estimate(t_att, rng, (0.3, -0.2, 1.0), 0.1,
+                                                 (0, 0, 0), 1.0))
+    fl = Flight(path="synthetic.bin", format="bin", imu={"IMU[0]": imu}, attitude=att,
+                truth=truth if reference == "truth" else None, vehicle="ArduPlane",
+                firmware="ArduPlane V4.5.0 (synthetic)", segments=[(t0, t0 + duration)],
+                notes=["synthetic flight for the view tests"])
+    if gps:
+        t_gps = t0 + np.arange(0.0, duration, 0.2)
+        ang = 2 * np.pi * (t_gps - t0) / duration
+        lat = -35.363261 + 0.004 * np.sin(ang)
+        lon = 149.165230 + 0.006 * (1 - np.cos(ang))
+        m = len(t_gps)
+        fl.gps = GpsSeries("GPS[0]", t_gps, lat, lon, np.full(m, 600.0), np.zeros((m, 3)),
+                           np.full(m, 3), np.full(m, 12), np.full(m, 1.5))
+    estimates = {
+        "mahony": AttitudeSeries("mahony", t_imu, _estimate(t_imu, rng, (0.5, 0.8, -2.0), 0.3,
+                                                            (20, -15, 60), 2.5)),
+        "ncs-eskf": AttitudeSeries("ncs-eskf", t_imu, _estimate(t_imu, rng, (-0.2, 0.1, 0.8),
+                                                                0.15, (-10, 8, -40), 1.5)),
+    }
+    ref = truth if reference == "truth" else att
+    comparisons = {name: _compare(name, s, ref) for name, s in estimates.items()}
+    if reference == "truth":
+        comparisons["autopilot"] = _compare("autopilot", att, truth)
+    events = [Event(t0, "info", "replay started on IMU[0]"),
+              Event(t0 + 10.0, "info", "warm-up over: scoring starts"),
+              Event(t0 + 0.45 * duration, "warn", "mahony: accelerometer rejected for 1.2 s"),
+              Event(t0 + 0.7 * duration, "info", "mode change: AUTO")]
+    return ReplayResult(flight=fl, imu_source="IMU[0]", reference=ref, estimates=estimates,
+                        comparisons=comparisons, events=events)
+
+
+def write_rrd(result: ReplayResult, path) -> None:
+    rec = view.open_sink("mavattitude", "synthetic replay", rrd=str(path))
+    view.log_replay(result, rec)
+    view.close_sink(rec)
+
+
+# ---------------------------------------------------------------- helpers
+
+RERUN = shutil.which("rerun")
+
+
+def _rrd_text(path) -> str:
+    out = subprocess.run([RERUN, "rrd", "print", "-v", str(path)], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    return out.stdout + out.stderr
+
+
+@pytest.fixture(scope="module")
+def truth_rrd(tmp_path_factory):
+    path = tmp_path_factory.mktemp("view") / "truth.rrd"
+    write_rrd(make_replay(duration=60.0), path)
+    return path
+
+
+# ---------------------------------------------------------------- tests
+
+
+@pytest.mark.skipif(RERUN is None, reason="rerun CLI not found")
+def test_rrd_verifies(truth_rrd):
+    out = subprocess.run([RERUN, "rrd", "verify", str(truth_rrd)], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+
+
+@pytest.mark.skipif(RERUN is None, reason="rerun CLI not found")
+def test_entity_paths_present(truth_rrd):
+    text = _rrd_text(truth_rrd)
+    expected = ["/world", "/summary", "/events", "/map/track", "/map/position",
+                "/world/truth/body", "/world/autopilot/body", "/world/mahony/body",
+                "/world/ncs-eskf/body", "/world/mahony/reference",
+                "/world/autopilot/reference"]
+    for axis in AXES:
+        expected += [f"/attitude/{axis}/{s}" for s in ("truth", "autopilot", "mahony",
+                                                       "ncs-eskf")]
+        expected += [f"/error/{axis}/{s}" for s in ("autopilot", "mahony", "ncs-eskf")]
+        expected += [f"/error/{axis}/mahony/unscored"]
+    missing = [p for p in expected if p not in text]
+    assert not missing, missing
+    assert "/world/truth/reference" not in text  # the reference has no ghost of itself
+
+
+def test_no_per_sample_log_calls(tmp_path, monkeypatch):
+    calls = {"log": 0, "send_columns": 0}
+    orig_log, orig_cols = rr.RecordingStream.log, rr.RecordingStream.send_columns
+
+    def counting_log(self, *a, **k):
+        calls["log"] += 1
+        return orig_log(self, *a, **k)
+
+    def counting_cols(self, *a, **k):
+        calls["send_columns"] += 1
+        return orig_cols(self, *a, **k)
+
+    def forbidden(*a, **k):
+        raise AssertionError("use the recording passed in, not the global rr.log")
+
+    monkeypatch.setattr(rr.RecordingStream, "log", counting_log)
+    monkeypatch.setattr(rr.RecordingStream, "send_columns", counting_cols)
+    monkeypatch.setattr(rr, "log", forbidden)
+    monkeypatch.setattr(rr, "send_columns", forbidden)
+
+    counts = []
+    for duration in (20.0, 80.0):
+        calls.update(log=0, send_columns=0)
+        result = make_replay(duration=duration)
+        write_rrd(result, tmp_path / f"d{duration:g}.rrd")
+        counts.append(dict(calls))
+    samples = sum(len(s.t) for s in make_replay(duration=20.0).estimates.values())
+    assert counts[0] == counts[1], counts  # independent of the number of samples
+    assert counts[0]["log"] < 60 and counts[0]["log"] < samples / 100, counts
+
+
+def test_decimation_rules():
+    t = np.arange(0.0, 10.0, 1 / 400)
+    idx = view._bin_first(t, 50.0)
+    assert 495 <= len(idx) <= 505
+    assert len(view._bin_first(t[::4], 200.0)) == len(t[::4])  # 100 Hz kept whole
+    y = np.zeros_like(t)
+    y[1234] = 42.0
+    y[2345] = -17.0
+    idx = view._bin_minmax(t, y, 200.0)
+    assert len(idx) <= 2 * 10 * 100 + 2 and 1234 in idx and 2345 in idx
+    assert np.all(np.diff(idx) > 0)
+    assert view.scalar_rate_for(60.0) == 200.0
+    assert view.scalar_rate_for(3600.0) == pytest.approx(view.SCALAR_MAX_POINTS / 3600.0)
+
+
+def test_reference_autopilot_without_truth_or_gps(tmp_path):
+    result = make_replay(duration=30.0, reference="autopilot", gps=False)
+    path = tmp_path / "att.rrd"
+    write_rrd(result, path)
+    if RERUN:
+        text = _rrd_text(path)
+        assert "/world/autopilot/body" in text and "/world/mahony/reference" in text
+        assert "/map/" not in text and "/attitude/roll/truth" not in text
+
+
+def test_colors_fixed_and_distinct():
+    c = view.assign_colors(["truth", "autopilot", "mahony", "ncs-eskf", "mystery", "other"])
+    assert c["truth"] == view.TRUTH_COLOR and c["autopilot"] == view.AUTOPILOT_COLOR
+    assert len(set(c.values())) == len(c)
+    assert view.assign_colors(["mahony"])["mahony"] == c["mahony"]
+
+
+def test_long_log_is_fast(tmp_path):
+    """An hour at 400 Hz with two estimators stays in seconds and a modest file."""
+    import time
+    result = make_replay(duration=3600.0, att_hz=10.0, truth_hz=50.0)
+    start = time.perf_counter()
+    write_rrd(result, tmp_path / "hour.rrd")
+    elapsed = time.perf_counter() - start
+    size_mb = (tmp_path / "hour.rrd").stat().st_size / 1e6
+    assert elapsed < 30.0, elapsed
+    assert size_mb < 200, size_mb
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser(description="write the synthetic replay as an .rrd")
+    ap.add_argument("out")
+    ap.add_argument("--duration", type=float, default=120.0)
+    ap.add_argument("--reference", default="truth", choices=["truth", "autopilot"])
+    args = ap.parse_args()
+    write_rrd(make_replay(duration=args.duration, reference=args.reference), args.out)
+    print(args.out)
