@@ -17,6 +17,7 @@ reference is neither of those, or an estimator's name, escaped for entity paths)
 - ``world``  static ViewCoordinates FRD: the 3D world is NED (x north, y east, z down)
 - ``world/<s>``  static Transform3D: the series' slot, side by side along east
 - ``world/<s>/body``  Transform3D quaternion column (body -> NED), static Boxes3D + axes
+- ``world/<s>/label``  static Points3D carrying the series' name above its box
 - ``world/<s>/reference``  the reference attitude again, as a grey wireframe "ghost" in
   every other slot, so an estimate's error is visible as the gap between box and ghost
 - ``map/track``  static GeoLineStrings of the GPS track; ``map/position`` GeoPoints over time
@@ -176,6 +177,21 @@ def close_sink(rec: rr.RecordingStream) -> None:
 # ---------------------------------------------------------------- blueprint
 
 
+def _text_log_columns():
+    """Time, level and text: the entity path column says nothing here (always /events)."""
+    enc = rrb.encodings
+    try:
+        return rrb.TextLogColumns(
+            timeline_columns=[enc.TimelineColumn(TIMELINE)],
+            text_log_columns=[enc.TextLogColumn("LogLevel"), enc.TextLogColumn("Body"),
+                              enc.TextLogColumn("EntityPath", visible=False)])
+    except Exception:  # noqa: BLE001 - unstable blueprint type; the default is fine
+        return None
+
+
+_TEXT_LOG_COLUMNS = _text_log_columns()
+
+
 def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=None,
                    map_zoom: float | None = None, time_span: tuple[float, float] | None = None,
                    live: bool = False) -> rrb.Blueprint:
@@ -218,10 +234,10 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
     span = SLOT_SPACING * max(n_slots - 1, 0)
     # Look north from behind and above the row of boxes (NED: up is -z), a little from
     # the west so the boxes read as 3D; far enough back to frame every slot.
-    d = 0.9 * (span + 3.0)
+    d = 0.95 * (span + 3.0)
     eye = rrb.EyeControls3D(
         kind="Orbital",
-        position=(-0.85 * d, span / 2 - 0.3 * d, -0.45 * d),
+        position=(-0.85 * d, span / 2 - 0.12 * d, -0.45 * d),
         look_target=(0.0, span / 2, 0.0),
         eye_up=(0.0, 0.0, -1.0),
     )
@@ -229,7 +245,7 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
                                eye_controls=eye, line_grid=rrb.LineGrid3D(visible=True,
                                                                           spacing=1.0))
     tabs = [rrb.TextDocumentView(origin="summary", name="summary"),
-            rrb.TextLogView(origin="events", name="events")]
+            rrb.TextLogView(origin="events", name="events", columns=_TEXT_LOG_COLUMNS)]
     if has_gps:
         tabs.insert(0, rrb.MapView(origin="map", name="GPS track", zoom=map_zoom))
     right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[3, 2])
@@ -299,9 +315,12 @@ def setup_series(rec: rr.RecordingStream, name: str, *, color: Color, label: str
     base = f"world/{_part(name)}"
     rec.log(base, rr.Transform3D(translation=(0.0, SLOT_SPACING * slot, 0.0)), static=True)
     rec.log(body_path(name),
-            rr.Boxes3D(half_sizes=[BOX_HALF_SIZES], colors=[(*color, 255)], labels=[label],
-                       fill_mode="Solid"),
+            rr.Boxes3D(half_sizes=[BOX_HALF_SIZES], colors=[(*color, 255)], fill_mode="Solid"),
             rr.TransformAxes3D(AXIS_LENGTH),
+            static=True)
+    # The name floats above the slot (NED: up is -z) and does not turn with the box.
+    rec.log(f"{base}/label", rr.Points3D(positions=[(0.0, 0.0, -1.25)], radii=[0.001],
+                                         colors=[color], labels=[label], show_labels=True),
             static=True)
     if ghost:
         rec.log(ghost_path(name),

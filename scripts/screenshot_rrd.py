@@ -80,6 +80,9 @@ def main(argv=None) -> int:
                     help="the web viewer's graphics backend (webgl works with SwiftShader)")
     ap.add_argument("--color-scheme", default="light", choices=["light", "dark"],
                     help="the browser's preferred colour scheme (the viewer follows it)")
+    ap.add_argument("--click", action="append", default=[], metavar="X,Y",
+                    help="after the wait, click here (viewport pixels) and take one more "
+                         "screenshot OUT-clickN.png; repeatable (e.g. to open a tab)")
     ap.add_argument("--shots", type=int, default=1,
                     help="take N screenshots spread over the wait (OUT-1.png, ...)")
     args = ap.parse_args(argv)
@@ -119,6 +122,13 @@ def main(argv=None) -> int:
             for k in range(shots):
                 page.wait_for_timeout(1000 * args.wait / shots)
                 out = args.out if k == shots - 1 else f"{base}-{k + 1}{ext}"
+                shoot(page, out)
+                print(f"wrote {out}", file=sys.stderr)
+            for k, xy in enumerate(args.click, start=1):
+                x, y = (float(v) for v in xy.split(","))
+                page.mouse.click(x, y)
+                page.wait_for_timeout(8000)
+                out = f"{base}-click{k}{ext}"
                 shoot(page, out)
                 print(f"wrote {out}", file=sys.stderr)
             errors = [m for m in messages if m.startswith("error")]

@@ -1,8 +1,6 @@
 """metrics.compare and axis_metrics on cases whose answers are known by hand."""
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -241,12 +239,10 @@ def test_unsorted_estimate_is_sorted():
     np.testing.assert_allclose(a.error_deg, b.error_deg, atol=1e-12)
 
 
-def test_million_samples_is_fast():
+def test_million_samples():
+    """An hour-scale log: every sample after the warm-up is scored (speed is benchmarked, not tested)."""
     t = np.arange(0.0, 2500.0, 0.0025)  # 10^6 reference samples at 400 Hz
     ref = moving_reference(t)
     est = series(t + 0.001, 10 * np.sin(0.3 * t) + 0.3, 5 * np.cos(0.2 * t), 60 * np.sin(0.05 * t))
-    start = time.perf_counter()
     c = compare(ref, est, align_yaw=True)
-    elapsed = time.perf_counter() - start
-    assert c.axes["roll"].n > 990_000
-    assert elapsed < 10.0, f"compare took {elapsed:.1f} s on 10^6 samples"
+    assert c.axes["roll"].n == np.count_nonzero((t >= t[0] + 10.001) & (t <= t[-1] + 0.001))

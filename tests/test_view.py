@@ -185,7 +185,8 @@ def test_no_per_sample_log_calls(tmp_path, monkeypatch):
         counts.append(dict(calls))
     samples = sum(len(s.t) for s in make_replay(duration=20.0).estimates.values())
     assert counts[0] == counts[1], counts  # independent of the number of samples
-    assert counts[0]["log"] < 60 and counts[0]["log"] < samples / 100, counts
+    # static styling only: about a dozen calls per series, whatever the length
+    assert counts[0]["log"] < 150 and counts[0]["log"] < samples / 50, counts
 
 
 def test_decimation_rules():

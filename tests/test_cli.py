@@ -1,0 +1,171 @@
+"""The mavattitude command end to end: outputs, exit codes and one-line errors."""
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import SAMPLE_LOGS, shared_log, shared_log_params
+from mavattitude.cli import main
+
+AXES = ("roll", "pitch", "yaw")
+METRIC_KEYS = {"mae", "rmse", "mse", "r2", "max", "sigma1", "sigma3", "buckets"}
+
+
+def run(capsys, *args) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def rrd_verifies(path: Path) -> bool:
+    rerun = Path(sys.executable).with_name("rerun")
+    cmd = [str(rerun)] if rerun.exists() else [sys.executable, "-m", "rerun"]
+    done = subprocess.run(cmd + ["rrd", "verify", str(path)], capture_output=True, text=True)
+    return done.returncode == 0
+
+
+def check_outputs(tmp_path: Path, estimators: list[str], reference: str) -> dict:
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    assert set(metrics) == {"log", "reference", "estimators"}
+    assert metrics["reference"] == reference
+    assert set(metrics["estimators"]) >= set(estimators)
+    for name, per_axis in metrics["estimators"].items():
+        assert set(per_axis) == set(AXES)
+        for axis in AXES:
+            assert METRIC_KEYS <= set(per_axis[axis])
+            assert set(per_axis[axis]["buckets"]) == {"lt_0.5", "0.5_1", "1_2", "gt_2"}
+            assert sum(per_axis[axis]["buckets"].values()) == pytest.approx(1.0)
+    for name in ["reference"] + estimators:
+        with open(tmp_path / "csv" / f"{name}.csv") as f:
+            rows = list(csv.reader(f))
+        assert rows[0] == ["time_s", "roll_deg", "pitch_deg", "yaw_deg"]
+        times = [float(r[0]) for r in rows[1:]]
+        assert len(times) > 10 and times == sorted(times)
+        assert all(-180.0 <= float(r[3]) < 180.0 for r in rows[1:])
+    assert rrd_verifies(tmp_path / "r.rrd")
+    return metrics
+
+
+def test_replay_sample_log_writes_every_output(tmp_path, capsys):
+    code, out, err = run(capsys, "replay", SAMPLE_LOGS / "figure8.tlog", "--rrd", tmp_path / "r.rrd",
+                         "--json", tmp_path / "m.json", "--export", tmp_path / "csv")
+    assert code == 0, err
+    assert "mahony" in out and "MAE" in out and "RMSE" in out and "R²" in out
+    metrics = check_outputs(tmp_path, ["mahony"], "ATTITUDE")
+    assert metrics["estimators"]["mahony"]["roll"]["mae"] < 3.0
+
+
+def test_replay_against_truth_scores_the_autopilot_too(tmp_path, capsys):
+    code, out, err = run(capsys, "replay", SAMPLE_LOGS / "figure8.bin", "--reference", "truth",
+                         "--rrd", tmp_path / "r.rrd", "--json", tmp_path / "m.json",
+                         "--export", tmp_path / "csv")
+    assert code == 0, err
+    metrics = check_outputs(tmp_path, ["mahony"], "SIM")
+    autopilot = metrics["estimators"]["autopilot"]
+    assert autopilot["roll"]["mae"] < 0.5  # the simulated autopilot's error is ~0.15° RMS
+    assert "autopilot" in out
+
+
+def test_default_sink_is_log_name_rrd_in_current_folder(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, out, _ = run(capsys, "replay", SAMPLE_LOGS / "static.bin")
+    assert code == 0
+    assert (tmp_path / "static.rrd").exists()
+    assert "rerun static.rrd" in out
+
+
+def test_info_text_and_json(capsys):
+    code, out, _ = run(capsys, "info", SAMPLE_LOGS / "figure8.tlog")
+    assert code == 0 and "RAW_IMU" in out and "SCALED_IMU2" in out
+    code, out, _ = run(capsys, "info", SAMPLE_LOGS / "figure8.tlog", "--json")
+    info = json.loads(out)
+    assert info["best_imu"] == "RAW_IMU"
+    assert info["imu_sources"]["RAW_IMU"]["rate_hz"] == pytest.approx(50.0, rel=0.01)
+    assert info["imu_sources"]["RAW_IMU"]["accel_norm_ms2"]["median"] == pytest.approx(9.8, abs=0.2)
+    assert info["sensors"]["ground_truth"] == "SIMSTATE"
+    assert info["message_counts"]["RAW_IMU"] > 4000
+    assert info["compass_declination_deg"] == pytest.approx(5.0, abs=1e-3)
+    assert info["duration_s"] == pytest.approx(100.0, abs=1.0)
+
+
+def test_simulate_writes_a_log_replay_reads(tmp_path, capsys):
+    out_path = tmp_path / "hover.bin"
+    code, out, err = run(capsys, "simulate", "--scenario", "hover", "--duration", "30", "-o", out_path)
+    assert code == 0, err
+    assert out_path.stat().st_size > 10_000
+    code, _, err = run(capsys, "replay", out_path, "--no-view", "--warmup", "5")
+    assert code == 0, err
+    code, out, _ = run(capsys, "simulate", "--list")
+    assert code == 0 and "figure8" in out and "static" in out
+
+
+@pytest.mark.parametrize("args, code, text", [
+    (["replay", "missing.bin"], 1, "missing.bin: no such file"),
+    (["info", "missing.tlog"], 1, "missing.tlog: no such file"),
+    (["replay", SAMPLE_LOGS / "static.bin", "--estimators", "nope", "--no-view"], 2, "unknown estimator"),
+    (["replay", SAMPLE_LOGS / "static.bin", "--imu", "IMU[7]", "--no-view"], 2, "IMU[7]"),
+    (["replay", SAMPLE_LOGS / "static.bin", "--warmup", "-1", "--no-view"], 2, "--warmup"),
+    (["simulate", "--scenario", "nope", "-o", "x.tlog"], 2, "unknown scenario"),
+    (["simulate", "-o", "x.csv"], 2, "must end in .tlog or .bin"),
+])
+def test_errors_are_one_line_with_exit_code(capsys, args, code, text):
+    got, out, err = run(capsys, *args)
+    assert got == code
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and text in lines[0] and "Traceback" not in err
+
+
+def test_garbage_file_is_one_line_error(tmp_path, capsys):
+    bad = tmp_path / "junk.tlog"
+    bad.write_bytes(bytes(range(256)) * 10)
+    code, _, err = run(capsys, "replay", bad, "--no-view")
+    assert code == 1
+    assert err.strip().splitlines() == [err.strip()] and str(bad) in err
+
+
+def test_truth_reference_on_a_log_without_truth(capsys):
+    code, _, err = run(capsys, "replay", shared_log("copter-3.4-erlebrain-22.bin"),
+                       "--reference", "truth", "--no-view")
+    assert code == 2 and "no ground truth" in err
+
+
+def test_module_and_console_script_help():
+    for cmd in ([sys.executable, "-m", "mavattitude", "--help"],
+                [sys.executable, "-m", "mavattitude", "replay", "--help"]):
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        assert done.returncode == 0 and "usage: mavattitude" in done.stdout
+    done = subprocess.run([sys.executable, "-m", "mavattitude"], capture_output=True, text=True)
+    assert done.returncode == 2
+
+
+# ---------------------------------------------------------------- every shared log (issue 2, "done when")
+
+# Roll and pitch MAE bounds for mahony against the autopilot's attitude.
+COPTER_BIN_MAX_DEG = 3.0
+PLANE_BIN_MAX_DEG = 5.0  # 10 Hz IMU, coordinated turns
+TLOG_MAX_DEG = 10.0  # telemetry IMU at 1-50 Hz
+
+
+def _bound(name: str) -> float:
+    if name.endswith(".tlog"):
+        return TLOG_MAX_DEG
+    return PLANE_BIN_MAX_DEG if name.startswith("plane") else COPTER_BIN_MAX_DEG
+
+
+@pytest.mark.parametrize("path", shared_log_params())
+def test_every_shared_log_replays_with_mahony(path, tmp_path, capsys):
+    code, out, err = run(capsys, "replay", path, "--estimators", "mahony",
+                         "--rrd", tmp_path / "r.rrd", "--json", tmp_path / "m.json",
+                         "--export", tmp_path / "csv")
+    assert code == 0, err
+    assert "mahony" in out and "MAE" in out
+    metrics = check_outputs(tmp_path, ["mahony"], json.loads((tmp_path / "m.json").read_text())["reference"])
+    mahony = metrics["estimators"]["mahony"]
+    bound = _bound(path.name)
+    assert mahony["roll"]["mae"] <= bound and mahony["pitch"]["mae"] <= bound, (
+        f"{path.name}: roll {mahony['roll']['mae']:.2f}°, pitch {mahony['pitch']['mae']:.2f}° > {bound}°")
