@@ -34,18 +34,20 @@ class _Progress:
 
     def __init__(self, label: str):
         self.label = label
-        self.enabled = sys.stderr.isatty()
         self.last = 0.0
+        # Our own handle on the terminal: the reader captures stderr while pymavlink decodes.
+        self.stream = os.fdopen(os.dup(sys.stderr.fileno()), "w") if sys.stderr.isatty() else None
 
     def __call__(self, fraction: float) -> None:
         now = time.monotonic()
-        if self.enabled and (now - self.last > 0.2 or fraction >= 1.0):
+        if self.stream and (now - self.last > 0.2 or fraction >= 1.0):
             self.last = now
-            print(f"\r{self.label}: {100 * fraction:5.1f} %", end="", file=sys.stderr, flush=True)
+            print(f"\r{self.label}: {100 * fraction:5.1f} %", end="", file=self.stream, flush=True)
 
     def done(self) -> None:
-        if self.enabled:
-            print("\r" + " " * (len(self.label) + 10) + "\r", end="", file=sys.stderr, flush=True)
+        if self.stream:
+            print("\r" + " " * (len(self.label) + 10) + "\r", end="", file=self.stream, flush=True)
+            self.stream.close()
 
 
 def _read(path: str, segment: int | None):

@@ -32,7 +32,8 @@ Decimation (what the viewer gets; the metrics are always computed on every sampl
   200 Hz up to 20 min, 100 Hz for an hour);
 - error scalars: the same rate, but peak-preserving: the minimum and the maximum of each
   bin of two output samples, so no error spike disappears;
-- 3D transforms: at most ``TRANSFORM_MAX_HZ`` (50 Hz), first sample per bin;
+- 3D transforms: at most ``TRANSFORM_MAX_HZ`` (50 Hz), first sample per bin, and at most
+  ``TRANSFORM_MAX_POINTS`` per series (50 Hz up to 30 min, 25 Hz for an hour);
 - GPS marker at most ``GPS_MARKER_MAX_HZ`` (10 Hz); the static track at most
   ``GPS_TRACK_MAX_POINTS`` points.
 
@@ -58,6 +59,7 @@ TIMELINE = "time"
 SCALAR_MAX_HZ = 200.0
 SCALAR_MAX_POINTS = 240_000
 TRANSFORM_MAX_HZ = 50.0
+TRANSFORM_MAX_POINTS = 90_000
 GPS_MARKER_MAX_HZ = 10.0
 GPS_TRACK_MAX_POINTS = 5_000
 
@@ -349,8 +351,8 @@ def _bin_first(t: np.ndarray, hz: float) -> np.ndarray:
 
 
 def _bin_minmax(t: np.ndarray, y: np.ndarray, hz: float) -> np.ndarray:
-    """Peak-preserving decimation to about hz: the argmin and argmax of y in each 2/hz bin,
-    in time order. NaN samples are kept only if a bin has nothing else."""
+    """Peak-preserving decimation to about hz: the (first) argmin and argmax of y in each
+    2/hz bin, in time order; all samples when the series is not faster than hz. O(n)."""
     n = len(t)
     if n < 2 or hz <= 0:
         return np.arange(n)
@@ -358,14 +360,27 @@ def _bin_minmax(t: np.ndarray, y: np.ndarray, hz: float) -> np.ndarray:
     if n <= hz * span + 1:
         return np.arange(n)
     b = np.floor(t * (hz / 2.0))
-    yy = np.where(np.isfinite(y), y, 0.0)
-    order = np.lexsort((yy, b))  # by bin, then value
-    bs = b[order]
-    first = np.ones(n, dtype=bool)
-    first[1:] = bs[1:] != bs[:-1]
-    last = np.ones(n, dtype=bool)
-    last[:-1] = bs[1:] != bs[:-1]
-    return np.unique(order[first | last])
+    if np.any(np.diff(b) < 0):  # unsorted time: keep the simple rule
+        return _bin_first(t, hz)
+    new = np.empty(n, dtype=bool)
+    new[0] = True
+    new[1:] = b[1:] != b[:-1]
+    starts = np.flatnonzero(new)
+    counts = np.diff(np.append(starts, n))
+    bin_of = np.repeat(np.arange(len(starts)), counts)
+    picks = []
+    for ufunc, fill in ((np.maximum, -np.inf), (np.minimum, np.inf)):
+        yy = np.where(np.isnan(y), fill, y)
+        extreme = ufunc.reduceat(yy, starts)
+        hits = np.flatnonzero(yy == np.repeat(extreme, counts))
+        hb = bin_of[hits]
+        first = np.ones(len(hits), dtype=bool)
+        first[1:] = hb[1:] != hb[:-1]
+        picks.append(hits[first])
+    idx = np.sort(np.concatenate(picks))
+    keep = np.ones(len(idx), dtype=bool)
+    keep[1:] = idx[1:] != idx[:-1]
+    return idx[keep]
 
 
 def scalar_rate_for(duration_s: float) -> float:
@@ -373,6 +388,13 @@ def scalar_rate_for(duration_s: float) -> float:
     if duration_s <= 0:
         return SCALAR_MAX_HZ
     return min(SCALAR_MAX_HZ, SCALAR_MAX_POINTS / duration_s)
+
+
+def transform_rate_for(duration_s: float) -> float:
+    """The 3D transform rate for a log of this length (see the module docstring)."""
+    if duration_s <= 0:
+        return TRANSFORM_MAX_HZ
+    return min(TRANSFORM_MAX_HZ, TRANSFORM_MAX_POINTS / duration_s)
 
 
 # ---------------------------------------------------------------- columnar logging
@@ -613,6 +635,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     duration = max(b - a, max((float(s.t[-1] - s.t[0]) for _, _, s in series if len(s.t)),
                               default=0.0))
     hz = scalar_rate_for(duration)
+    hz3d = transform_rate_for(duration)
 
     setup_world(rec)
     for slot, (key, label, s) in enumerate(series):
@@ -624,7 +647,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
 
     others = [k for k, _, _ in series if k != ref_key]
     for key, _, s in series:
-        log_attitude_columns(rec, key, s.t, s.q, scalar_max_hz=hz,
+        log_attitude_columns(rec, key, s.t, s.q, scalar_max_hz=hz, transform_max_hz=hz3d,
                              ghost_in=others if key == ref_key else ())
     for key, c in result.comparisons.items():
         log_error_columns(rec, key, c.t, c.error_deg, c.scored, max_hz=hz)

@@ -46,6 +46,39 @@ def test_truncated_dataflash_still_reads_what_is_there(sim_logs, tmp_path):
     assert 0.3 * len(full.imu["IMU[0]"].t) < n < 0.7 * len(full.imu["IMU[0]"].t)
 
 
+def test_corrupt_records_are_dropped_not_decoded_as_data(sim_logs, tmp_path, capfd):
+    _, path = sim_logs["figure8.bin"]
+    data = bytearray(path.read_bytes())
+    rng = np.random.default_rng(1)
+    for start in (100_000, 300_000):  # overwrite two stretches with noise and fake headers
+        noise = rng.integers(0, 256, 600, dtype=np.uint8)
+        noise[::37] = 0xA3
+        noise[1::37] = 0x95
+        data[start:start + 600] = noise.tobytes()
+    bad = tmp_path / "corrupt.bin"
+    bad.write_bytes(bytes(data))
+    flight = read_log(str(bad))
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""  # pymavlink's complaints become a note, not terminal noise
+    assert any("corrupt" in n for n in flight.notes)
+    assert len(flight.segments) == 1
+    for s in flight.imu.values():
+        assert np.abs(s.gyro).max() < 5.0 and np.abs(s.accel).max() < 50.0
+        assert np.all(np.diff(s.t) > 0) and s.t[-1] - s.t[0] < 120.0
+
+
+def test_lone_timestamp_far_ahead_is_dropped_a_real_jump_kept():
+    col = Collector()
+    for t in [1.0, 1.1, 5000.0, 1.2, 1.3]:  # a corrupt record's garbage time
+        col.add("imu", "A", t, (t,))
+    for t in [900.0, 900.1]:  # a telemetry link that came back 15 minutes later
+        col.add("imu", "A", t, (t,))
+    col.finish()
+    t, _, _ = col.columns("imu", "A", 0)
+    np.testing.assert_allclose(t, [1.0, 1.1, 1.2, 1.3, 900.0, 900.1])
+    assert col.outliers == 1 and len(col.segments) == 1
+
+
 # ---------------------------------------------------------------- clocks
 
 

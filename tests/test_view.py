@@ -202,6 +202,8 @@ def test_decimation_rules():
     assert np.all(np.diff(idx) > 0)
     assert view.scalar_rate_for(60.0) == 200.0
     assert view.scalar_rate_for(3600.0) == pytest.approx(view.SCALAR_MAX_POINTS / 3600.0)
+    assert view.transform_rate_for(600.0) == view.TRANSFORM_MAX_HZ
+    assert view.transform_rate_for(3600.0) == pytest.approx(25.0)
 
 
 def test_reference_autopilot_without_truth_or_gps(tmp_path):

@@ -6,8 +6,12 @@ segment (the longest, unless asked), sorted, without repeated timestamps or empt
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import re
+import sys
+import tempfile
 
 import numpy as np
 
@@ -25,6 +29,12 @@ MAVLINK_MAGIC = (0xFE, 0xFD)  # MAVLink 1, MAVLink 2 start bytes
 # integer mG/mrad/s, and the primary instance beats the others.
 IMU_PREFERENCE = ["HIGHRES_IMU", "IMU[0]", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "IMU[1]",
                   "SCALED_IMU3", "IMU[2]"]
+
+
+# Beyond what any autopilot IMU measures (ArduPilot: ±16 g, ±2000 °/s) or any magnetometer
+# reads on Earth: such samples are corrupt records.
+IMU_LIMITS = [(slice(0, 3), 50.0), (slice(3, 6), 50 * 9.81)]  # rad/s, m/s²
+MAG_LIMITS = [(slice(0, 3), 1e-3)]  # tesla (10 gauss)
 
 
 def sniff_format(path: str) -> str:
@@ -47,21 +57,57 @@ def sniff_format(path: str) -> str:
                            "expected a DataFlash header a3 95 or a tlog record)")
 
 
+@contextlib.contextmanager
+def _captured_output():
+    """Capture what pymavlink prints while it decodes, Python and C alike (its Cython
+    indexer writes to the process's stdout and stderr directly); yields a function that
+    returns the captured lines. The progress display is let through: it writes after."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    with tempfile.TemporaryFile(mode="w+b") as sink:
+        saved = [os.dup(1), os.dup(2)]
+        lines: list[str] = []
+        try:
+            os.dup2(sink.fileno(), 1)
+            os.dup2(sink.fileno(), 2)
+            with contextlib.redirect_stdout(io.StringIO()) as out, \
+                    contextlib.redirect_stderr(io.StringIO()) as err:
+                yield lambda: lines
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            sink.seek(0)
+            lines += sink.read().decode(errors="replace").splitlines()
+            lines += out.getvalue().splitlines() + err.getvalue().splitlines()
+
+
 def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
     """Read a .bin or .tlog. ``segment``: which clock segment to keep when the autopilot
     rebooted during the log (0-based); default the longest."""
     path = str(path)
     fmt = sniff_format(path)
-    if fmt == "bin":
-        col, params, texts, counts = read_dataflash(path, progress)
-        notes = []
-    else:
-        col, params, texts, counts, notes = read_tlog(path, progress)
+    with _captured_output() as chatter:  # pymavlink's complaints about corrupt data
+        if fmt == "bin":
+            col, params, texts, counts = read_dataflash(path, progress)
+            notes = []
+        else:
+            col, params, texts, counts, notes = read_tlog(path, progress)
+    col.finish()
+    complaints = [line for line in chatter() if line.strip()]
+    if col.outliers:
+        notes.append(f"dropped {col.outliers} samples whose timestamp was far off the clock (corrupt records)")
+    if complaints:
+        notes.append(f"pymavlink skipped corrupt data ({len(complaints)} reports; first: {complaints[0]})")
     if progress is not None:
         progress(1.0)
     segments = col.segments
     if not segments:
-        raise InputError(path, "no time-stamped sensor or attitude messages found")
+        why = f" (pymavlink: {complaints[0]})" if complaints else ""
+        raise InputError(path, f"no time-stamped sensor or attitude messages found{why}")
     if segment is None:
         segment = col.longest_segment()
     elif not 0 <= segment < len(segments):
@@ -89,14 +135,24 @@ def _fill_series(flight: Flight, col: Collector, segment: int) -> None:
             flight.notes.append(f"{key}: sorted {stats['reordered']} out-of-order samples")
         return t, v
 
+    def plausible(key, v, limits):
+        """Rows that are finite and within physical ranges; corrupt records decode as anything."""
+        ok = np.isfinite(v).all(axis=1)
+        for cols, limit in limits:
+            ok &= np.linalg.norm(np.nan_to_num(v[:, cols]), axis=1) < limit
+        if np.count_nonzero(~ok):
+            flight.notes.append(f"{key}: dropped {np.count_nonzero(~ok)} samples with impossible values")
+        return ok
+
     for key in col.keys("imu"):
         t, v = columns("imu", key)
         live = np.any(v != 0, axis=1)  # an unfitted sensor sends all zeros
+        live &= plausible(key, v, IMU_LIMITS)
         if np.count_nonzero(live) >= 2:
             flight.imu[key] = ImuSeries(key, t[live], v[live, :3], v[live, 3:6])
     for key in col.keys("mag"):
         t, v = columns("mag", key)
-        live = np.any(v != 0, axis=1)
+        live = np.any(v != 0, axis=1) & plausible(key, v, MAG_LIMITS)
         if np.count_nonzero(live) >= 2:
             flight.mag[key] = MagSeries(key, t[live], _earth_field_scale(flight, key, v[live]))
     for key in col.keys("gps"):
@@ -138,6 +194,13 @@ def _attitude(col: Collector, prefix: str, segment: int, columns) -> AttitudeSer
     for kind in (f"{prefix}_euler", f"{prefix}_quat"):
         for key in col.keys(kind):
             t, v = columns(kind, key)
+            if not len(t):
+                continue
+            ok = np.isfinite(v).all(axis=1) & (np.abs(v).max(axis=1) < 10.0)  # rad or unit quaternion
+            t, v = t[ok], v[ok]
+            if kind.endswith("quat"):
+                ok = np.linalg.norm(v, axis=1) > 0.5
+                t, v = t[ok], v[ok]
             if not len(t):
                 continue
             q = quat.from_euler(v[:, 0], v[:, 1], v[:, 2]) if kind.endswith("euler") else quat.normalize(v)

@@ -5,6 +5,8 @@ seconds on the autopilot clock, ``row`` a tuple already in SI units). The collec
 
 - tags each sample with a clock segment: when the autopilot clock jumps back by more than
   ``REBOOT_JUMP_S`` the vehicle rebooted, and a new segment starts;
+- drops a lone sample far ahead of the clock that the next sample does not confirm: a
+  corrupt record, whose garbage timestamp would otherwise look like a reboot after it;
 - then, per series, keeps one segment, sorts by time and drops repeated timestamps.
 
 Smaller backward steps are reordering (e.g. a GPS sample logged after a later IMU sample)
@@ -19,6 +21,9 @@ import numpy as np
 # A clock that goes back by more than this is a reboot, not reordering. ArduPilot writes
 # samples at most a few hundred ms after they were taken, so 2 s leaves a wide margin.
 REBOOT_JUMP_S = 2.0
+# A sample this far ahead of the clock is held back until the next sample says whether the
+# clock really jumped (a telemetry link that came back) or the sample was corrupt.
+FORWARD_JUMP_S = 60.0
 
 
 class Collector:
@@ -27,8 +32,31 @@ class Collector:
         self._segment = 0
         self._clock_max = -np.inf
         self._segment_spans: list[list[float]] = [[np.inf, -np.inf]]
+        self._ahead = None  # (kind, key, t, row) held back: far ahead of the clock
+        self.outliers = 0
 
     def add(self, kind: str, key: str, t: float, row: tuple) -> None:
+        if not np.isfinite(t) or t < 0:
+            self.outliers += 1
+            return
+        if self._ahead is not None:
+            held, self._ahead = self._ahead, None
+            if abs(t - held[2]) < FORWARD_JUMP_S:
+                self._append(*held)  # the clock really jumped forward
+            else:
+                self.outliers += 1
+        if np.isfinite(self._clock_max) and t > self._clock_max + FORWARD_JUMP_S:
+            self._ahead = (kind, key, t, row)
+            return
+        self._append(kind, key, t, row)
+
+    def finish(self) -> None:
+        """Call after the last ``add``: a sample still held back stands (the log ended there)."""
+        if self._ahead is not None:
+            self._append(*self._ahead)
+            self._ahead = None
+
+    def _append(self, kind: str, key: str, t: float, row: tuple) -> None:
         if t < self._clock_max - REBOOT_JUMP_S:
             self._segment += 1
             self._segment_spans.append([np.inf, -np.inf])
