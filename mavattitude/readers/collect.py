@@ -14,7 +14,7 @@ and are fixed by the sort.
 """
 from __future__ import annotations
 
-from collections import defaultdict
+from array import array
 
 import numpy as np
 
@@ -28,7 +28,10 @@ FORWARD_JUMP_S = 60.0
 
 class Collector:
     def __init__(self):
-        self._rows = defaultdict(list)  # (kind, key) -> list of (segment, t, *row)
+        # (kind, key) -> flat float64 buffer of (segment, t, *row) records: 8 bytes a value,
+        # not a Python tuple per sample, so an hour of 400 Hz IMU data stays small.
+        self._rows: dict[tuple[str, str], array] = {}
+        self._width: dict[tuple[str, str], int] = {}
         self._segment = 0
         self._clock_max = -np.inf
         self._segment_spans: list[list[float]] = [[np.inf, -np.inf]]
@@ -65,7 +68,13 @@ class Collector:
         span = self._segment_spans[self._segment]
         span[0] = min(span[0], t)
         span[1] = max(span[1], t)
-        self._rows[(kind, key)].append((self._segment, t) + row)
+        buffer = self._rows.get((kind, key))
+        if buffer is None:
+            buffer = self._rows[(kind, key)] = array("d")
+            self._width[(kind, key)] = 2 + len(row)
+        buffer.append(self._segment)
+        buffer.append(t)
+        buffer.extend(row)
 
     @property
     def segments(self) -> list[tuple[float, float]]:
@@ -83,7 +92,7 @@ class Collector:
         rows = self._rows.get((kind, key))
         if not rows:
             return np.empty(0), np.empty((0, 0)), {"reordered": 0, "duplicates": 0}
-        data = np.array(rows, dtype=float)
+        data = np.frombuffer(rows, dtype=np.float64).reshape(-1, self._width[(kind, key)])
         data = data[data[:, 0] == segment]
         t = data[:, 1]
         order = np.argsort(t, kind="stable")
