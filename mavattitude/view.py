@@ -29,7 +29,7 @@ Decimation (what the viewer gets; the metrics are always computed on every sampl
 - attitude scalars: every sample while a series' mean rate is <= ``SCALAR_MAX_HZ`` (200 Hz);
   faster series keep the first sample of each 1/200 s bin. Long logs are further capped at
   ``SCALAR_MAX_POINTS`` per series (the rate becomes ``SCALAR_MAX_POINTS / duration``:
-  200 Hz up to 20 min, 100 Hz for an hour);
+  200 Hz up to 20 min, 67 Hz for an hour);
 - error scalars: the same rate, but peak-preserving: the minimum and the maximum of each
   bin of two output samples, so no error spike disappears;
 - 3D transforms: at most ``TRANSFORM_MAX_HZ`` (50 Hz), first sample per bin, and at most
@@ -37,13 +37,17 @@ Decimation (what the viewer gets; the metrics are always computed on every sampl
 - GPS marker at most ``GPS_MARKER_MAX_HZ`` (10 Hz); the static track at most
   ``GPS_TRACK_MAX_POINTS`` points.
 
-Bins are on absolute time (``floor(t * hz)``), so chunks decimate the same way as a whole log.
+Bins are on absolute time (``floor(t * hz)``) and a chunk's first sample counts as opening a
+bin only if one sample step earlier lies in another bin, so a regularly sampled series sent in
+chunks keeps the same samples as sent whole (min/max bins straddling a chunk boundary may add
+a point or two).
 """
 from __future__ import annotations
 
 import math
 import sys
 from collections.abc import Iterable, Sequence
+from urllib.parse import quote
 
 import numpy as np
 import rerun as rr
@@ -164,7 +168,7 @@ def open_sink(app_id: str, recording_name: str, rrd: str | None = None, spawn: b
         url = rec.serve_grpc(grpc_port=grpc_port)
         rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
         port = web_port or 9090
-        print(f"Rerun web viewer: http://localhost:{port}/?url={url}  (data: {url})",
+        print(f"Rerun web viewer: http://localhost:{port}/?url={quote(url, safe='')}",
               file=sys.stderr)
     rec.send_recording_name(recording_name)
     return rec
@@ -197,8 +201,8 @@ _TEXT_LOG_COLUMNS = _text_log_columns()
 def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=None,
                    map_zoom: float | None = None, time_span: tuple[float, float] | None = None,
                    live: bool = False) -> rrb.Blueprint:
-    """The layout: per-axis attitude and error plots on the left (x axes linked), the 3D
-    attitude boxes top right, map / summary / events in tabs below it.
+    """The layout: per-axis attitude and error plots on the left, the 3D attitude boxes top
+    right, map / summary / events in tabs below it.
 
     ``n_slots``: how many boxes stand side by side in the 3D view (frames the camera).
     ``error_range_deg``: optional {axis: half-range} for the error plots' y axes, so a large
@@ -211,10 +215,14 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
     One legend (in the roll plot) names every colour; the error plots have none: their
     lines have the same colours, faded where not scored (the warm-up).
     """
+    # With a known span, each plot opens on the whole replay. Rerun 0.41 reads a linked
+    # plot's range from a global setting the SDK cannot set, and its fallback opened on a
+    # window near the time cursor in our screenshots, so replay plots zoom independently;
+    # without a span (live), the plots are linked and follow the data.
     if time_span is not None:
         whole = rr.TimeRange(start=rrb.TimeRangeBoundary.absolute(seconds=float(time_span[0])),
                              end=rrb.TimeRangeBoundary.absolute(seconds=float(time_span[1])))
-        link = rrb.TimeAxis(link="LinkToGlobal", view_range=whole)
+        link = rrb.TimeAxis(link="Independent", view_range=whole)
     else:
         link = rrb.TimeAxis(link="LinkToGlobal")
     rows = []
@@ -270,7 +278,7 @@ def send_blueprint(rec: rr.RecordingStream, *, has_gps: bool = True, n_slots: in
                        make_active=True, make_default=True)
 
 
-def map_zoom_for(lat_deg, lon_deg, pixels: float = 380.0) -> float:
+def map_zoom_for(lat_deg, lon_deg, pixels: float = 250.0) -> float:
     """The web-map zoom level at which the points' extent spans about ``pixels``."""
     lat = np.asarray(lat_deg, dtype=float)
     lon = np.asarray(lon_deg, dtype=float)
@@ -345,7 +353,11 @@ def _bin_first(t: np.ndarray, hz: float) -> np.ndarray:
         return np.arange(n)
     b = np.floor(t * hz)
     keep = np.empty(n, dtype=bool)
-    keep[0] = True
+    # The first sample opens a bin unless the sample before it (one typical step earlier,
+    # possibly in the previous chunk) was in the same bin: chunks then keep what the
+    # whole series would.
+    step = float(np.median(np.diff(t)))
+    keep[0] = np.floor((t[0] - step) * hz) != b[0]
     keep[1:] = b[1:] != b[:-1]
     return np.flatnonzero(keep)
 
@@ -526,8 +538,11 @@ def log_gps(rec: rr.RecordingStream, gps: GpsSeries) -> bool:
 # ---------------------------------------------------------------- the whole replay
 
 
-def _reference_key(result: ReplayResult) -> str:
+def _reference_key(result: ReplayResult) -> str | None:
+    """Which series the reference is: "truth", "autopilot", "reference" (another one) or None."""
     ref, fl = result.reference, result.flight
+    if ref is None:
+        return None
     for key, s in (("truth", fl.truth), ("autopilot", fl.attitude)):
         if s is None:
             continue
@@ -538,13 +553,16 @@ def _reference_key(result: ReplayResult) -> str:
 
 
 def _series(result: ReplayResult) -> list[tuple[str, str, AttitudeSeries]]:
-    """(key, label, series) of every attitude shown: reference first, then the autopilot
-    and truth (where not the reference), then the estimates."""
+    """(key, label, series) of every attitude shown: the reference first (when there is
+    one), then the autopilot and truth (where not the reference), then the estimates."""
     fl = result.flight
     ref_key = _reference_key(result)
-    out = [(ref_key, f"{ref_key} ({result.reference.source}) = reference", result.reference)]
+    out = []
+    if ref_key is not None:
+        out.append((ref_key, f"{ref_key} ({result.reference.source}) = reference",
+                    result.reference))
     for key, s in (("autopilot", fl.attitude), ("truth", fl.truth)):
-        if s is not None and key != ref_key:
+        if s is not None and len(s.t) and key != ref_key:
             out.append((key, f"{key} ({s.source})", s))
     for name, s in result.estimates.items():
         out.append((name, name, s))
@@ -563,13 +581,17 @@ def summary_markdown(result: ReplayResult) -> str:
         f"- **log**: `{fl.path}` ({fl.format})",
         f"- **vehicle**: {fl.vehicle or '?'} · **firmware**: {fl.firmware or '?'}",
         f"- **span**: {a:.1f}–{b:.1f} s ({b - a:.1f} s) on the autopilot clock",
-        f"- **IMU**: {result.imu_source} · **reference**: {result.reference.source}",
+        f"- **IMU**: {result.imu_source} · **reference**: "
+        f"{result.reference.source if result.reference is not None else 'none'}",
     ]
     if len(fl.segments) > 1:
         lines.append(f"- **clock segments**: {len(fl.segments)} (showing #{fl.segment_index})")
-    lines += ["", "## Errors (deg, scored samples): RMSE / max", "",
-              "| estimate | vs | roll | pitch | yaw | n | note |",
-              "|---|---|---|---|---|---|---|"]
+    if not result.comparisons:
+        lines += ["", "Nothing was scored (no attitude reference in this log)."]
+    else:
+        lines += ["", "## Errors (deg, scored samples): RMSE / max", "",
+                  "| estimate | vs | roll | pitch | yaw | n | note |",
+                  "|---|---|---|---|---|---|---|"]
     for name, c in result.comparisons.items():
         cells = []
         n = 0
@@ -619,7 +641,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     """Log a whole replay into ``rec`` (one recording), with the blueprint unless told not to."""
     fl = result.flight
     series = _series(result)
-    ref_key = series[0][0]
+    ref_key = _reference_key(result)
     names = [k for k, _, _ in series] + [k for k in result.comparisons if k not in
                                          {s[0] for s in series}]
     colors = assign_colors(names)
@@ -640,13 +662,16 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     setup_world(rec)
     for slot, (key, label, s) in enumerate(series):
         setup_series(rec, key, color=colors[key], label=label, slot=slot,
-                     ghost=key != ref_key, errors=key in result.comparisons)
+                     ghost=ref_key is not None and key != ref_key,
+                     errors=key in result.comparisons)
     for key, c in result.comparisons.items():
         if key not in {s[0] for s in series}:
             setup_series(rec, key, color=colors[key], errors=True)
 
     others = [k for k, _, _ in series if k != ref_key]
     for key, _, s in series:
+        if len(s.t) == 0:
+            continue
         log_attitude_columns(rec, key, s.t, s.q, scalar_max_hz=hz, transform_max_hz=hz3d,
                              ghost_in=others if key == ref_key else ())
     for key, c in result.comparisons.items():

@@ -8,12 +8,16 @@ Chromium (Debian's /usr/bin/chromium through Playwright; software WebGL via Swif
 waits ``--wait`` seconds for the viewer to load and render, saves the screenshot and stops
 the server. Needs ``pip install playwright`` and a Chromium; no ``playwright install``.
 Not part of the package: a development tool only.
+
+Under software rendering the viewer ingests slowly: a 1-2 minute replay (a few MB) needs
+--wait 150-200 before every plot is filled; take --shots 3 to watch it fill. --click X,Y
+clicks viewport pixels afterwards (at 1600x1000: the "summary" tab is 1107,611, "events"
+1188,611, the middle of the timeline 830,986) and saves OUT-clickN.png.
 """
 from __future__ import annotations
 
 import argparse
 import os
-import re
 import shutil
 import signal
 import socket

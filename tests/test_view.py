@@ -216,11 +216,85 @@ def test_reference_autopilot_without_truth_or_gps(tmp_path):
         assert "/map/" not in text and "/attitude/roll/truth" not in text
 
 
+def test_no_reference_nothing_scored(tmp_path):
+    """A log without an attitude reference: estimates shown, no errors, no ghosts."""
+    result = make_replay(duration=20.0, reference="autopilot", gps=False)
+    result.flight.attitude = None
+    result.reference = None
+    result.comparisons = {}
+    assert "Nothing was scored" in view.summary_markdown(result)
+    path = tmp_path / "noref.rrd"
+    write_rrd(result, path)
+    if RERUN:
+        text = _rrd_text(path)
+        assert "/world/mahony/body" in text and "/attitude/yaw/ncs-eskf" in text
+        assert "/error/" not in text and "/reference" not in text
+
+
 def test_colors_fixed_and_distinct():
     c = view.assign_colors(["truth", "autopilot", "mahony", "ncs-eskf", "mystery", "other"])
     assert c["truth"] == view.TRUTH_COLOR and c["autopilot"] == view.AUTOPILOT_COLOR
     assert len(set(c.values())) == len(c)
     assert view.assign_colors(["mahony"])["mahony"] == c["mahony"]
+
+
+class _Capture:
+    """Stands in for a RecordingStream: keeps what send_columns was given."""
+
+    def __init__(self):
+        self.sent = {}
+
+    def send_columns(self, path, indexes, columns):
+        times = indexes[0].as_arrow_array().cast("int64").to_pylist()  # ns
+        values = {c.component_descriptor().component: c.as_arrow_array().to_pylist()
+                  for c in columns}
+        self.sent.setdefault(path, []).append((times, values))
+
+
+def test_transform_columns_are_xyzw_body_to_ned():
+    q = quat.from_euler(np.radians([10.0, -20.0]), np.radians([5.0, 0.0]),
+                        np.radians([30.0, 170.0]))
+    cap = _Capture()
+    view.log_transform_columns(cap, "world/x/body", [1.0, 2.0], q)
+    (times, values), = cap.sent["world/x/body"]
+    got = np.array([v[0] for v in values["Transform3D:quaternion"]])
+    assert np.allclose(got, q[:, [1, 2, 3, 0]], atol=1e-6)
+
+
+def test_euler_columns_in_degrees_and_wraps_broken():
+    t = np.arange(0.0, 1.0, 0.1)
+    yaw = np.radians(np.linspace(170.0, 190.0, len(t)))  # crosses +180 -> -180
+    cap = _Capture()
+    view.log_euler_columns(cap, "mahony", t, quat.from_euler(np.zeros_like(t),
+                                                             np.zeros_like(t), yaw))
+    (times, values), = cap.sent["attitude/yaw/mahony"]
+    y = np.array([v[0] for v in values["Scalars:scalars"]], dtype=float)
+    assert len(y) == len(t) + 1 and np.isnan(y).sum() == 1  # one break at the wrap
+    assert np.nanmax(y) == pytest.approx(178.89, abs=0.01) and np.nanmin(y) < -170
+    (_, roll), = cap.sent["attitude/roll/mahony"]
+    assert np.allclose([v[0] for v in roll["Scalars:scalars"]], 0.0, atol=1e-9)
+
+
+def test_chunks_log_like_the_whole():
+    """Live use: the same series sent in chunks lands on the same paths, same samples."""
+    t = np.arange(0.0, 20.0, 1 / 400)
+    q = quat.from_euler(0.3 * np.sin(t), 0.1 * np.cos(t), np.zeros_like(t))
+    whole, parts = _Capture(), _Capture()
+    view.log_attitude_columns(whole, "ekf", t, q, scalar_max_hz=200.0)
+    for sl in (slice(0, 3001), slice(3001, 8000)):
+        view.log_attitude_columns(parts, "ekf", t[sl], q[sl], scalar_max_hz=200.0)
+    assert set(whole.sent) == set(parts.sent)
+    for path in whole.sent:
+        a = [x for times, _ in whole.sent[path] for x in times]
+        b = [x for times, _ in parts.sent[path] for x in times]
+        assert a == b, path
+
+
+def test_open_sink_wants_exactly_one_sink(tmp_path):
+    with pytest.raises(ValueError):
+        view.open_sink("mavattitude", "x")
+    with pytest.raises(ValueError):
+        view.open_sink("mavattitude", "x", rrd=str(tmp_path / "a.rrd"), web=True)
 
 
 def test_long_log_is_fast(tmp_path):

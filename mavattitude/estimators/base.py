@@ -8,7 +8,14 @@ same numbers.
 
 Inputs are SI on the autopilot clock: ``t`` (N,) s, ``gyro`` (N, 3) rad/s, ``accel`` (N, 3)
 m/s² specific force, ``mag`` (N, 3) tesla with NaN rows where no fresh magnetometer sample
-exists. Output: (N, 4) quaternions [w, x, y, z], body FRD -> NED.
+exists, ``in_air`` (N,) 1.0 in the air, 0.0 on the ground, NaN unknown (see ``phase``).
+Output: (N, 4) quaternions [w, x, y, z], body FRD -> NED.
+
+Diagnostics: after each ``update`` an estimator leaves per-sample series for that chunk in
+``self.diagnostics`` (name -> (N,) array), described in ``DIAGNOSTICS``. Shared names:
+``cov_trace`` (trace of the covariance, every Kalman filter) and ``accel_state`` (int8 codes
+into ``ACCEL_STATES``: what became of the accelerometer update, 0 = used as is). The pipeline
+counts the accel states into the JSON events and the view shows them.
 """
 from __future__ import annotations
 
@@ -26,19 +33,27 @@ class Estimator:
     Params: type = None  # a dataclass of tunable parameters with the paper's defaults
     uses_mag: bool = False  # can take its heading from the magnetometer
     kernels: tuple = ()  # the numba functions it runs, to tell when a first run must compile them
+    DIAGNOSTICS: dict = {}  # diagnostic series name -> what it holds, with its unit
+    ACCEL_STATES: tuple = ()  # meaning of each accel_state code, code 0 = "used"
 
     def __init__(self, params=None, declination: float = 0.0):
         self.params = params if params is not None else self.Params()
         self.declination = float(declination)  # rad, east positive: true = magnetic + declination
         self.initialized = False
+        self.diagnostics: dict[str, np.ndarray] = {}  # per-sample series of the last update
 
     def initialize(self, q0, gyro_bias) -> None:
         """Start from attitude ``q0`` with gyro bias ``gyro_bias`` (rad/s) already known."""
         raise NotImplementedError
 
-    def update(self, t, gyro, accel, mag) -> np.ndarray:
+    def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
         """Process a chunk of samples; returns the attitude after each one, (N, 4)."""
         raise NotImplementedError
+
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """The current state covariance (a copy), or None for a filter without one."""
+        return None
 
     def has_heading_reference(self, mag_available: bool) -> bool:
         """Whether yaw is observed (magnetometer) rather than integrated from the gyro alone."""
@@ -62,8 +77,8 @@ def params_table(params) -> dict:
     return {f.name: getattr(params, f.name) for f in fields(params)}
 
 
-def as_chunk(t, gyro, accel, mag):
-    """Contiguous float64 arrays, as the compiled kernels want them."""
+def as_chunk(t, gyro, accel, mag, in_air=None):
+    """Contiguous float64 arrays, as the compiled kernels want them; absent inputs become NaN."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     n = len(t)
     gyro = np.ascontiguousarray(gyro, dtype=np.float64).reshape(n, 3)
@@ -71,4 +86,7 @@ def as_chunk(t, gyro, accel, mag):
     if mag is None:
         mag = np.full((n, 3), np.nan)
     mag = np.ascontiguousarray(mag, dtype=np.float64).reshape(n, 3)
-    return t, gyro, accel, mag
+    if in_air is None:
+        in_air = np.full(n, np.nan)
+    in_air = np.ascontiguousarray(in_air, dtype=np.float64).reshape(n)
+    return t, gyro, accel, mag, in_air

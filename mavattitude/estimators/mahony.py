@@ -96,8 +96,8 @@ class Mahony(Estimator):
         self._gyro_prev = np.zeros(3)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag) -> np.ndarray:
-        t, gyro, accel, mag = as_chunk(t, gyro, accel, mag)
+    def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
+        t, gyro, accel, mag, _ = as_chunk(t, gyro, accel, mag)
         out = np.empty((len(t), 4))
         p = self.params
         return mahony_run(t, gyro, accel, mag, self._q, self._bias_correction, self._t_prev,

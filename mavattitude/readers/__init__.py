@@ -152,9 +152,15 @@ def _fill_series(flight: Flight, col: Collector, segment: int) -> None:
             flight.imu[key] = ImuSeries(key, t[live], v[live, :3], v[live, 3:6])
     for key in col.keys("mag"):
         t, v = columns("mag", key)
-        live = np.any(v != 0, axis=1) & plausible(key, v, MAG_LIMITS)
+        live = np.any(v != 0, axis=1) & np.isfinite(v).all(axis=1)
+        if np.count_nonzero(live) < 2:
+            continue
+        # Repair the unit before judging plausibility: a whole series off by 1e6 is a unit
+        # bug, not a series of corrupt records.
+        t, v = t[live], _earth_field_scale(flight, key, v[live])
+        live = plausible(key, v, MAG_LIMITS)
         if np.count_nonzero(live) >= 2:
-            flight.mag[key] = MagSeries(key, t[live], _earth_field_scale(flight, key, v[live]))
+            flight.mag[key] = MagSeries(key, t[live], v[live])
     for key in col.keys("gps"):
         t, v = columns("gps", key)
         if len(t):

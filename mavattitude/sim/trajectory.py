@@ -279,3 +279,43 @@ register(Scenario(
     _figure8_motion,
     still_until=FIG8_CLIMB[0],
 ))
+
+
+# Sustained linear acceleration: a vehicle on a straight north-south track, level (pitch 2°,
+# nose north), speeding up to 30 m/s over 12 s (0.25 g on average, 0.48 g at the peak),
+# cruising 8 s, slowing to a stop over 12 s, pausing 4 s, then the same run back south. A
+# level attitude with seconds of horizontal specific force: the case where an estimator
+# that trusts the accelerometer as gravity tilts by atan(a/g), up to 25°.
+ACCEL_SPEED = 30.0  # m/s
+ACCEL_RAMP = 12.0  # s, speeding up and slowing down each
+ACCEL_CRUISE = 8.0  # s
+ACCEL_PAUSE = 4.0  # s at rest between runs
+ACCEL_LEG = 2 * ACCEL_RAMP + ACCEL_CRUISE + ACCEL_PAUSE
+ACCEL_ATTITUDE = (0.0, np.radians(2.0), 0.0)  # roll, pitch, yaw
+
+
+def _accel_motion(t):
+    n = len(t)
+    since = np.maximum(np.asarray(t, dtype=float) - STILL_S, 0.0)
+    leg = np.floor(since / ACCEL_LEG)
+    local = since - leg * ACCEL_LEG
+    up = ramped_progress(local, 0.0, ACCEL_RAMP)
+    down = ramped_progress(local, ACCEL_RAMP + ACCEL_CRUISE, ACCEL_RAMP)
+    dist, speed, acc = (ACCEL_SPEED * (u - d) for u, d in zip(up, down))
+    run_length = ACCEL_SPEED * (ACCEL_RAMP + ACCEL_CRUISE)
+    backwards = leg % 2 == 1  # even legs run north from home, odd legs back south
+    north = np.where(backwards, run_length - dist, dist)
+    direction = np.where(backwards, -1.0, 1.0)
+    pos = _stack(n, north)
+    vel = _stack(n, direction * speed)
+    accel = _stack(n, direction * acc)
+    q = np.broadcast_to(quat.from_euler(*ACCEL_ATTITUDE), (n, 4))
+    return Motion(pos, vel, accel, np.array(q))
+
+
+register(Scenario(
+    "accel",
+    "level on a straight track: 0-30 m/s in 12 s, cruise 8 s, stop in 12 s, pause 4 s, back again",
+    _accel_motion,
+    still_until=STILL_S,
+))
