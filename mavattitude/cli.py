@@ -25,6 +25,8 @@ examples:
   mavattitude info flight.bin
   mavattitude replay flight.bin --estimators mahony --rrd flight.rrd --json metrics.json
   mavattitude replay sitl.tlog --reference truth --export out/
+  mavattitude replay flight.bin --estimators all --set ncs-eskf.h_threshold_air=0.02
+  mavattitude estimators
   mavattitude simulate --scenario figure8 --duration 120 -o figure8.tlog
 """
 
@@ -106,11 +108,15 @@ def _sink_args(args, log_path: str) -> dict:
 def cmd_replay(args) -> int:
     from .estimators import needs_compile
     from .pipeline import run_replay
-    from .report import format_table, write_csv, write_json
+    from .report import estimator_extras, format_events, format_table, write_csv, write_json
+
+    from .params import build, load_file
 
     names = _estimator_names(args.estimators)
     if args.warmup < 0:
         raise UsageError("--warmup must be zero or more seconds")
+    params = build(names, load_file(args.params) if args.params else None, args.set or (),
+                   source=args.params or "--params")
     sink = None if args.no_view else _sink_args(args, args.log)
     flight = _read(args.log, args.segment)
     pending = needs_compile(names)
@@ -119,7 +125,7 @@ def cmd_replay(args) -> int:
               file=sys.stderr, flush=True)
     result = run_replay(flight, names, reference=args.reference, imu_source=args.imu,
                         warmup_s=args.warmup, declination_deg=args.declination,
-                        use_mag=not args.no_mag)
+                        params=params, use_mag=not args.no_mag)
     for event in result.events:
         if event.level == "warn":
             _warn(event.text)
@@ -128,9 +134,10 @@ def cmd_replay(args) -> int:
               f"{result.imu_source}, scored against {result.reference.source} "
               f"({args.reference}) after a {args.warmup:g} s warm-up")
         print(format_table(result.comparisons, result.reference.source))
+    print(format_events(result), end="")
     if args.json:
         write_json(args.json, flight.path, result.reference.source if result.reference else "none",
-                   result.comparisons)
+                   result.comparisons, estimator_extras(result))
         print(f"metrics written to {args.json}")
     if args.export:
         if result.reference is None:
@@ -157,6 +164,36 @@ def _view(result, sink: dict, log_path: str) -> None:
     view.close_sink(rec)
     if "rrd" in sink:
         print(f"Rerun recording written to {sink['rrd']}; open it with: rerun {sink['rrd']}")
+
+
+# ---------------------------------------------------------------- estimators
+
+
+def cmd_estimators(args) -> int:
+    from .estimators import ESTIMATORS, summary
+    from .params import describe
+
+    if args.json:
+        print(json.dumps({name: {"summary": summary(cls), "uses_magnetometer": cls.uses_mag,
+                                 "params": {f: {"default": d, "help": h} for f, d, h in describe(cls.Params)},
+                                 "diagnostics": dict(cls.DIAGNOSTICS),
+                                 "accel_states": list(cls.ACCEL_STATES)}
+                          for name, cls in ESTIMATORS.items()}, indent=2))
+        return 0
+    for name, cls in ESTIMATORS.items():
+        heading = "heading from the magnetometer" if cls.uses_mag else "no heading reference (yaw from the gyro)"
+        print(f"{name}: {summary(cls)}")
+        print(f"  {heading}")
+        rows = describe(cls.Params)
+        width = max((len(f) for f, _, _ in rows), default=0)
+        for field, default, help_text in rows:
+            print(f"  --set {name}.{field:<{width}} = {default!s:<10} {help_text}".rstrip())
+        for key, text in cls.DIAGNOSTICS.items():
+            print(f"  diagnostic {key}: {text}")
+        print()
+    print("Override parameters with --set NAME.PARAM=VALUE or a TOML file (--params FILE) with a "
+          "[NAME] table per estimator.")
+    return 0
 
 
 # ---------------------------------------------------------------- simulate
@@ -230,6 +267,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-mag", action="store_true",
                    help="ignore the magnetometer: yaw from the gyro only, compared after removing "
                         "its initial offset")
+    p.add_argument("--set", action="append", metavar="NAME.PARAM=VALUE",
+                   help="override an estimator parameter, e.g. ncs-eskf.h_threshold_air=0.02 "
+                        "(repeatable; see 'mavattitude estimators')")
+    p.add_argument("--params", metavar="FILE",
+                   help="a TOML file of parameters, a [NAME] table per estimator; --set wins over it")
     segment_arg(p)
     out = p.add_argument_group("outputs")
     out.add_argument("--json", metavar="FILE", help="write the metrics as JSON")
@@ -244,6 +286,13 @@ def build_parser() -> argparse.ArgumentParser:
                       help="serve the recording to Rerun's web viewer until Ctrl-C")
     view.add_argument("--no-view", action="store_true", help="no Rerun recording at all")
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("estimators", help="list the estimators with their parameters and defaults",
+                       description="List every estimator: the paper it follows, whether it uses the "
+                                   "magnetometer, its parameters with defaults and units, and the "
+                                   "diagnostics it records.")
+    p.add_argument("--json", action="store_true", help="print the list as JSON")
+    p.set_defaults(func=cmd_estimators)
 
     p = sub.add_parser("simulate", help="write a simulated flight with known truth as .tlog or .bin",
                        description="Simulate a flight (rigid-body trajectory and sensor models) and "

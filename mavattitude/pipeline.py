@@ -11,6 +11,7 @@ from . import quaternion as quat
 from .errors import UsageError
 from .flight import AttitudeSeries, Flight, MagSeries
 from .metrics import Comparison, compare
+from .phase import PhaseSeries, detect_phase
 from .readers import best_imu_source, imu_rate, mag_for_imu
 
 # An IMU gap longer than this restarts the estimators from a fresh alignment: after it the
@@ -41,6 +42,12 @@ class ReplayResult:
     declination_source: str = ""  # "log parameter COMPASS_DEC", "--declination", "none (0)"
     mag_source: str | None = None
     alignment: est.Alignment | None = None
+    phase: PhaseSeries | None = None  # ground/air, when the log has a height source
+    # estimator name -> diagnostic name -> (N,) series at the IMU timestamps
+    diagnostics: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    # estimator name -> what happened to its accelerometer updates, see accel_state_events
+    estimator_events: dict[str, dict] = field(default_factory=dict)
+    params: dict = field(default_factory=dict)  # estimator name -> its parameter dataclass
 
 
 def mag_on_imu_clock(imu_t: np.ndarray, mag: MagSeries | None) -> np.ndarray | None:
@@ -75,9 +82,12 @@ def run_estimators(flight: Flight, names: list[str], imu_source: str | None = No
     mag_source = mag_for_imu(flight, imu_source) if use_mag else None
     mag = mag_on_imu_clock(imu.t, flight.mag.get(mag_source)) if mag_source else None
     declination, dec_source = resolve_declination(flight, declination_deg)
+    phase = detect_phase(flight)
+    in_air = phase.on_clock(imu.t) if phase is not None else np.full(len(imu.t), np.nan)
     runs = contiguous_runs(imu.t)
     estimators = [est.create(name, (params or {}).get(name), declination) for name in names]
     outputs = {name: np.empty((len(imu.t), 4)) for name in names}
+    diagnostics = {name: {} for name in names}
     alignments = []
     for start, end in runs:
         s = slice(start, end)
@@ -94,13 +104,38 @@ def run_estimators(flight: Flight, names: list[str], imu_source: str | None = No
                 q0 = quat.from_euler(roll, pitch, quat.to_euler(outputs[estimator.name][start - 1])[2])
             estimator.initialize(q0, alignment.gyro_bias)
             outputs[estimator.name][s] = estimator.update(
-                imu.t[s], imu.gyro[s], imu.accel[s], None if mag is None else mag[s])
+                imu.t[s], imu.gyro[s], imu.accel[s], None if mag is None else mag[s], in_air[s])
+            for key, series in estimator.diagnostics.items():
+                full = diagnostics[estimator.name].get(key)
+                if full is None:
+                    full = np.zeros(len(imu.t), series.dtype) if series.dtype.kind == "i" \
+                        else np.full(len(imu.t), np.nan)
+                    diagnostics[estimator.name][key] = full
+                full[s] = series
     estimates = {name: AttitudeSeries(name, imu.t, q) for name, q in outputs.items()}
     has_heading = {e.name: e.has_heading_reference(mag is not None) for e in estimators}
     restarts = [(float(imu.t[start]), float(imu.t[start] - imu.t[start - 1])) for start, _ in runs[1:]]
     return estimates, alignments[0], dict(imu_source=imu_source, mag_source=mag_source,
                                           declination=declination, declination_source=dec_source,
-                                          has_heading=has_heading, restarts=restarts)
+                                          has_heading=has_heading, restarts=restarts, phase=phase,
+                                          diagnostics=diagnostics,
+                                          params={e.name: e.params for e in estimators},
+                                          accel_states={e.name: e.ACCEL_STATES for e in estimators})
+
+
+def accel_state_events(t: np.ndarray, codes: np.ndarray, states: tuple) -> dict[str, dict]:
+    """For each accel state other than 0 ("used"): samples, spans (runs of consecutive
+    samples) and seconds spent in it."""
+    out = {}
+    dt = np.diff(t, append=t[-1]) if len(t) else t
+    for code, state in enumerate(states):
+        if code == 0:
+            continue
+        hit = codes == code
+        starts = np.count_nonzero(hit[1:] & ~hit[:-1]) + int(bool(len(hit)) and hit[0])
+        out[state] = {"samples": int(np.count_nonzero(hit)), "spans": int(starts),
+                      "seconds": round(float(dt[hit].sum()), 3)}
+    return out
 
 
 def contiguous_runs(t: np.ndarray) -> list[tuple[int, int]]:
@@ -143,10 +178,15 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     else:
         events.append(Event(flight.time_span[0], "warn",
                             "the log has no attitude reference (ATT / ATTITUDE): nothing to score against"))
+    imu_t = flight.imu[ctx["imu_source"]].t
+    estimator_events = {name: accel_state_events(imu_t, diag["accel_state"], ctx["accel_states"][name])
+                        for name, diag in ctx["diagnostics"].items() if "accel_state" in diag}
     return ReplayResult(flight=flight, imu_source=ctx["imu_source"], reference=ref,
                         estimates=estimates, comparisons=comparisons, events=events,
                         declination=ctx["declination"], declination_source=ctx["declination_source"],
-                        mag_source=ctx["mag_source"], alignment=alignment)
+                        mag_source=ctx["mag_source"], alignment=alignment, phase=ctx["phase"],
+                        diagnostics=ctx["diagnostics"], estimator_events=estimator_events,
+                        params=ctx["params"])
 
 
 def _events(flight: Flight, ctx: dict, alignment: est.Alignment) -> list[Event]:
@@ -168,6 +208,17 @@ def _events(flight: Flight, ctx: dict, alignment: est.Alignment) -> list[Event]:
                                        f"[{bias[0]:.3f}, {bias[1]:.3f}, {bias[2]:.3f}] °/s"))
     else:
         events.append(Event(t0, "warn", "no initial still period: gyro bias starts at 0"))
+    phase = ctx["phase"]
+    if phase is not None:
+        changes = np.flatnonzero(np.diff(phase.in_air)) + 1
+        events.append(Event(t0, "info", f"ground/air phase from {phase.source}: "
+                                        f"{len(changes)} change(s)"))
+        for i in changes:
+            where = "in the air" if phase.in_air[i] else "on the ground"
+            events.append(Event(float(phase.t[i]), "info",
+                                f"{where} ({phase.source} {phase.height_m[i]:.1f} m above the start)"))
+    else:
+        events.append(Event(t0, "info", "no baro or GPS height: ground/air phase unknown"))
     for t, gap in ctx["restarts"]:
         events.append(Event(t, "warn", f"IMU gap of {gap:.1f} s: estimators re-initialised"))
     for note in flight.notes:

@@ -63,12 +63,16 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str
 # ---------------------------------------------------------------- JSON summary
 
 
-def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison]) -> dict:
+def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
+                 extras: dict[str, dict] | None = None) -> dict:
     """The JSON summary: ``{"log", "reference", "estimators": {name: {"roll": M, "pitch": M, "yaw": M}}}``.
 
     M holds ``n``, ``mae``, ``rmse``, ``mse`` (deg²), ``r2``, ``max``, ``sigma1``, ``sigma3``
     (degrees) and ``buckets`` (shares keyed by ``BUCKET_KEYS``); the yaw M also holds
     ``aligned``. M is null for an axis with no scored sample; a non-finite number is null.
+    ``extras`` adds keys per estimator next to the axes: ``events`` (what became of its
+    accelerometer updates: {state: {samples, spans, seconds}}), ``diagnostics`` (median and
+    max of each diagnostic series) and ``params``.
     """
     estimators = {}
     for name, comp in comparisons.items():
@@ -79,15 +83,64 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison]) -
             if entry is not None and axis == "yaw":
                 entry["aligned"] = bool(comp.yaw_aligned)
             axes[axis] = entry
+        axes.update(_clean((extras or {}).get(name, {})))
         estimators[str(name)] = axes
     return {"log": str(log), "reference": str(reference), "estimators": estimators}
 
 
-def write_json(path, log: str, reference: str, comparisons: dict[str, Comparison]) -> Path:
+def _clean(value):
+    """JSON-safe: non-finite numbers to null, numpy scalars to Python."""
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return _number(value)
+    return value
+
+
+def estimator_extras(result) -> dict[str, dict]:
+    """Per estimator: its events, a summary of its diagnostics and its parameters (for the JSON)."""
+    from dataclasses import asdict
+
+    out = {}
+    for name in result.estimates:
+        diag = {}
+        for key, series in result.diagnostics.get(name, {}).items():
+            if key == "accel_state":
+                continue
+            finite = series[np.isfinite(series)]
+            diag[key] = {"median": float(np.median(finite)) if len(finite) else None,
+                         "max": float(finite.max()) if len(finite) else None}
+        params = result.params.get(name)
+        out[name] = {"events": result.estimator_events.get(name, {}), "diagnostics": diag,
+                     "params": asdict(params) if params is not None else {}}
+    return out
+
+
+def format_events(result) -> str:
+    """One line per estimator state other than "used": how often and how long the
+    accelerometer update was skipped or down-weighted."""
+    lines = []
+    n = len(result.flight.imu[result.imu_source].t)
+    for name, states in result.estimator_events.items():
+        for state, c in states.items():
+            if c["samples"]:
+                lines.append(f"{name}: accelerometer {state}: {c['spans']} spans, {c['seconds']:.1f} s "
+                             f"({100.0 * c['samples'] / max(n, 1):.1f} % of samples)")
+    return "\n".join(lines) + ("\n" if lines else "")
+
+
+def write_json(path, log: str, reference: str, comparisons: dict[str, Comparison],
+               extras: dict[str, dict] | None = None) -> Path:
     """Write ``to_json_dict`` to ``path`` (strict JSON: no NaN), creating its directory."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(to_json_dict(log, reference, comparisons), indent=2, allow_nan=False)
+    text = json.dumps(to_json_dict(log, reference, comparisons, extras), indent=2, allow_nan=False)
     path.write_text(text + "\n", encoding="utf-8")
     return path
 

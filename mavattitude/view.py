@@ -22,6 +22,11 @@ reference is neither of those, or an estimator's name, escaped for entity paths)
   every other slot, so an estimate's error is visible as the gap between box and ghost
 - ``map/track``  static GeoLineStrings of the GPS track; ``map/position`` GeoPoints over time
 - ``events``  TextLog of the replay's events (and one metrics line per comparison at the end)
+- ``diagnostics/<key>/<s>``  Scalars: what each filter exposes (``cov_trace``, ``adaptive_r``,
+  ``accel_weight``, ...), peak-preserving like the errors; ``accel_state`` is the filter's
+  accelerometer state code over time (0 used; see ``mavattitude estimators`` for the codes)
+- ``phase/in_air``, ``phase/height``  the ground/air phase (1 = air) and the height above the
+  start it comes from
 - ``summary``  static TextDocument (markdown): the flight and the metrics table
 
 Decimation (what the viewer gets; the metrics are always computed on every sample):
@@ -200,7 +205,8 @@ _TEXT_LOG_COLUMNS = _text_log_columns()
 
 def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=None,
                    map_zoom: float | None = None, time_span: tuple[float, float] | None = None,
-                   live: bool = False) -> rrb.Blueprint:
+                   live: bool = False, diagnostics: Sequence[str] = (),
+                   has_phase: bool = False) -> rrb.Blueprint:
     """The layout: per-axis attitude and error plots on the left, the 3D attitude boxes top
     right, map / summary / events in tabs below it.
 
@@ -211,6 +217,8 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
     ``time_span``: (start, end) seconds the plots open on (the whole replay); None: the
     viewer's default.
     ``live``: the time panel follows incoming data instead of standing paused.
+    ``diagnostics``: the diagnostic keys logged, each a plot in a "diagnostics" tab, with the
+    ground/air phase when ``has_phase``.
 
     One legend (in the roll plot) names every colour; the error plots have none: their
     lines have the same colours, faded where not scored (the warm-up).
@@ -256,6 +264,13 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
                                                                           spacing=1.0))
     tabs = [rrb.TextDocumentView(origin="summary", name="summary"),
             rrb.TextLogView(origin="events", name="events", columns=_TEXT_LOG_COLUMNS)]
+    plots = [rrb.TimeSeriesView(origin=f"diagnostics/{_part(key)}", name=DIAGNOSTIC_TITLES.get(key, key),
+                                axis_x=link) for key in diagnostics]
+    if has_phase:
+        plots.append(rrb.TimeSeriesView(origin="phase", name="ground/air phase (1 = air), height (m)",
+                                        axis_x=link))
+    if plots:
+        tabs.append(rrb.Vertical(*plots, name="diagnostics"))
     if has_gps:
         tabs.insert(0, rrb.MapView(origin="map", name="GPS track", zoom=map_zoom))
     right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[3, 2])
@@ -270,11 +285,13 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
 
 def send_blueprint(rec: rr.RecordingStream, *, has_gps: bool = True, n_slots: int = 4,
                    error_range_deg=None, map_zoom: float | None = None,
-                   time_span: tuple[float, float] | None = None, live: bool = False) -> None:
+                   time_span: tuple[float, float] | None = None, live: bool = False,
+                   diagnostics: Sequence[str] = (), has_phase: bool = False) -> None:
     """Send ``make_blueprint(...)`` and make it the active and default layout."""
     rec.send_blueprint(make_blueprint(has_gps=has_gps, n_slots=n_slots,
                                       error_range_deg=error_range_deg, map_zoom=map_zoom,
-                                      time_span=time_span, live=live),
+                                      time_span=time_span, live=live, diagnostics=diagnostics,
+                                      has_phase=has_phase),
                        make_active=True, make_default=True)
 
 
@@ -492,6 +509,52 @@ def log_error_columns(rec: rr.RecordingStream, name: str, t, error_deg, scored, 
             _send_scalars(rec, error_path(axis, name) + part, tm[idx], em[idx, k])
 
 
+DIAGNOSTIC_TITLES = {
+    "cov_trace": "covariance trace",
+    "accel_state": "accelerometer update (0 used, 1+ skipped / down-weighted)",
+    "adaptive_r": "mahony-ekf adaptive R",
+    "accel_weight": "accelerometer trust w (1 full, 0 skipped)",
+}
+
+
+def diagnostic_path(key: str, name: str) -> str:
+    return f"diagnostics/{_part(key)}/{_part(name)}"
+
+
+def setup_diagnostics(rec: rr.RecordingStream, name: str, keys: Iterable[str], *, color: Color) -> None:
+    """Static styling of one estimator's diagnostic lines."""
+    for key in keys:
+        rec.log(diagnostic_path(key, name),
+                rr.SeriesLines(colors=[color], names=[name], widths=[1.5], aggregation_policy="MinMax"),
+                static=True)
+
+
+def log_diagnostic_columns(rec: rr.RecordingStream, name: str, t, diagnostics: dict, *,
+                           max_hz: float = SCALAR_MAX_HZ) -> None:
+    """One chunk of an estimator's diagnostics ({key: (N,) series}) to diagnostics/<key>/<name>,
+    min/max per bin so a one-sample skip stays visible."""
+    t = np.asarray(t, dtype=np.float64)
+    for key, y in diagnostics.items():
+        y = np.asarray(y, dtype=np.float64)
+        ok = np.isfinite(y)
+        idx = _bin_minmax(t[ok], y[ok], max_hz)
+        rec.send_columns(diagnostic_path(key, name), indexes=[_time(t[ok][idx])],
+                         columns=rr.Scalars.columns(scalars=y[ok][idx]))
+
+
+def log_phase_columns(rec: rr.RecordingStream, t, in_air, height_m) -> None:
+    """The ground/air phase (a step line, 1 = air) and the height it comes from."""
+    rec.log("phase/in_air", rr.SeriesLines(colors=[(230, 120, 40)], names=["in air"], widths=[2.0]),
+            static=True)
+    rec.log("phase/height", rr.SeriesLines(colors=[(140, 140, 140)], names=["height above start (m)"],
+                                           widths=[1.0]), static=True)
+    t = np.asarray(t, dtype=np.float64)
+    rec.send_columns("phase/in_air", indexes=[_time(t)],
+                     columns=rr.Scalars.columns(scalars=np.asarray(in_air, dtype=np.float64)))
+    rec.send_columns("phase/height", indexes=[_time(t)],
+                     columns=rr.Scalars.columns(scalars=np.asarray(height_m, dtype=np.float64)))
+
+
 _LEVELS = {"info": rr.TextLogLevel.INFO, "warn": rr.TextLogLevel.WARN,
            "warning": rr.TextLogLevel.WARN, "error": rr.TextLogLevel.ERROR,
            "debug": rr.TextLogLevel.DEBUG}
@@ -647,11 +710,13 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     colors = assign_colors(names)
     gps_t, gps_ll = _gps_fix(fl.gps) if fl.gps is not None else (np.empty(0), None)
     has_gps = len(gps_t) > 0
+    diag_keys = list(dict.fromkeys(k for d in result.diagnostics.values() for k in d))
     if blueprint:
         send_blueprint(rec, has_gps=has_gps, n_slots=len(series),
                        error_range_deg=_error_ranges(result),
                        map_zoom=map_zoom_for(gps_ll[:, 0], gps_ll[:, 1]) if has_gps else None,
-                       time_span=fl.time_span)
+                       time_span=fl.time_span, diagnostics=diag_keys,
+                       has_phase=result.phase is not None)
 
     a, b = fl.time_span
     duration = max(b - a, max((float(s.t[-1] - s.t[0]) for _, _, s in series if len(s.t)),
@@ -677,6 +742,13 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     for key, c in result.comparisons.items():
         log_error_columns(rec, key, c.t, c.error_deg, c.scored, max_hz=hz)
 
+    imu_t = fl.imu[result.imu_source].t
+    for name, diag in result.diagnostics.items():
+        if diag:
+            setup_diagnostics(rec, name, diag, color=colors.get(name, (200, 200, 200)))
+            log_diagnostic_columns(rec, name, imu_t, diag, max_hz=hz)
+    if result.phase is not None:
+        log_phase_columns(rec, result.phase.t, result.phase.in_air, result.phase.height_m)
     if has_gps:
         log_gps(rec, fl.gps)
     rec.log("summary", rr.TextDocument(summary_markdown(result), media_type="text/markdown"),

@@ -11,6 +11,13 @@ ESTIMATORS: dict[str, type[Estimator]] = {
 }
 
 
+def summary(cls) -> str:
+    """The first line of an estimator's module docstring: what it is and which paper."""
+    import sys
+    doc = sys.modules[cls.__module__].__doc__ or cls.__doc__ or ""
+    return doc.strip().splitlines()[0].rstrip(".") if doc.strip() else cls.name
+
+
 def create(name: str, params=None, declination: float = 0.0) -> Estimator:
     return ESTIMATORS[name](params=params, declination=declination)
 
