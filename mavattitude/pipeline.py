@@ -167,6 +167,12 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     estimates, alignment, ctx = run_estimators(flight, names, imu_source, declination_deg,
                                                params, use_mag)
     events = _events(flight, ctx, alignment)
+    for name, series in estimates.items():
+        bad = int(np.count_nonzero(~np.isfinite(series.q).all(axis=1)))
+        if bad:
+            events.append(Event(float(series.t[0]), "warn",
+                                f"{name}: {bad} non-finite attitude samples (a filter fault; "
+                                "they are left out of the metrics)"))
     comparisons = {}
     if ref is not None:
         for name, series in estimates.items():

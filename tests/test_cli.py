@@ -35,7 +35,10 @@ def check_outputs(tmp_path: Path, estimators: list[str], reference: str) -> dict
     assert metrics["reference"] == reference
     assert set(metrics["estimators"]) >= set(estimators)
     for name, per_axis in metrics["estimators"].items():
-        assert set(per_axis) == set(AXES)
+        assert set(AXES) <= set(per_axis)
+        if name in estimators:
+            assert {"events", "diagnostics", "params"} <= set(per_axis)
+            assert per_axis["nonfinite_samples"] == 0, f"{name} produced NaN"
         for axis in AXES:
             assert METRIC_KEYS <= set(per_axis[axis])
             assert set(per_axis[axis]["buckets"]) == {"lt_0.5", "0.5_1", "1_2", "gt_2"}
@@ -158,14 +161,69 @@ def _bound(name: str) -> float:
 
 
 @pytest.mark.parametrize("path", shared_log_params())
-def test_every_shared_log_replays_with_mahony(path, tmp_path, capsys):
-    code, out, err = run(capsys, "replay", path, "--estimators", "mahony",
+def test_every_shared_log_replays_with_every_estimator(path, tmp_path, capsys):
+    from mavattitude.estimators import ESTIMATORS
+
+    code, out, err = run(capsys, "replay", path, "--estimators", "all",
                          "--rrd", tmp_path / "r.rrd", "--json", tmp_path / "m.json",
                          "--export", tmp_path / "csv")
     assert code == 0, err
     assert "mahony" in out and "MAE" in out
-    metrics = check_outputs(tmp_path, ["mahony"], json.loads((tmp_path / "m.json").read_text())["reference"])
+    metrics = check_outputs(tmp_path, list(ESTIMATORS),
+                            json.loads((tmp_path / "m.json").read_text())["reference"])
     mahony = metrics["estimators"]["mahony"]
     bound = _bound(path.name)
     assert mahony["roll"]["mae"] <= bound and mahony["pitch"]["mae"] <= bound, (
         f"{path.name}: roll {mahony['roll']['mae']:.2f}°, pitch {mahony['pitch']['mae']:.2f}° > {bound}°")
+
+
+# ---------------------------------------------------------------- parameters (issue 3)
+
+
+def test_estimators_lists_every_estimator_with_its_parameters(capsys):
+    from mavattitude.estimators import ESTIMATORS
+
+    code, out, _ = run(capsys, "estimators")
+    assert code == 0
+    for name, cls in ESTIMATORS.items():
+        assert f"{name}:" in out
+        for field in cls.Params.__dataclass_fields__:
+            assert f"--set {name}.{field}" in out
+    code, out, _ = run(capsys, "estimators", "--json")
+    listing = json.loads(out)
+    assert listing["mahony"]["params"]["kp"]["default"] == 0.2
+    assert "gain" in listing["mahony"]["params"]["kp"]["help"]
+
+
+def test_set_and_params_file_reach_the_estimator(tmp_path, capsys):
+    (tmp_path / "p.toml").write_text("[mahony]\nkp = 1.5\nki = 0.002\n")
+    code, _, err = run(capsys, "replay", SAMPLE_LOGS / "static.bin", "--no-view",
+                       "--params", tmp_path / "p.toml", "--set", "mahony.kp=0.7",
+                       "--set", "mahony.use_mag=false", "--json", tmp_path / "m.json")
+    assert code == 0, err
+    params = json.loads((tmp_path / "m.json").read_text())["estimators"]["mahony"]["params"]
+    assert params == {"kp": 0.7, "ki": 0.002, "use_mag": False}  # --set wins over the file
+
+
+@pytest.mark.parametrize("extra, code, text", [
+    (["--set", "mahony.kq=1"], 2, "mahony has no parameter 'kq'"),
+    (["--set", "mahony.kp"], 2, "expected ESTIMATOR.PARAMETER=VALUE"),
+    (["--set", "mahony.kp=fast"], 2, "expected a number"),
+    (["--set", "mahony.use_mag=maybe"], 2, "expected true or false"),
+    (["--set", "nope.kp=1"], 2, "unknown estimator 'nope'"),
+    (["--params", "missing.toml"], 1, "missing.toml: no such file"),
+])
+def test_bad_parameters_are_one_line_errors(capsys, extra, code, text):
+    got, _, err = run(capsys, "replay", SAMPLE_LOGS / "static.bin", "--no-view", *extra)
+    assert got == code
+    assert len(err.strip().splitlines()) == 1 and text in err and "Traceback" not in err
+
+
+def test_bad_toml_names_the_file(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[mahony\nkp = 1\n")
+    got, _, err = run(capsys, "replay", SAMPLE_LOGS / "static.bin", "--no-view", "--params", bad)
+    assert got == 1 and str(bad) in err and "not valid TOML" in err
+    bad.write_text("mahony = 3\n")
+    got, _, err = run(capsys, "replay", SAMPLE_LOGS / "static.bin", "--no-view", "--params", bad)
+    assert got == 1 and "must be a table" in err
