@@ -28,6 +28,7 @@ examples:
   mavattitude replay flight.bin --estimators all --set ncs-eskf.h_threshold_air=0.02
   mavattitude estimators
   mavattitude simulate --scenario figure8 --duration 120 -o figure8.tlog
+  mavattitude bench --json bench.json
 """
 
 
@@ -221,6 +222,16 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+# ---------------------------------------------------------------- bench
+
+
+def cmd_bench(args) -> int:
+    from .bench import run
+
+    return run(_estimator_names(args.estimators), args.scenario, args.duration, args.imu_rate,
+               args.seed, args.repeat, args.imufusion_samples, args.json)
+
+
 # ---------------------------------------------------------------- parser
 
 
@@ -305,6 +316,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="FILE", help="output file: .tlog or .bin")
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("bench", help="time every estimator on a simulated flight, against imufusion",
+                       description="Simulate a flight (default: 1 h at 400 Hz), time each estimator's "
+                                   "update() over all of it (best of --repeat; compiled first), and "
+                                   "imufusion's Ahrs called per sample from Python on part of it, with "
+                                   "and without the magnetometer. Prints samples/s, the ratio to "
+                                   "imufusion and whether the targets are met (every estimator >= 5x "
+                                   "imufusion, mahony >= 1 M samples/s). imufusion is optional: "
+                                   'pip install "mavattitude[bench]".')
+    p.add_argument("--estimators", default="all", metavar="LIST",
+                   help="comma-separated estimator names, or 'all' (default: all)")
+    p.add_argument("--scenario", default="figure8", help="simulated scenario (default figure8)")
+    p.add_argument("--duration", type=float, default=3600.0, metavar="S",
+                   help="simulated seconds (default 3600)")
+    p.add_argument("--imu-rate", type=float, default=400.0, metavar="HZ", help="IMU rate (default 400)")
+    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed (default 0)")
+    p.add_argument("--repeat", type=int, default=3, metavar="N",
+                   help="time each run N times and keep the best (default 3)")
+    p.add_argument("--imufusion-samples", type=int, default=200_000, metavar="N",
+                   help="samples imufusion's Python loop is timed on (default 200000)")
+    p.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    p.set_defaults(func=cmd_bench)
     return parser
 
 

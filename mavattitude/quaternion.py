@@ -208,3 +208,22 @@ def integrate_gyro(q, w, dt):
         dq[0] = np.cos(0.5 * angle)
         dq[1], dq[2], dq[3] = w[0] * s, w[1] * s, w[2] * s
     return qnormalize(qmul(q, dq))
+
+
+@njit(cache=True)
+def integrate_gyro_scalar(q0, q1, q2, q3, wx, wy, wz, dt):
+    """``integrate_gyro`` on scalars, allocating nothing, for per-sample loops: returns the
+    rotated quaternion as a tuple (w, x, y, z). The same operations in the same order as
+    ``integrate_gyro``, so the same numbers."""
+    angle = np.sqrt(wx * wx + wy * wy + wz * wz) * dt
+    if angle < 1e-12:
+        d0, d1, d2, d3 = 1.0, 0.5 * wx * dt, 0.5 * wy * dt, 0.5 * wz * dt
+    else:
+        s = np.sin(0.5 * angle) / (angle / dt)
+        d0, d1, d2, d3 = np.cos(0.5 * angle), wx * s, wy * s, wz * s
+    r0 = q0 * d0 - q1 * d1 - q2 * d2 - q3 * d3
+    r1 = q0 * d1 + q1 * d0 + q2 * d3 - q3 * d2
+    r2 = q0 * d2 - q1 * d3 + q2 * d0 + q3 * d1
+    r3 = q0 * d3 + q1 * d2 - q2 * d1 + q3 * d0
+    norm = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3)
+    return r0 / norm, r1 / norm, r2 / norm, r3 / norm

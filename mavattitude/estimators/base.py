@@ -7,8 +7,9 @@ state carries over between calls, and the compiled kernel is the same, so both g
 same numbers.
 
 Inputs are SI on the autopilot clock: ``t`` (N,) s, ``gyro`` (N, 3) rad/s, ``accel`` (N, 3)
-m/s² specific force, ``mag`` (N, 3) tesla with NaN rows where no fresh magnetometer sample
-exists, ``in_air`` (N,) 1.0 in the air, 0.0 on the ground, NaN unknown (see ``phase``).
+m/s² specific force, ``mag`` (N, 3) tesla: the latest magnetometer sample at each IMU time
+(held between samples, as the pipeline's ``mag_on_imu_clock`` gives it), NaN where there is
+none or it is stale, ``in_air`` (N,) 1.0 in the air, 0.0 on the ground, NaN unknown (see ``phase``).
 Output: (N, 4) quaternions [w, x, y, z], body FRD -> NED.
 
 Diagnostics: after each ``update`` an estimator leaves per-sample series for that chunk in

@@ -1,4 +1,4 @@
-"""Mahony nonlinear complementary filter.
+"""Mahony nonlinear complementary filter (paper 000 §2.3 (1); the "CPF" of paper 003).
 
 Paper 000 §2.3 (1) (Chu, Zhao, Feng 2020), also the "CPF" of paper 003 (Wu et al. 2018);
 restated in ../shared/ALGORITHMS.md "mahony". Each IMU sample:
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..quaternion import cross, integrate_gyro, qdcm
+from ..quaternion import integrate_gyro_scalar
 from .base import MAX_STEP_S, Estimator, as_chunk
 
 
@@ -51,34 +51,63 @@ def mahony_run(t, gyro, accel, mag, q, bias_correction, t_prev, gyro_prev, kp, k
                use_mag, max_step, out):
     """Run the filter over a chunk; ``q``, ``bias_correction``, ``t_prev`` (1-element array)
     and ``gyro_prev`` are the state, updated in place. Writes the attitude after each sample
-    to ``out``."""
-    north = np.array([np.cos(declination), np.sin(declination)])
+    to ``out``.
+
+    The loop allocates nothing: the state lives in scalars while it runs (C(q) is formed
+    element by element, only the entries used) and goes back to the arrays at the end."""
+    north_x, north_y = np.cos(declination), np.sin(declination)
+    q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
+    bc0, bc1, bc2 = bias_correction[0], bias_correction[1], bias_correction[2]
+    gp0, gp1, gp2 = gyro_prev[0], gyro_prev[1], gyro_prev[2]
+    tp = t_prev[0]
     for i in range(len(t)):
-        dt = t[i] - t_prev[0] if t_prev[0] == t_prev[0] else 0.0  # NaN before the first sample
-        t_prev[0] = t[i]
-        rate = 0.5 * (gyro[i] + gyro_prev) if dt > 0.0 else gyro[i]  # trapezoidal over the step
-        gyro_prev[:] = gyro[i]
-        c = qdcm(q)
-        e = np.zeros(3)
-        a = accel[i]
-        a_norm = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+        dt = t[i] - tp if tp == tp else 0.0  # NaN before the first sample
+        tp = t[i]
+        g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
+        if dt > 0.0:  # trapezoidal over the step
+            r0, r1, r2 = 0.5 * (g0 + gp0), 0.5 * (g1 + gp1), 0.5 * (g2 + gp2)
+        else:
+            r0, r1, r2 = g0, g1, g2
+        gp0, gp1, gp2 = g0, g1, g2
+        # third row of C(q): k = C(q)ᵀ [0, 0, -1] = -(c20, c21, c22)
+        c20 = 2 * (q1 * q3 - q0 * q2)
+        c21 = 2 * (q2 * q3 + q0 * q1)
+        c22 = 1 - 2 * (q1 * q1 + q2 * q2)
+        e0 = e1 = e2 = 0.0
+        a0, a1, a2 = accel[i, 0], accel[i, 1], accel[i, 2]
+        a_norm = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
         if a_norm > 0.0:
-            k = np.array([-c[2, 0], -c[2, 1], -c[2, 2]])  # C(q)ᵀ [0, 0, -1]
-            e += cross(a / a_norm, k)
-        m = mag[i]
-        if use_mag and m[0] == m[0]:  # not NaN
-            m_n = c @ m
-            h_norm = np.sqrt(m_n[0] * m_n[0] + m_n[1] * m_n[1])
+            u0, u1, u2 = a0 / a_norm, a1 / a_norm, a2 / a_norm
+            k0, k1, k2 = -c20, -c21, -c22
+            e0 += u1 * k2 - u2 * k1  # (a / |a|) × k
+            e1 += u2 * k0 - u0 * k2
+            e2 += u0 * k1 - u1 * k0
+        m0 = mag[i, 0]
+        if use_mag and m0 == m0:  # not NaN
+            m1, m2 = mag[i, 1], mag[i, 2]
+            # horizontal part of m_n = C(q) m
+            mn0 = ((1 - 2 * (q2 * q2 + q3 * q3)) * m0 + 2 * (q1 * q2 - q0 * q3) * m1
+                   + 2 * (q1 * q3 + q0 * q2) * m2)
+            mn1 = (2 * (q1 * q2 + q0 * q3) * m0 + (1 - 2 * (q1 * q1 + q3 * q3)) * m1
+                   + 2 * (q2 * q3 - q0 * q1) * m2)
+            h_norm = np.sqrt(mn0 * mn0 + mn1 * mn1)
             if h_norm > 0.0:
                 # signed angle from h to magnetic north, about the navigation z axis
-                gamma = np.arctan2(m_n[0] * north[1] - m_n[1] * north[0],
-                                   m_n[0] * north[0] + m_n[1] * north[1])
-                e += gamma * c[2, :]  # C(q)ᵀ [0, 0, γ]
+                gamma = np.arctan2(mn0 * north_y - mn1 * north_x, mn0 * north_x + mn1 * north_y)
+                e0 += gamma * c20  # C(q)ᵀ [0, 0, γ]
+                e1 += gamma * c21
+                e2 += gamma * c22
         if 0.0 < dt <= max_step:
-            bias_correction += ki * e * dt
-            w = rate + kp * e + bias_correction
-            q[:] = integrate_gyro(q, w, dt)
-        out[i, :] = q
+            bc0 += ki * e0 * dt
+            bc1 += ki * e1 * dt
+            bc2 += ki * e2 * dt
+            q0, q1, q2, q3 = integrate_gyro_scalar(q0, q1, q2, q3, r0 + kp * e0 + bc0,
+                                                   r1 + kp * e1 + bc1, r2 + kp * e2 + bc2, dt)
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q0, q1, q2, q3
+    q[0], q[1], q[2], q[3] = q0, q1, q2, q3
+    bias_correction[0], bias_correction[1], bias_correction[2] = bc0, bc1, bc2
+    gyro_prev[0], gyro_prev[1], gyro_prev[2] = gp0, gp1, gp2
+    t_prev[0] = tp
     return out
 
 

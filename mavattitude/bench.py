@@ -1,0 +1,332 @@
+"""``mavattitude bench``: how fast each estimator runs, against imufusion called from Python.
+
+One simulated flight (default: figure8, 1 h at 400 Hz = 1.44 M IMU samples) feeds every
+estimator. Each is run once on a short slice first, which compiles its kernels (or loads them
+from numba's cache), then ``update()`` over the whole flight is timed, best of ``repeat``
+runs, with and without the magnetometer. The yardstick is imufusion's ``Ahrs`` (the Python
+package of x-io's Fusion, a C complementary filter) called per sample from a Python loop, as
+a user of that package would, on the first ``imufusion_samples`` samples of the same data.
+
+What is timed, for both: the call(s) that turn the samples into one attitude per sample.
+Ours: one ``update()`` over the whole chunk (input checks, kernel, output array). imufusion:
+per sample ``update(...)`` or ``update_no_magnetometer(...)`` then ``get_quaternion()`` into
+an output array, its inputs converted to its units (°/s, g, µT) beforehand, outside the timing.
+
+The magnetometer reaches the estimators as in ``replay`` (``pipeline.mag_on_imu_clock``, the
+interface of ``estimators.base``): the latest compass sample held at every IMU time (a new
+one every 40th sample at 400 Hz with a 10 Hz compass). imufusion likewise gets ``update``
+with the latest compass sample on every sample, as its documentation calls it.
+
+Targets: every estimator at least ``MIN_X_IMUFUSION`` times imufusion's rate in the same mode,
+and mahony at least ``MAHONY_MIN_RATE`` samples/s.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .errors import UsageError
+from .flight import GRAVITY, MagSeries
+
+MIN_X_IMUFUSION = 5.0  # every estimator: at least this many times imufusion's samples/s
+MAHONY_MIN_RATE = 1e6  # samples/s
+AIR_ABOVE_M = 3.0  # m above home: in the air (the in_air input, from the simulated truth)
+WARM_SAMPLES = 2000  # the compile/warm run's slice
+INSTALL_HINT = 'pip install "mavattitude[bench]"  (or: pip install "imufusion>=1.3,<2")'
+MODES = (("mag", True), ("no mag", False))
+
+
+@dataclass
+class BenchData:
+    scenario: str
+    seed: int
+    duration: float  # s
+    imu_rate: float  # Hz
+    t: np.ndarray  # (N,) s
+    gyro: np.ndarray  # (N, 3) rad/s
+    accel: np.ndarray  # (N, 3) m/s²
+    mag: np.ndarray  # (N, 3) T, the latest compass sample held at each IMU time
+    in_air: np.ndarray  # (N,) 1.0 / 0.0
+    declination: float  # rad
+    q0: np.ndarray
+    gyro_bias: np.ndarray
+    simulate_s: float  # how long the simulation took
+    compass_samples: int  # compass samples in the flight (the rest of the mag rows repeat one)
+
+    @property
+    def n(self) -> int:
+        return len(self.t)
+
+    @property
+    def mag_samples(self) -> int:
+        return self.compass_samples
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def make_data(scenario: str = "figure8", duration: float = 3600.0, imu_rate: float = 400.0,
+              seed: int = 0) -> BenchData:
+    """Simulate the flight and prepare the estimators' inputs and starting point."""
+    from .estimators import align
+    from .pipeline import mag_on_imu_clock
+    from .sim import simulate
+
+    _say(f"simulating {scenario}, {duration:g} s at {imu_rate:g} Hz "
+         f"({int(round(duration * imu_rate)):,} IMU samples) ...")
+    start = time.perf_counter()
+    try:
+        sim = simulate(scenario, duration, seed=seed, imu_rate=imu_rate)
+    except ValueError as exc:  # too short for two samples of every sensor
+        raise UsageError(str(exc)) from None
+    simulate_s = time.perf_counter() - start
+    _say(f"simulated in {simulate_s:.1f} s")
+    imu = sim.imu[0]
+    mag = mag_on_imu_clock(sim.t, MagSeries("mag", sim.mag.t, sim.mag.field))
+    in_air = (-sim.truth.pos_ned[:, 2] > AIR_ABOVE_M).astype(np.float64)
+    a = align(sim.t, imu.gyro, imu.accel, mag, sim.declination_rad)
+    return BenchData(scenario, seed, float(duration), float(imu_rate), sim.t, imu.gyro, imu.accel,
+                     mag, in_air, sim.declination_rad, a.q0, a.gyro_bias, simulate_s,
+                     int(np.count_nonzero((sim.mag.t >= sim.t[0]) & (sim.mag.t <= sim.t[-1]))))
+
+
+# ---------------------------------------------------------------- our estimators
+
+
+def _run_once(name: str, data: BenchData, use_mag: bool, n: int) -> float:
+    from .estimators import create
+
+    estimator = create(name, declination=data.declination)
+    estimator.initialize(data.q0.copy(), data.gyro_bias.copy())
+    args = (data.t[:n], data.gyro[:n], data.accel[:n], data.mag[:n] if use_mag else None)
+    in_air = data.in_air[:n]
+    start = time.perf_counter()
+    q = estimator.update(*args, in_air=in_air)
+    seconds = time.perf_counter() - start
+    if q.shape != (n, 4) or not np.isfinite(q[-1]).all():
+        raise RuntimeError(f"{name}: update returned {q.shape} with a non-finite last attitude")
+    return seconds
+
+
+def warm(name: str, data: BenchData) -> float:
+    """One short run in each mode: compiles the kernels or loads them from the cache."""
+    n = min(data.n, WARM_SAMPLES)
+    return sum(_run_once(name, data, use_mag, n) for _, use_mag in MODES)
+
+
+def time_estimator(name: str, data: BenchData, use_mag: bool, repeat: int) -> float:
+    """Best of ``repeat`` timings of one ``update()`` over the whole flight, seconds."""
+    return min(_run_once(name, data, use_mag, data.n) for _ in range(repeat))
+
+
+# ---------------------------------------------------------------- imufusion
+
+
+def import_imufusion():
+    """The imufusion module, or None (with how to install it on stderr) when it is missing."""
+    try:
+        import imufusion
+    except ImportError:
+        _say(f"imufusion is not installed, so there is no comparison with it: {INSTALL_HINT}")
+        return None
+    return imufusion
+
+
+def imufusion_settings(imufusion, imu_rate: float):
+    """Fusion's recommended settings (its README example), in our NED convention."""
+    settings = imufusion.AhrsSettings(
+        sample_rate=imu_rate,  # Hz: sets the start-up ramp's length in samples
+        gain=0.5,
+        gyroscope_range=2000.0,  # °/s
+        acceleration_rejection=10.0,  # °
+        magnetic_rejection=10.0,  # °
+        rejection_timeout=int(5 * imu_rate),  # samples
+    )
+    # imufusion 1.3.3's constructor ignores its convention argument; the attribute takes.
+    settings.convention = imufusion.CONVENTION_NED
+    return settings
+
+
+def time_imufusion(imufusion, data: BenchData, use_mag: bool, n: int, repeat: int) -> float:
+    """Best of ``repeat`` timings of a per-sample Python loop over imufusion.Ahrs, seconds."""
+    gyro = np.degrees(data.gyro[:n])  # °/s
+    accel = data.accel[:n] / GRAVITY  # g
+    mag = data.mag[:n] * 1e6  # µT (any unit does; µT keeps Fusion's float32 comfortable)
+    has_mag = np.isfinite(mag[:, 0]) if use_mag else np.zeros(n, dtype=bool)
+    period = float(np.median(np.diff(data.t[:n]))) if n > 1 else 1.0 / data.imu_rate
+    best = np.inf
+    for _ in range(repeat):
+        ahrs = imufusion.Ahrs()
+        ahrs.set_settings(imufusion_settings(imufusion, 1.0 / period))
+        ahrs.set_sample_period(period)  # s: the step every update integrates over
+        out = np.empty((n, 4))
+        update, update_no_mag, get_q = ahrs.update, ahrs.update_no_magnetometer, ahrs.get_quaternion
+        start = time.perf_counter()
+        for i in range(n):
+            if has_mag[i]:
+                update(gyro[i], accel[i], mag[i])
+            else:
+                update_no_mag(gyro[i], accel[i])
+            out[i] = get_q()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+# ---------------------------------------------------------------- the whole bench
+
+
+def _verdict(name: str, rate: float, x_imufusion: float | None) -> tuple[bool | None, list[str]]:
+    """Whether the row meets its targets (None: nothing to check), and what it misses."""
+    checks = []
+    if x_imufusion is not None:
+        checks.append((x_imufusion >= MIN_X_IMUFUSION, f"{x_imufusion:.1f}× < {MIN_X_IMUFUSION:g}× imufusion"))
+    if name == "mahony":
+        checks.append((rate >= MAHONY_MIN_RATE, f"{_rate(rate)}/s < {_rate(MAHONY_MIN_RATE)}/s"))
+    if not checks:
+        return None, []
+    return all(ok for ok, _ in checks), [why for ok, why in checks if not ok]
+
+
+def run_bench(names: list[str], scenario: str = "figure8", duration: float = 3600.0,
+              imu_rate: float = 400.0, seed: int = 0, repeat: int = 3,
+              imufusion_samples: int = 200_000) -> dict:
+    """Simulate, time every named estimator and imufusion; the result as a JSON-ready dict."""
+    from .estimators import ESTIMATORS, needs_compile
+
+    data = make_data(scenario, duration, imu_rate, seed)
+    imufusion = import_imufusion()
+    reference = {}
+    n_fusion = min(imufusion_samples, data.n)
+    if imufusion is not None:
+        for label, use_mag in MODES:
+            _say(f"timing imufusion.Ahrs ({label}) on {n_fusion:,} samples ...")
+            reference[label] = n_fusion / time_imufusion(imufusion, data, use_mag, n_fusion, repeat)
+    pending = needs_compile(names)
+    if pending:
+        _say(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...")
+    rows = []
+    for name in names:
+        cls = ESTIMATORS[name]
+        try:
+            warm_s = warm(name, data)
+        except Exception as exc:  # one broken estimator must not hide the others' numbers
+            _say(f"warning: {name} failed: {type(exc).__name__}: {exc}")
+            rows.append(dict(estimator=name, mag=None, error=f"{type(exc).__name__}: {exc}"))
+            continue
+        for label, use_mag in MODES:
+            if use_mag and not cls.uses_mag:
+                continue
+            _say(f"timing {name} ({label}) on {data.n:,} samples, best of {repeat} ...")
+            try:
+                seconds = time_estimator(name, data, use_mag, repeat)
+            except Exception as exc:
+                _say(f"warning: {name} ({label}) failed: {type(exc).__name__}: {exc}")
+                rows.append(dict(estimator=name, mag=use_mag, error=f"{type(exc).__name__}: {exc}"))
+                continue
+            rate = data.n / seconds
+            x = rate / reference[label] if label in reference else None
+            met, misses = _verdict(name, rate, x)
+            rows.append(dict(estimator=name, mag=use_mag, samples=data.n, best_s=seconds,
+                             samples_per_s=rate, x_imufusion=x, target_met=met, misses=misses,
+                             warm_s=warm_s))
+    return {
+        "mavattitude": __version__,
+        "machine": {"python": platform.python_version(), "numpy": np.__version__,
+                    "numba": _version("numba"), "platform": platform.platform(),
+                    "cpus": os.cpu_count()},
+        "data": {"scenario": data.scenario, "seed": data.seed, "duration_s": data.duration,
+                 "imu_rate_hz": data.imu_rate, "samples": data.n, "mag_samples": data.mag_samples,
+                 "simulate_s": data.simulate_s},
+        "repeat": repeat,
+        "targets": {"min_x_imufusion": MIN_X_IMUFUSION, "mahony_min_samples_per_s": MAHONY_MIN_RATE},
+        "imufusion": {
+            "available": imufusion is not None,
+            "version": _version("imufusion") if imufusion is not None else None,
+            "samples": n_fusion if imufusion is not None else 0,
+            "samples_per_s": {("mag" if k == "mag" else "no_mag"): v for k, v in reference.items()},
+            "settings": _settings_json(imufusion, data.imu_rate) if imufusion is not None else None,
+        },
+        "results": rows,
+    }
+
+
+def _settings_json(imufusion, imu_rate: float) -> dict:
+    s = imufusion_settings(imufusion, imu_rate)
+    return {k: getattr(s, k) for k in ("sample_rate", "convention", "gain", "gyroscope_range",
+                                       "acceleration_rejection", "magnetic_rejection",
+                                       "rejection_timeout")}
+
+
+def _version(package: str) -> str | None:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(package)
+    except PackageNotFoundError:
+        return None
+
+
+# ---------------------------------------------------------------- table
+
+
+def _rate(r: float) -> str:
+    if r >= 1e6:
+        return f"{r / 1e6:.2f} M"
+    if r >= 1e3:
+        return f"{r / 1e3:.0f} k"
+    return f"{r:.0f}"
+
+
+def format_table(result: dict) -> str:
+    d = result["data"]
+    fusion = result["imufusion"]
+    lines = [f"{d['scenario']}, {d['duration_s']:g} s at {d['imu_rate_hz']:g} Hz: {d['samples']:,} IMU "
+             f"samples, {d['mag_samples']:,} magnetometer samples; best of {result['repeat']}"]
+    header = f"{'estimator':<16}  {'mag':<6}  {'samples/s':>10}  {'× imufusion':>11}  target met"
+    lines += [header, "-" * len(header)]
+    for row in result["results"]:
+        mode = "" if row["mag"] is None else ("mag" if row["mag"] else "no mag")
+        if "error" in row:
+            lines.append(f"{row['estimator']:<16}  {mode:<6}  {'failed':>10}  {'':>11}  {row['error']}")
+            continue
+        x = "n/a" if row["x_imufusion"] is None else f"{row['x_imufusion']:.1f}"
+        met = {True: "yes", False: "NO: " + "; ".join(row["misses"]), None: "n/a"}[row["target_met"]]
+        lines.append(f"{row['estimator']:<16}  {mode:<6}  {_rate(row['samples_per_s']):>10}  {x:>11}  {met}")
+    if fusion["available"]:
+        for key, label in (("mag", "mag"), ("no_mag", "no mag")):
+            rate = fusion["samples_per_s"][key]
+            lines.append(f"{'imufusion.Ahrs':<16}  {label:<6}  {_rate(rate):>10}  {'1.0':>11}  "
+                         f"(reference: Python loop, {fusion['samples']:,} samples)")
+    lines.append(f"targets: every estimator ≥ {MIN_X_IMUFUSION:g}× imufusion in the same mode; "
+                 f"mahony ≥ {_rate(MAHONY_MIN_RATE)} samples/s")
+    if not fusion["available"]:
+        lines.append(f"imufusion not installed: no × imufusion column ({INSTALL_HINT})")
+    return "\n".join(lines) + "\n"
+
+
+def run(names: list[str], scenario: str, duration: float, imu_rate: float, seed: int,
+        repeat: int, imufusion_samples: int, json_path: str | None) -> int:
+    """The ``bench`` command: checks its options, runs, prints the table, writes the JSON."""
+    from .sim import SCENARIOS
+
+    if scenario not in SCENARIOS:
+        raise UsageError(f"unknown scenario {scenario!r}; choose from: {', '.join(SCENARIOS)}")
+    if not (duration > 0 and imu_rate > 0):
+        raise UsageError("--duration and --imu-rate must be positive")
+    if repeat < 1 or imufusion_samples < 1:
+        raise UsageError("--repeat and --imufusion-samples must be at least 1")
+    result = run_bench(names, scenario, duration, imu_rate, seed, repeat, imufusion_samples)
+    print(format_table(result), end="")
+    if json_path:
+        Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
+        print(f"results written to {json_path}")
+    return 1 if any("error" in row for row in result["results"]) else 0

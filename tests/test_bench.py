@@ -1,0 +1,168 @@
+"""``mavattitude bench`` end to end (short flights, no timed assertions), and the
+allocation-free mahony kernel against the vector formulation it replaced."""
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from mavattitude import bench
+from mavattitude import quaternion as quat
+from mavattitude.cli import main
+from mavattitude.estimators import ESTIMATORS, Estimator
+from mavattitude.estimators.base import MAX_STEP_S
+from mavattitude.estimators.mahony import Mahony, MahonyParams
+from mavattitude.flight import MagSeries
+from mavattitude.sim import simulate
+
+SHORT = ["bench", "--duration", "20", "--imu-rate", "100", "--repeat", "1"]
+
+
+def _bench(capsys, tmp_path, *extra):
+    path = tmp_path / "bench.json"
+    rc = main(SHORT + ["--json", str(path), *extra])
+    out, err = capsys.readouterr()
+    return rc, out, err, json.loads(path.read_text())
+
+
+def test_bench_runs_every_estimator(capsys, tmp_path):
+    rc, out, err, result = _bench(capsys, tmp_path, "--imufusion-samples", "500")
+    assert rc == 0, err
+    assert "simulating figure8" in err and "simulated in" in err
+    d = result["data"]
+    assert d["samples"] == 2000 and d["imu_rate_hz"] == 100.0 and d["duration_s"] == 20.0
+    assert d["mag_samples"] == 200  # 10 Hz compass over 20 s
+    assert result["repeat"] == 1
+    assert set(result["targets"]) == {"min_x_imufusion", "mahony_min_samples_per_s"}
+    rows = result["results"]
+    for name, cls in ESTIMATORS.items():
+        modes = sorted(r["mag"] for r in rows if r["estimator"] == name)
+        assert modes == ([False, True] if cls.uses_mag else [False]), name
+        assert name in out
+    for row in rows:
+        assert "error" not in row, row
+        assert row["samples_per_s"] > 0 and row["best_s"] > 0 and row["samples"] == 2000
+        assert row["target_met"] in (True, False)
+        assert row["x_imufusion"] is None or row["x_imufusion"] > 0
+    fusion = result["imufusion"]
+    if fusion["available"]:
+        assert fusion["samples"] == 500 and fusion["version"]
+        assert set(fusion["samples_per_s"]) == {"mag", "no_mag"}
+        assert all(v > 0 for v in fusion["samples_per_s"].values())
+        assert fusion["settings"]["convention"] == 2  # NED
+        assert all(r["x_imufusion"] > 0 for r in rows)
+        assert "imufusion.Ahrs" in out
+    assert "samples/s" in out and "target met" in out
+
+
+def test_bench_without_imufusion(capsys, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "imufusion", None)  # import imufusion raises ImportError
+    rc, out, err, result = _bench(capsys, tmp_path, "--estimators", "mahony")
+    assert rc == 0, err
+    assert "imufusion is not installed" in err and "pip install" in err
+    assert result["imufusion"]["available"] is False
+    assert result["imufusion"]["samples_per_s"] == {}
+    rows = result["results"]
+    assert [(r["estimator"], r["mag"]) for r in rows] == [("mahony", True), ("mahony", False)]
+    for row in rows:
+        assert row["samples_per_s"] > 0 and row["x_imufusion"] is None
+        assert row["target_met"] in (True, False)  # mahony's own target still applies
+    assert "imufusion.Ahrs" not in out and "imufusion not installed" in out
+
+
+@dataclass
+class _NoParams:
+    pass
+
+
+class _Broken(Estimator):
+    name = "broken"
+    Params = _NoParams
+
+    def initialize(self, q0, gyro_bias):
+        self.initialized = True
+
+    def update(self, t, gyro, accel, mag, in_air=None):
+        raise RuntimeError("kernel exploded")
+
+
+def test_a_failing_estimator_is_reported_not_fatal(capsys, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "imufusion", None)
+    monkeypatch.setitem(ESTIMATORS, "broken", _Broken)
+    rc, out, err, result = _bench(capsys, tmp_path, "--estimators", "broken,mahony")
+    assert rc == 1
+    assert "broken failed: RuntimeError: kernel exploded" in err
+    assert result["results"][0] == {"estimator": "broken", "mag": None,
+                                     "error": "RuntimeError: kernel exploded"}
+    assert [r["estimator"] for r in result["results"][1:]] == ["mahony", "mahony"]
+    assert "kernel exploded" in out
+
+
+@pytest.mark.parametrize("args", [["--duration", "0"], ["--repeat", "0"], ["--scenario", "nope"],
+                                  ["--estimators", "nope"], ["--duration", "0.1"]])
+def test_bench_usage_errors(capsys, args):
+    assert main(["bench", *args]) == 2
+    assert "error" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- the allocation-free mahony
+
+
+def test_integrate_gyro_scalar_equals_integrate_gyro():
+    rng = np.random.default_rng(1)
+    for k in range(500):
+        q = quat.normalize(rng.normal(size=4))
+        w = rng.normal(0, 2.0, 3) * (1e-14 if k % 10 == 0 else 1.0)  # some below the small-angle cut
+        dt = rng.uniform(1e-4, 0.1)
+        assert quat.integrate_gyro_scalar(*q, *w, dt) == tuple(quat.integrate_gyro(q, w, dt))
+
+
+def _mahony_reference(t, gyro, accel, mag, q0, bias, params, declination):
+    """The filter as it was written before the loop was made allocation-free: per-sample
+    arrays, C(q) as a matrix, the vector helpers of ``quaternion``."""
+    q = np.array(q0, dtype=float)
+    bias_correction = -np.array(bias, dtype=float)
+    north = np.array([np.cos(declination), np.sin(declination)])
+    t_prev, gyro_prev = np.nan, np.zeros(3)
+    out = np.empty((len(t), 4))
+    for i in range(len(t)):
+        dt = t[i] - t_prev if t_prev == t_prev else 0.0
+        t_prev = t[i]
+        rate = 0.5 * (gyro[i] + gyro_prev) if dt > 0.0 else gyro[i]
+        gyro_prev = gyro[i].copy()
+        c = quat.qdcm(q)
+        e = np.zeros(3)
+        a_norm = np.linalg.norm(accel[i])
+        if a_norm > 0.0:
+            e += quat.cross(accel[i] / a_norm, -c[2, :])
+        m = mag[i]
+        if params.use_mag and m[0] == m[0]:
+            m_n = c @ m
+            if np.hypot(m_n[0], m_n[1]) > 0.0:
+                gamma = np.arctan2(m_n[0] * north[1] - m_n[1] * north[0],
+                                   m_n[0] * north[0] + m_n[1] * north[1])
+                e += gamma * c[2, :]
+        if 0.0 < dt <= MAX_STEP_S:
+            bias_correction += params.ki * e * dt
+            q = quat.integrate_gyro(q, rate + params.kp * e + bias_correction, dt)
+        out[i] = q
+    return out
+
+
+@pytest.mark.parametrize("use_mag", [True, False])
+def test_mahony_kernel_matches_the_vector_formulation(use_mag):
+    sim = simulate("figure8", 30.0, seed=4, imu_rate=200.0)
+    t, gyro, accel = sim.t.copy(), sim.imu[0].gyro.copy(), sim.imu[0].accel.copy()
+    mag = bench.fresh_mag_on_imu_clock(t, MagSeries("mag", sim.mag.t, sim.mag.field))
+    t[3000:] += 3.0  # a gap, not integrated over
+    accel[::500] = 0.0  # accelerometer dropouts
+    params = MahonyParams(kp=1.0, ki=0.05, use_mag=use_mag)  # large gains: the terms matter
+    q0, bias = quat.from_euler(0.3, -0.2, 1.0), np.array([0.01, -0.02, 0.005])
+    f = Mahony(params, declination=0.2)
+    f.initialize(q0, bias)
+    q = f.update(t, gyro, accel, mag)
+    ref = _mahony_reference(t, gyro, accel, mag, q0, bias, params, 0.2)
+    np.testing.assert_allclose(q, ref, rtol=0, atol=1e-12)
