@@ -1,0 +1,337 @@
+"""Mahony-EKF: a quaternion EKF whose measurement is the Mahony filter's quaternion.
+
+Paper 000 (Chu, Zhao, Feng 2020, "UAV attitude calculation algorithm based on Mahony-EKF"),
+§2.3; restated in ../shared/ALGORITHMS.md "mahony-ekf". Each IMU sample:
+
+1. Mahony step (§2.3 1), Fig. 4): the complementary filter of ``mahony`` runs alongside, with
+   its own gains, from the same initial attitude; its quaternion q_M is the measurement. The
+   maths is mahony's, step for step (gravity error α = a × C(q)ᵀ[0,0,-1], heading error
+   β = γ C(q)ᵀ[0,0,1], PI correction, exact integration of the trapezoidal rate), written
+   on scalars so the loop allocates nothing; with ``k_mahony = 0`` it gives mahony's numbers
+   (a test checks this).
+2. Predict (eq 13-15, 18-19), the step shared with ``ekf``: ω̂ = gyro - still-period bias
+   (§2.2), Φ = I + (T/2) Ω(ω̂), X⁻ = Φ X, P⁻ = Φ P Φᵀ + G Q Gᵀ, G = (T/2) Ξ(X),
+   Q = q_gyro I₃ = 10⁻² I₃ (eq 12). The paper prints G (eq 15) without the ½ and with the
+   opposite sign; the ½ belongs there (eq 11), the sign cancels in G Q Gᵀ.
+3. Measurement (eq 16): Z = q_M, H = I₄. q_M and -q_M are one attitude: Z ← -Z when
+   Z·X⁻ < 0.
+4. Adaptive noise (eq 17): R = r0 [1 + k_accel |‖a‖ - g|] I₄, r0 = 10⁻⁴. The paper writes
+   (‖a‖ - g), negative below g; a reading below g is as non-gravitational as one above, so
+   the absolute value is used (ALGORITHMS.md).
+5. Update (eq 20-22): K = P⁻ (P⁻ + R)⁻¹, X = X⁻ + K (Z - X⁻),
+   P = (I - K) P⁻ (I - K)ᵀ + K R Kᵀ (Joseph form); normalise X. P₀ = I₄, X₀ = the shared
+   alignment's attitude from accelerometer and magnetometer (as eq 4-6).
+
+Choices the paper leaves open, made here (sweeps over tests/simtruth's flights and the
+shared logs; the numbers are in the issue-3 report):
+- k_accel = 1000 /(m/s²) (the paper: only k > 0). At rest the EKF follows q_M with a time
+  constant of about 2 √(R / q_gyro) = 0.2 s; R's growth stretches it by √(1 + k_accel |‖a‖ - g|),
+  to ≈ 6 s in a 25° coordinated turn (‖a‖ - g ≈ 1 m/s²).
+- The internal Mahony's gravity error is weighted by w = 1 / (1 + k_mahony |ā - ā_ref|)
+  (k_mahony = 100 /(m/s²); 0 gives the paper's unweighted filter). Not in the paper, and
+  needed: R's adaptation (eq 17) only lets the EKF coast on the gyro while ‖a‖ ≠ g, but q_M
+  itself is pulled off by the non-gravity acceleration (the Mahony filter has memory), and
+  the EKF returns to it afterwards. No choice of Kp then meets both of the paper's claims on
+  simulated truth: the static error < 0.1° needs Kp ≥ 0.5 /s (the gyro bias walks; the tilt
+  error is about bias / Kp) and the coordinated-turn (figure-eight) error < 1° needs
+  Kp ≤ 0.05 /s. With the weight, the accelerometer steers q_M at rest and not in turns.
+  ā is ‖a‖ - g low-passed with ``accel_lp_s`` = 0.5 s (the per-sample norm is too noisy);
+  ā_ref is ā's slow baseline (``accel_ref_s`` = 60 s; a running mean over the first
+  minute), which absorbs an accelerometer scale error (two of the shared real logs read
+  0.4-0.6 m/s² high at rest) and the rectified vibration. Sustained accelerations longer
+  than about a minute (a plane's loiter) become the baseline and are trusted again.
+  Below ``weight_min_rate`` = 20 Hz (the mean step, smoothed over ~100 samples) the weight
+  stays 1: at a few Hz the gyro integrates too coarsely to carry the attitude alone, and
+  weighting made the 1 Hz and 4 Hz shared logs 2-2.5× worse.
+- The internal Mahony's gains: Kp = 0.5 /s, Ki = 0.005 /s² (mahony's defaults are 0.2 and
+  0.0005): with the accelerometer weighted out in manoeuvres, the stiffer loop holds the
+  static tilt within 0.1° against the gyro bias walk (Kp = 0.2, Ki = 0.0005: 0.18°).
+- The EKF predicts with the still-period bias only, as the paper does; the internal
+  Mahony's integral term (its running bias correction) stays inside the Mahony filter.
+- The trapezoidal rate and gap handling follow mahony: the first sample, and any step
+  longer than ``MAX_STEP_S``, neither predicts nor updates.
+- The update is written out element by element: S = P⁻ + R is inverted by its adjugate, and
+  as K = I - r S⁻¹ is symmetric, I - K = r S⁻¹, the Joseph form needs no further inverse.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ..flight import GRAVITY
+from ..quaternion import integrate_gyro_scalar
+from .base import MAX_STEP_S, Estimator, as_chunk
+from .ekf import predict
+
+
+@dataclass
+class MahonyEkfParams:
+    kp: float = 0.5  # internal Mahony proportional gain, 1/s (mahony's: 0.2; see the docstring)
+    ki: float = 0.005  # internal Mahony integral gain, 1/s² (mahony's: 0.0005)
+    use_mag: bool = True  # the internal Mahony corrects heading from the magnetometer
+    q_gyro: float = 1e-2  # gyro noise variance per axis (eq 12: Q = 1e-2 I₃), (rad/s)²
+    r0: float = 1e-4  # measurement noise variance per quaternion component at rest (eq 17), 1
+    k_accel: float = 1000.0  # eq 17's k: R = r0 [1 + k_accel |‖a‖ - g|], 1/(m/s²)
+    k_mahony: float = 100.0  # Mahony gravity-error weight 1/(1 + k_mahony |ā - ā_ref|); 0: none, 1/(m/s²)
+    accel_lp_s: float = 0.5  # time constant of ā, the low-passed ‖a‖ - g, s
+    accel_ref_s: float = 60.0  # time constant of ā_ref, ā's slow baseline (0: none, ā_ref = 0), s
+    weight_min_rate: float = 20.0  # IMU rate below which the weight stays 1, Hz
+
+
+@njit(cache=True, inline='always')
+def mahony_step(q, bias_correction, r0, r1, r2, a0, a1, a2, m0, m1, m2, use_m, kp, ki, cos_dec,
+                sin_dec, dt, accel_weight):
+    """One step of mahony's filter (``mahony.mahony_run``), in place on ``q`` (4,) and
+    ``bias_correction`` (3,): (r0, r1, r2) the trapezoidal gyro rate, (a0, a1, a2) the
+    accelerometer, (m0, m1, m2) the field when ``use_m``. The gravity error is multiplied by
+    ``accel_weight`` (1: mahony's filter exactly). Integrates only when dt > 0 (the caller
+    applies the gap limit)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    c20 = 2 * (x * z - w * y)
+    c21 = 2 * (y * z + w * x)
+    c22 = 1 - 2 * (x * x + y * y)
+    e0 = e1 = e2 = 0.0
+    a_norm = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    if a_norm > 0.0:
+        u0, u1, u2 = a0 / a_norm, a1 / a_norm, a2 / a_norm
+        k0, k1, k2 = -c20, -c21, -c22  # C(q)ᵀ [0, 0, -1]
+        e0 += accel_weight * (u1 * k2 - u2 * k1)  # (a / |a|) × k
+        e1 += accel_weight * (u2 * k0 - u0 * k2)
+        e2 += accel_weight * (u0 * k1 - u1 * k0)
+    if use_m:
+        # horizontal part of m_n = C(q) m
+        mn0 = ((1 - 2 * (y * y + z * z)) * m0 + 2 * (x * y - w * z) * m1
+               + 2 * (x * z + w * y) * m2)
+        mn1 = (2 * (x * y + w * z) * m0 + (1 - 2 * (x * x + z * z)) * m1
+               + 2 * (y * z - w * x) * m2)
+        h_norm = np.sqrt(mn0 * mn0 + mn1 * mn1)
+        if h_norm > 0.0:
+            # signed angle from h to magnetic north, about the navigation z axis
+            gamma = np.arctan2(mn0 * sin_dec - mn1 * cos_dec, mn0 * cos_dec + mn1 * sin_dec)
+            e0 += gamma * c20  # C(q)ᵀ [0, 0, γ]
+            e1 += gamma * c21
+            e2 += gamma * c22
+    if dt > 0.0:
+        bc0 = bias_correction[0] + ki * e0 * dt
+        bc1 = bias_correction[1] + ki * e1 * dt
+        bc2 = bias_correction[2] + ki * e2 * dt
+        bias_correction[0], bias_correction[1], bias_correction[2] = bc0, bc1, bc2
+        q[0], q[1], q[2], q[3] = integrate_gyro_scalar(w, x, y, z, r0 + kp * e0 + bc0,
+                                                       r1 + kp * e1 + bc1, r2 + kp * e2 + bc2, dt)
+
+
+@njit(cache=True, inline='always')
+def quaternion_update(x, P, z0, z1, z2, z3, r):
+    """Update with Z = (z0..z3), H = I₄, R = r I₄ (eq 20-22), in place. S = P + r I is
+    inverted by its adjugate (one division); K = P S⁻¹ = I - r S⁻¹ is symmetric and I - K =
+    r S⁻¹, so the Joseph form is P = (r S⁻¹ P)(r S⁻¹) + r K K. Written out element by element."""
+    p00, p01, p02, p03 = P[0, 0], P[0, 1], P[0, 2], P[0, 3]
+    p11, p12, p13 = P[1, 1], P[1, 2], P[1, 3]
+    p22, p23 = P[2, 2], P[2, 3]
+    p33 = P[3, 3]
+    a00, a01, a02, a03 = p00 + r, p01, p02, p03
+    a11, a12, a13 = p11 + r, p12, p13
+    a22, a23 = p22 + r, p23
+    a33 = p33 + r
+    # 2×2 minors of rows 0-1 (m) and rows 2-3 (c) of S
+    m0 = a00 * a11 - a01 * a01
+    m1 = a00 * a12 - a02 * a01
+    m2 = a00 * a13 - a03 * a01
+    m3 = a01 * a12 - a02 * a11
+    m4 = a01 * a13 - a03 * a11
+    m5 = a02 * a13 - a03 * a12
+    c5 = a22 * a33 - a23 * a23
+    c4 = a12 * a33 - a13 * a23
+    c3 = a12 * a23 - a13 * a22
+    c2 = a02 * a33 - a03 * a23
+    c1 = a02 * a23 - a03 * a22
+    c0 = a02 * a13 - a03 * a12
+    inv = 1.0 / (m0 * c5 - m1 * c4 + m2 * c3 + m3 * c2 - m4 * c1 + m5 * c0)
+    # S⁻¹ (symmetric)
+    i00 = (a11 * c5 - a12 * c4 + a13 * c3) * inv
+    i01 = (-a01 * c5 + a02 * c4 - a03 * c3) * inv
+    i02 = (a13 * m5 - a23 * m4 + a33 * m3) * inv
+    i03 = (-a12 * m5 + a22 * m4 - a23 * m3) * inv
+    i11 = (a00 * c5 - a02 * c2 + a03 * c1) * inv
+    i12 = (-a03 * m5 + a23 * m2 - a33 * m1) * inv
+    i13 = (a02 * m5 - a22 * m2 + a23 * m1) * inv
+    i22 = (a03 * m4 - a13 * m2 + a33 * m0) * inv
+    i23 = (-a02 * m4 + a12 * m2 - a23 * m0) * inv
+    i33 = (a02 * m3 - a12 * m1 + a22 * m0) * inv
+    # K = I - r S⁻¹
+    k00 = 1.0 - r * i00
+    k01 = -r * i01
+    k02 = -r * i02
+    k03 = -r * i03
+    k11 = 1.0 - r * i11
+    k12 = -r * i12
+    k13 = -r * i13
+    k22 = 1.0 - r * i22
+    k23 = -r * i23
+    k33 = 1.0 - r * i33
+    y0, y1, y2, y3 = z0 - x[0], z1 - x[1], z2 - x[2], z3 - x[3]
+    x[0] += k00 * y0 + k01 * y1 + k02 * y2 + k03 * y3
+    x[1] += k01 * y0 + k11 * y1 + k12 * y2 + k13 * y3
+    x[2] += k02 * y0 + k12 * y1 + k22 * y2 + k23 * y3
+    x[3] += k03 * y0 + k13 * y1 + k23 * y2 + k33 * y3
+    # C = (I - K) P = r S⁻¹ P
+    e00 = r * (i00 * p00 + i01 * p01 + i02 * p02 + i03 * p03)
+    e01 = r * (i00 * p01 + i01 * p11 + i02 * p12 + i03 * p13)
+    e02 = r * (i00 * p02 + i01 * p12 + i02 * p22 + i03 * p23)
+    e03 = r * (i00 * p03 + i01 * p13 + i02 * p23 + i03 * p33)
+    e10 = r * (i01 * p00 + i11 * p01 + i12 * p02 + i13 * p03)
+    e11 = r * (i01 * p01 + i11 * p11 + i12 * p12 + i13 * p13)
+    e12 = r * (i01 * p02 + i11 * p12 + i12 * p22 + i13 * p23)
+    e13 = r * (i01 * p03 + i11 * p13 + i12 * p23 + i13 * p33)
+    e20 = r * (i02 * p00 + i12 * p01 + i22 * p02 + i23 * p03)
+    e21 = r * (i02 * p01 + i12 * p11 + i22 * p12 + i23 * p13)
+    e22 = r * (i02 * p02 + i12 * p12 + i22 * p22 + i23 * p23)
+    e23 = r * (i02 * p03 + i12 * p13 + i22 * p23 + i23 * p33)
+    e30 = r * (i03 * p00 + i13 * p01 + i23 * p02 + i33 * p03)
+    e31 = r * (i03 * p01 + i13 * p11 + i23 * p12 + i33 * p13)
+    e32 = r * (i03 * p02 + i13 * p12 + i23 * p22 + i33 * p23)
+    e33 = r * (i03 * p03 + i13 * p13 + i23 * p23 + i33 * p33)
+    # P = C (I - K)ᵀ + r K Kᵀ
+    P[0, 0] = (r * (e00 * i00 + e01 * i01 + e02 * i02 + e03 * i03)
+                + r * (k00 * k00 + k01 * k01 + k02 * k02 + k03 * k03))
+    P[0, 1] = P[1, 0] = (r * (e00 * i01 + e01 * i11 + e02 * i12 + e03 * i13)
+                + r * (k00 * k01 + k01 * k11 + k02 * k12 + k03 * k13))
+    P[0, 2] = P[2, 0] = (r * (e00 * i02 + e01 * i12 + e02 * i22 + e03 * i23)
+                + r * (k00 * k02 + k01 * k12 + k02 * k22 + k03 * k23))
+    P[0, 3] = P[3, 0] = (r * (e00 * i03 + e01 * i13 + e02 * i23 + e03 * i33)
+                + r * (k00 * k03 + k01 * k13 + k02 * k23 + k03 * k33))
+    P[1, 1] = (r * (e10 * i01 + e11 * i11 + e12 * i12 + e13 * i13)
+                + r * (k01 * k01 + k11 * k11 + k12 * k12 + k13 * k13))
+    P[1, 2] = P[2, 1] = (r * (e10 * i02 + e11 * i12 + e12 * i22 + e13 * i23)
+                + r * (k01 * k02 + k11 * k12 + k12 * k22 + k13 * k23))
+    P[1, 3] = P[3, 1] = (r * (e10 * i03 + e11 * i13 + e12 * i23 + e13 * i33)
+                + r * (k01 * k03 + k11 * k13 + k12 * k23 + k13 * k33))
+    P[2, 2] = (r * (e20 * i02 + e21 * i12 + e22 * i22 + e23 * i23)
+                + r * (k02 * k02 + k12 * k12 + k22 * k22 + k23 * k23))
+    P[2, 3] = P[3, 2] = (r * (e20 * i03 + e21 * i13 + e22 * i23 + e23 * i33)
+                + r * (k02 * k03 + k12 * k13 + k22 * k23 + k23 * k33))
+    P[3, 3] = (r * (e30 * i03 + e31 * i13 + e32 * i23 + e33 * i33)
+                + r * (k03 * k03 + k13 * k13 + k23 * k23 + k33 * k33))
+
+
+@njit(cache=True)
+def mahony_ekf_run(t, gyro, accel, mag, x, P, qm, bias_correction, t_prev, gyro_prev, accel_filt,
+                   bias, kp, ki, use_mag, q_gyro, r0, k_accel, k_mahony, accel_lp_s, accel_ref_s,
+                   weight_min_rate, gravity, cos_dec, sin_dec, max_step,
+                   out, keep_mahony, mahony_out, cov_trace, adaptive_r, mahony_weight):
+    """Run the filter over a chunk. State, updated in place: ``x`` (4,), ``P`` (4, 4), the
+    internal Mahony's ``qm`` (4,) and ``bias_correction`` (3,), ``t_prev`` (1,),
+    ``gyro_prev`` (3,), ``accel_filt`` (4,): [ā, ā_ref, samples seen, mean step] of the
+    Mahony weight (NaN before the first sample). ``bias`` is the still-period gyro bias.
+    Writes per sample: the attitude to ``out``, the Mahony quaternion to ``mahony_out`` when
+    ``keep_mahony``, trace(P), R's diagonal and the Mahony weight."""
+    tp = t_prev[0]
+    gp0, gp1, gp2 = gyro_prev[0], gyro_prev[1], gyro_prev[2]
+    lp, ref, count, mean_dt = accel_filt[0], accel_filt[1], accel_filt[2], accel_filt[3]
+    for i in range(len(t)):
+        dt = t[i] - tp if tp == tp else 0.0  # NaN before the first sample
+        tp = t[i]
+        step = 0.0 < dt <= max_step
+        g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
+        if dt > 0.0:  # trapezoidal over the step
+            w0, w1, w2 = 0.5 * (g0 + gp0), 0.5 * (g1 + gp1), 0.5 * (g2 + gp2)
+        else:
+            w0, w1, w2 = g0, g1, g2
+        gp0, gp1, gp2 = g0, g1, g2
+        a0, a1, a2 = accel[i, 0], accel[i, 1], accel[i, 2]
+        a_norm = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        dev = a_norm - gravity  # non-gravity acceleration, as eq 17 measures it
+        r = r0 * (1.0 + k_accel * abs(dev))  # eq 17, with |·|
+
+        # weight of the internal Mahony's gravity error (a choice: see the module docstring)
+        if dev == dev:
+            if lp != lp:
+                lp = ref = dev
+                count = 1.0
+            elif step:
+                count += 1.0
+                mean_dt = dt if mean_dt != mean_dt else mean_dt + 0.01 * (dt - mean_dt)
+                lp += (min(dt / accel_lp_s, 1.0) if accel_lp_s > 0.0 else 1.0) * (dev - lp)
+                if accel_ref_s > 0.0:  # a running mean at first, then exponential
+                    ref += max(min(dt / accel_ref_s, 1.0), 1.0 / count) * (lp - ref)
+        weight = 1.0
+        if k_mahony > 0.0 and lp == lp and not mean_dt * weight_min_rate > 1.0:
+            weight = 1.0 / (1.0 + k_mahony * abs(lp - (ref if accel_ref_s > 0.0 else 0.0)))
+
+        mahony_step(qm, bias_correction, w0, w1, w2, a0, a1, a2, mag[i, 0], mag[i, 1], mag[i, 2],
+                    use_mag and mag[i, 0] == mag[i, 0], kp, ki, cos_dec, sin_dec,
+                    dt if step else 0.0, weight)
+        if step:
+            predict(x, P, w0 - bias[0], w1 - bias[1], w2 - bias[2], dt, q_gyro)
+            # q_M and -q_M are one attitude: measure the one on X⁻'s side
+            sign = 1.0 if qm[0] * x[0] + qm[1] * x[1] + qm[2] * x[2] + qm[3] * x[3] >= 0.0 else -1.0
+            if r == r:  # a NaN accelerometer sample: prediction only
+                quaternion_update(x, P, sign * qm[0], sign * qm[1], sign * qm[2], sign * qm[3], r)
+            n = np.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
+            x[0], x[1], x[2], x[3] = x[0] / n, x[1] / n, x[2] / n, x[3] / n
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x[0], x[1], x[2], x[3]
+        if keep_mahony:
+            mahony_out[i, 0], mahony_out[i, 1] = qm[0], qm[1]
+            mahony_out[i, 2], mahony_out[i, 3] = qm[2], qm[3]
+        cov_trace[i] = P[0, 0] + P[1, 1] + P[2, 2] + P[3, 3]
+        adaptive_r[i] = r
+        mahony_weight[i] = weight
+    t_prev[0] = tp
+    gyro_prev[0], gyro_prev[1], gyro_prev[2] = gp0, gp1, gp2
+    accel_filt[0], accel_filt[1], accel_filt[2], accel_filt[3] = lp, ref, count, mean_dt
+    return out
+
+
+class MahonyEkf(Estimator):
+    """Mahony-EKF (paper 000): see the module docstring."""
+    name = "mahony-ekf"
+    Params = MahonyEkfParams
+    uses_mag = True
+    kernels = (mahony_ekf_run,)
+    keep_mahony = False  # set True to keep the internal Mahony attitude of each chunk in ``mahony_q``
+    DIAGNOSTICS = {
+        "cov_trace": "trace of the 4×4 quaternion covariance P (dimensionless)",
+        "adaptive_r": "diagonal of the measurement noise R = r0 [1 + k_accel |‖a‖ - g|] (eq 17)",
+        "mahony_weight": "weight of the internal Mahony's gravity error, 1/(1 + k_mahony |ā - ā_ref|), 0-1",
+    }
+
+    def initialize(self, q0, gyro_bias) -> None:
+        q0 = np.array(q0, dtype=np.float64)
+        self._x = q0 / np.linalg.norm(q0)
+        self._P = np.eye(4)  # paper 000: P₀ = I₄
+        self._qm = self._x.copy()
+        self._bias = np.array(gyro_bias, dtype=np.float64).reshape(3)
+        self._bias_correction = -self._bias.copy()  # as mahony: the integral starts at -bias
+        self._t_prev = np.array([np.nan])
+        self._gyro_prev = np.zeros(3)
+        self._accel_filt = np.full(4, np.nan)
+        self.mahony_q = np.empty((0, 4))  # the internal Mahony attitude over the last chunk
+        self.initialized = True
+
+    def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
+        t, gyro, accel, mag, _ = as_chunk(t, gyro, accel, mag)
+        n = len(t)
+        out = np.empty((n, 4))
+        self.mahony_q = np.empty((n if self.keep_mahony else 0, 4))
+        cov_trace = np.empty(n)
+        adaptive_r = np.empty(n)
+        weight = np.empty(n)
+        p = self.params
+        mahony_ekf_run(t, gyro, accel, mag, self._x, self._P, self._qm, self._bias_correction,
+                       self._t_prev, self._gyro_prev, self._accel_filt, self._bias, float(p.kp),
+                       float(p.ki), bool(p.use_mag), float(p.q_gyro), float(p.r0), float(p.k_accel),
+                       float(p.k_mahony), float(p.accel_lp_s), float(p.accel_ref_s),
+                       float(p.weight_min_rate), GRAVITY, np.cos(self.declination),
+                       np.sin(self.declination), MAX_STEP_S, out, self.keep_mahony, self.mahony_q,
+                       cov_trace, adaptive_r, weight)
+        self.diagnostics = {"cov_trace": cov_trace, "adaptive_r": adaptive_r, "mahony_weight": weight}
+        return out
+
+    def has_heading_reference(self, mag_available: bool) -> bool:
+        return self.params.use_mag and mag_available
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self._P.copy()

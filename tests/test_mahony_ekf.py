@@ -1,0 +1,249 @@
+"""mahony-ekf (paper 000) on simulated truth: the paper's static and dynamic claims, the
+internal Mahony filter against mahony, the predict/update against their matrix form, the
+Jacobians against finite differences, invariants and batch/live equivalence."""
+from __future__ import annotations
+
+from dataclasses import fields
+
+import numpy as np
+import pytest
+import simtruth as st
+
+from mavattitude import quaternion as quat
+from mavattitude.estimators import ESTIMATORS, align, create
+from mavattitude.estimators.mahony import MahonyParams
+from mavattitude.estimators.mahony_ekf import (MahonyEkf, MahonyEkfParams, predict,
+                                               quaternion_update)
+from mavattitude.flight import GRAVITY
+from mavattitude.params import build
+
+
+def _xi(q):
+    """Ξ(q) of ALGORITHMS.md: q̇ = ½ Ξ(q) ω."""
+    w, x, y, z = q
+    return np.array([[-x, -y, -z], [w, -z, y], [z, w, -x], [-y, x, w]])
+
+
+def _random_covariance(rng, n=4, scale=1e-3):
+    a = rng.normal(size=(n, n))
+    return a @ a.T * scale + np.eye(n) * 1e-6
+
+
+# ---------------------------------------------------------------- interface
+
+
+def test_registered_with_its_parameters_and_diagnostics():
+    assert ESTIMATORS["mahony-ekf"] is MahonyEkf
+    est = create("mahony-ekf")
+    assert est.uses_mag and est.has_heading_reference(True) and not est.has_heading_reference(False)
+    p = MahonyEkfParams()
+    assert (p.q_gyro, p.r0) == (1e-2, 1e-4)  # paper 000 eq 12 and 17
+    names = {f.name for f in fields(MahonyEkfParams)}
+    assert {"kp", "ki", "use_mag", "k_accel", "k_mahony"} <= names
+    params = build(["mahony-ekf"], None, ["mahony-ekf.k_accel=50", "mahony-ekf.use_mag=false"])
+    assert params["mahony-ekf"].k_accel == 50 and params["mahony-ekf"].use_mag is False
+    assert set(MahonyEkf.DIAGNOSTICS) == {"cov_trace", "adaptive_r", "mahony_weight"}
+
+
+# ---------------------------------------------------------------- accuracy on simulated truth
+
+
+def test_static_300_s_roll_pitch_within_0_1_deg():
+    """Paper 000 §3.1: static roll error within 0.1° over 300 s."""
+    sim = st.static_300()
+    q, f = st.run("mahony-ekf", sim)
+    err = st.errors_deg(sim, q)
+    assert err[:, 0].max() < 0.1 and err[:, 1].max() < 0.1
+    assert err[:, 2].max() < 1.0  # heading from the magnetometer, declination applied
+    assert set(f.diagnostics) == set(MahonyEkf.DIAGNOSTICS)
+    assert np.isfinite(f.diagnostics["cov_trace"]).all()
+
+
+def test_figure8_coordinated_turns_roll_pitch_mae_below_1_deg():
+    """Paper 000 §3.2: dynamic error within 1°. Thrust-aligned turns read 'level' on the
+    accelerometer: mahony is pulled several degrees; weighted by ‖a‖, the internal Mahony
+    keeps to the gyro in the turns and the EKF coasts on the gyro while R is large."""
+    sim = st.figure8_120()
+    q, f = st.run("mahony-ekf", sim)
+    err = st.errors_deg(sim, q)
+    assert err[:, 0].mean() < 1.0 and err[:, 1].mean() < 1.0
+    q_m, _ = st.run("mahony", sim)
+    assert err[:, :2].mean() < st.errors_deg(sim, q_m)[:, :2].mean() / 3
+    w = f.diagnostics["mahony_weight"]
+    assert ((0.0 < w) & (w <= 1.0)).all()
+    assert np.mean(w < 0.2) > 0.3  # most of the turning is weighted out
+
+
+def test_unweighted_mahony_measurement_fails_the_dynamic_claim():
+    """Why the Mahony weight is there (module docstring): with the paper's unweighted Mahony
+    filter as the measurement, R's adaptation alone leaves the figure-eight off by degrees."""
+    sim = st.figure8_120()
+    q, _ = st.run("mahony-ekf", sim, MahonyEkfParams(k_mahony=0.0))
+    err = st.errors_deg(sim, q)
+    assert err[:, :2].mean() > 1.5
+
+
+def test_sustained_acceleration_is_mostly_rejected():
+    sim = st.accel_110()
+    q, _ = st.run("mahony-ekf", sim)
+    err = st.errors_deg(sim, q)
+    q_m, _ = st.run("mahony", sim)
+    assert err[:, :2].max() < st.errors_deg(sim, q_m)[:, :2].max() / 2
+
+
+@pytest.mark.parametrize("axis", ["roll", "yaw"])
+def test_converges_from_a_30_degree_offset(axis):
+    sim = st.static_300()
+    truth0 = quat.to_euler(sim.truth.q[0])
+    offset = np.radians(30.0)
+    start = truth0 + (np.array([offset, 0, 0]) if axis == "roll" else np.array([0, 0, offset]))
+    q, _ = st.run("mahony-ekf", sim, q0=quat.from_euler(*start))
+    err = st.errors_deg(sim, q, after_s=0.0)
+    i = {"roll": 0, "yaw": 2}[axis]
+    assert err[0, i] == pytest.approx(30.0, abs=0.5)
+    assert err[sim.t >= sim.t[0] + 10.0, i].max() < 1.0
+    # what remains is the integral term's wind-up from the transient, unwinding over Kp/Ki
+    assert err[sim.t >= sim.t[0] + 100.0, i].max() < 0.4
+
+
+# ---------------------------------------------------------------- the model
+
+
+def test_internal_mahony_is_mahony():
+    """Unweighted, the Mahony filter inside gives mahony's numbers with the same gains."""
+    sim = st.figure8_120()
+    t, gyro, accel, mag = st.inputs(sim)
+    a = align(t, gyro, accel, mag, sim.declination_rad)
+    gains = MahonyParams(kp=0.3, ki=0.002)
+    f = MahonyEkf(MahonyEkfParams(kp=gains.kp, ki=gains.ki, k_mahony=0.0), sim.declination_rad)
+    f.keep_mahony = True
+    f.initialize(a.q0, a.gyro_bias)
+    f.update(t, gyro, accel, mag)
+    m = create("mahony", gains, sim.declination_rad)
+    m.initialize(a.q0, a.gyro_bias)
+    np.testing.assert_allclose(f.mahony_q, m.update(t, gyro, accel, mag), rtol=0, atol=1e-12)
+
+
+def test_adaptive_r_is_eq_17():
+    sim = st.figure8_120()
+    t, gyro, accel, mag = st.inputs(sim)
+    p = MahonyEkfParams(k_accel=37.0, r0=2e-4)
+    _, f = st.run("mahony-ekf", sim, p)
+    expected = p.r0 * (1 + p.k_accel * np.abs(np.linalg.norm(accel, axis=1) - GRAVITY))
+    np.testing.assert_allclose(f.diagnostics["adaptive_r"], expected, rtol=1e-12)
+
+
+def test_predict_is_phi_p_phi_t_plus_g_q_g_t():
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        q = rng.normal(size=4)
+        P = _random_covariance(rng)
+        w, dt, qg = rng.normal(size=3), rng.uniform(1e-3, 0.1), rng.uniform(1e-3, 1.0)
+        phi = np.eye(4) + 0.5 * dt * quat.omega_matrix(w)  # eq 14
+        G = 0.5 * dt * _xi(q)  # eq 15, with the ½ of eq 11
+        x, P2 = q.copy(), P.copy()
+        predict(x, P2, w[0], w[1], w[2], dt, qg)
+        np.testing.assert_allclose(x, phi @ q, rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(P2, phi @ P @ phi.T + G @ (qg * np.eye(3)) @ G.T, rtol=1e-12, atol=1e-16)
+
+
+def test_transition_and_noise_jacobians_against_finite_differences():
+    """X_{k+1} = X + (T/2) Ω(ω̂ + δ) X (eq 9-11): ∂/∂X = Φ (eq 14), ∂/∂δ = (T/2) Ξ(X), the
+    paper's eq 15 up to its missing ½ and sign."""
+    rng = np.random.default_rng(2)
+    eps = 1e-6
+    for _ in range(10):
+        q, w, dt = rng.normal(size=4), rng.normal(size=3), rng.uniform(1e-3, 0.1)
+
+        def f(x, d):
+            return x + 0.5 * dt * quat.omega_matrix(w + d) @ x
+
+        fd_x = np.column_stack([(f(q + eps * e, 0) - f(q - eps * e, 0)) / (2 * eps) for e in np.eye(4)])
+        fd_d = np.column_stack([(f(q, eps * e) - f(q, -eps * e)) / (2 * eps) for e in np.eye(3)])
+        np.testing.assert_allclose(fd_x, np.eye(4) + 0.5 * dt * quat.omega_matrix(w), atol=1e-9)
+        np.testing.assert_allclose(fd_d, 0.5 * dt * _xi(q), atol=1e-9)
+        # Ξ is also the integration's noise direction: q ⊗ [0, δ] = Ξ(q) δ
+        d = rng.normal(size=3)
+        np.testing.assert_allclose(quat.multiply(q, np.r_[0.0, d]), _xi(q) @ d, atol=1e-12)
+
+
+def test_update_is_the_joseph_form_with_h_identity():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        x = quat.normalize(rng.normal(size=4))
+        z = quat.normalize(x + rng.normal(scale=0.05, size=4))
+        P = _random_covariance(rng, scale=rng.choice([1e-6, 1e-3, 1.0]))
+        r = rng.choice([1e-4, 1e-2, 1.0])
+        R = r * np.eye(4)
+        K = P @ np.linalg.inv(P + R)  # eq 20, H = I
+        A = np.eye(4) - K
+        x2, P2 = x.copy(), P.copy()
+        quaternion_update(x2, P2, z[0], z[1], z[2], z[3], r)
+        np.testing.assert_allclose(x2, x + K @ (z - x), rtol=0, atol=1e-14)  # eq 21
+        np.testing.assert_allclose(P2, A @ P @ A.T + K @ R @ K.T, rtol=1e-9, atol=1e-18)  # eq 22
+        np.testing.assert_array_equal(P2, P2.T)
+
+
+def test_measurement_sign_follows_the_state():
+    """q and -q are one attitude: a Mahony quaternion in the other hemisphere is flipped, not
+    averaged through zero."""
+    sim = st.figure8_120()
+    t, gyro, accel, mag = st.inputs(sim)
+    a = align(t, gyro, accel, mag, sim.declination_rad)
+    runs = []
+    for flip in (False, True):
+        f = MahonyEkf(declination=sim.declination_rad)
+        f.initialize(a.q0, a.gyro_bias)
+        if flip:
+            f._qm *= -1.0
+        runs.append(f.update(t, gyro, accel, mag))
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
+# ---------------------------------------------------------------- invariants and interface
+
+
+def test_invariants_over_a_million_noisy_steps():
+    rng = np.random.default_rng(5)
+    n = 1_000_000
+    t = np.cumsum(rng.uniform(0.001, 0.02, n))
+    t[n // 2:] += 5.0  # a gap in the log
+    gyro = rng.normal(0, 0.5, (n, 3))
+    accel = rng.normal([0, 0, -GRAVITY], 3.0, (n, 3))
+    accel[::1000] = 0.0  # dropouts
+    accel[7::5000] = np.nan
+    mag = np.where(rng.random((n, 1)) < 0.1, rng.normal([2e-5, 0, 4e-5], 1e-5, (n, 3)), np.nan)
+    f = MahonyEkf(MahonyEkfParams(kp=2.0, ki=0.1), declination=0.2)
+    f.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
+    qs = []
+    for chunk in np.array_split(np.arange(n), 10):
+        qs.append(f.update(t[chunk], gyro[chunk], accel[chunk], mag[chunk]))
+        P = f.covariance
+        assert np.isfinite(P).all()
+        np.testing.assert_array_equal(P, P.T)
+        assert np.linalg.eigvalsh(P).min() > 0.0
+        assert np.isfinite(f.diagnostics["cov_trace"]).all() and (f.diagnostics["cov_trace"] > 0).all()
+    q = np.vstack(qs)
+    assert np.isfinite(q).all()
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_array_equal(q[n // 2], q[n // 2 - 1])  # not integrated across the gap
+
+
+def test_chunked_stepping_equals_one_batch():
+    sim = st.figure8_120()
+    t, gyro, accel, mag = st.inputs(sim)
+    a = align(t, gyro, accel, mag, sim.declination_rad)
+    batch = MahonyEkf(declination=sim.declination_rad)
+    batch.initialize(a.q0, a.gyro_bias)
+    q_batch = batch.update(t, gyro, accel, mag)
+    live = MahonyEkf(declination=sim.declination_rad)
+    live.initialize(a.q0, a.gyro_bias)
+    cuts = np.sort(np.random.default_rng(0).choice(np.arange(1, len(t)), size=200, replace=False))
+    parts, diags = [], []
+    for s in (slice(a_, b_) for a_, b_ in zip(np.r_[0, cuts], np.r_[cuts, len(t)])):
+        parts.append(live.update(t[s], gyro[s], accel[s], mag[s]))
+        diags.append(live.diagnostics)
+    np.testing.assert_array_equal(np.vstack(parts), q_batch)
+    np.testing.assert_array_equal(live.covariance, batch.covariance)
+    for key in MahonyEkf.DIAGNOSTICS:
+        np.testing.assert_array_equal(np.concatenate([d[key] for d in diags]), batch.diagnostics[key])
