@@ -4,10 +4,22 @@ from __future__ import annotations
 from .alignment import Alignment, align
 from .base import Estimator, params_table
 from .base import needs_compile as _needs_compile
+from .cpf_ekf import CpfEkf
+from .ekf import Ekf
+from .eq_kf import EqKf
+from .eskf import Eskf
 from .mahony import Mahony
+from .mahony_ekf import MahonyEkf
+from .ncs_eskf import NcsEskf
 
 ESTIMATORS: dict[str, type[Estimator]] = {
     Mahony.name: Mahony,
+    MahonyEkf.name: MahonyEkf,
+    Ekf.name: Ekf,
+    Eskf.name: Eskf,
+    NcsEskf.name: NcsEskf,
+    EqKf.name: EqKf,
+    CpfEkf.name: CpfEkf,
 }
 
 

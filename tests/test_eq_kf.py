@@ -1,0 +1,294 @@
+"""eq-kf (paper 002): accuracy on simulated truth, its model functions against finite
+differences and the exact rotation, invariants, and batch/live equivalence."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import simtruth
+
+from mavattitude import quaternion as quat
+from mavattitude.estimators import ESTIMATORS, create
+from mavattitude.estimators.eq_kf import (ACCEL_STATES, EqKf, EqKfParams, accel_jacobian,
+                                          accel_predict, accel_tangent, error_propagate,
+                                          error_transition, mag_jacobian, mag_predict,
+                                          picard_step)
+
+# Every trust mechanism off: the filter then takes the accelerometer as gravity at all times.
+NO_TRUST = dict(norm_lo=10.0, norm_hi=20.0, rate_lo=100.0, rate_hi=200.0, gate_lo=1e9, gate_hi=2e9,
+                trust_rise=1e-9, still_time=1e9, cons_tol=10.0)
+
+
+def _random_unit_quaternions(rng, n):
+    q = rng.normal(size=(n, 4))
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def test_registered_with_its_interface():
+    assert ESTIMATORS["eq-kf"] is EqKf
+    f = create("eq-kf", declination=0.1)
+    assert f.uses_mag and f.has_heading_reference(True) and not f.has_heading_reference(False)
+    assert not create("eq-kf", EqKfParams(use_mag=False)).has_heading_reference(True)
+    assert EqKf.ACCEL_STATES == ACCEL_STATES and ACCEL_STATES[0] == "used"
+    f.initialize(quat.from_euler(0.1, -0.2, 0.3), np.array([0.01, -0.02, 0.003]))
+    np.testing.assert_allclose(f.gyro_bias, [0.01, -0.02, 0.003])
+    n = 50
+    q = f.update(np.arange(n) * 0.01, np.zeros((n, 3)), np.tile([0.0, 0.0, -9.8], (n, 1)), None)
+    assert q.shape == (n, 4)
+    assert set(f.diagnostics) == set(EqKf.DIAGNOSTICS)
+    assert f.diagnostics["accel_state"].dtype == np.int8
+    assert f.diagnostics["cov_trace"].dtype == np.float64 and len(f.diagnostics["cov_trace"]) == n
+    cov = f.covariance
+    cov[0, 0] = 123.0  # a copy
+    assert f.covariance[0, 0] != 123.0
+
+
+# ---------------------------------------------------------------- accuracy on simulated truth
+
+
+def test_static_300s_roll_pitch_within_0_2_deg():
+    sim = simtruth.static_300()
+    q, f = simtruth.run("eq-kf", sim)
+    err = simtruth.errors_deg(sim, q)
+    assert err[:, 0].max() < 0.2 and err[:, 1].max() < 0.2
+    assert err[:, 2].max() < 1.0  # heading from the magnetometer, declination applied
+    # at rest the accelerometer is trusted throughout
+    assert np.mean(f.diagnostics["accel_state"] == 0) > 0.99
+
+
+def test_figure8_coordinated_turns_roll_pitch_mae_below_1_deg():
+    """The accelerometer of a multirotor in coordinated turns reads 'level' (thrust-aligned):
+    the residual test keeps it out of the turns."""
+    sim = simtruth.figure8_120()
+    q, f = simtruth.run("eq-kf", sim)
+    err = simtruth.errors_deg(sim, q)
+    assert err[:, 0].mean() < 1.0 and err[:, 1].mean() < 1.0
+    assert err[:, :2].max() < 3.0
+    # the same filter without its trust weighting is pulled toward level
+    q_plain, _ = simtruth.run("eq-kf", sim, EqKfParams(**NO_TRUST))
+    assert simtruth.errors_deg(sim, q_plain)[:, :2].mean() > 2.0
+
+
+def test_sustained_linear_acceleration_holds_attitude():
+    """0.25 g for 12 s at a time, level: ‖a‖ grows by only 3-10 %, its direction turns by up
+    to 25°. eq-kf stays within 1.5°; with the trust weighting off it tilts by atan(a/g)."""
+    sim = simtruth.accel_110()
+    q, f = simtruth.run("eq-kf", sim)
+    err = simtruth.errors_deg(sim, q)
+    assert err[:, 0].max() < 1.5 and err[:, 1].max() < 1.5
+    # the accelerometer was skipped while the vehicle accelerated hard (> 0.1 g)
+    f_b = sim.imu[0].accel
+    hard = np.hypot(f_b[:, 0], f_b[:, 1]) > 0.1 * 9.80665
+    assert hard.sum() > 1000 and np.mean(f.diagnostics["accel_state"][hard] == 2) > 0.95
+    w = f.diagnostics["accel_weight"]
+    assert np.all((w >= 0.0) & (w <= 1.0))
+    assert np.all((w > 0.0) == (f.diagnostics["accel_state"] < 2))
+    assert np.all((w == 1.0) == (f.diagnostics["accel_state"] == 0))
+    q_plain, _ = simtruth.run("eq-kf", sim, EqKfParams(**NO_TRUST))
+    assert simtruth.errors_deg(sim, q_plain)[:, 1].max() > 10.0
+
+
+@pytest.mark.parametrize("axis,offset_deg", [("roll", 30.0), ("yaw", 30.0)])
+def test_converges_from_a_30_degree_offset(axis, offset_deg):
+    sim = simtruth.static_300()
+    truth0 = quat.to_euler(sim.truth.q[0])
+    i = {"roll": 0, "yaw": 2}[axis]
+    start = truth0.copy()
+    start[i] += np.radians(offset_deg)
+    q, _ = simtruth.run("eq-kf", sim, q0=quat.from_euler(*start))
+    err = simtruth.errors_deg(sim, q, after_s=0.0)
+    assert err[0, i] == pytest.approx(offset_deg, abs=0.5)
+    late = sim.t >= sim.t[0] + 30.0
+    assert err[late, :2].max() < 0.2 and err[late, 2].max() < 1.0
+
+
+def test_a_confident_filter_started_off_recovers_while_still():
+    """P says 0.06°, the attitude is 10° off: the residual test alone would reject the
+    accelerometer for good; the stillness test lets it back in."""
+    sim = simtruth.static_300()
+    truth0 = quat.to_euler(sim.truth.q[0])
+    q, _ = simtruth.run("eq-kf", sim, EqKfParams(init_att_sigma=1e-3),
+                        q0=quat.from_euler(truth0[0] + np.radians(10.0), truth0[1], truth0[2]))
+    err = simtruth.errors_deg(sim, q, after_s=0.0)
+    assert err[0, 0] > 9.5
+    assert err[sim.t >= sim.t[0] + 10.0, 0].max() < 0.2
+
+
+def test_without_magnetometer_accelerometer_does_not_touch_heading_much():
+    sim = simtruth.figure8_120()
+    q, f = simtruth.run("eq-kf", sim, mag=False)
+    assert not f.has_heading_reference(False)
+    err = simtruth.errors_deg(sim, q)
+    assert err[:, 0].mean() < 1.0 and err[:, 1].mean() < 1.0
+
+
+# ---------------------------------------------------------------- model functions
+
+
+def test_picard_update_is_the_exact_rotation_to_third_order():
+    """Eq 5 cut after Δθ₀³: the error against q ⊗ Exp(Δθ) falls as Δθ₀⁴ (÷16 per halving)."""
+    rng = np.random.default_rng(1)
+    q = _random_unit_quaternions(rng, 1)[0]
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    errors = []
+    for angle in [0.2, 0.1, 0.05, 0.025]:
+        dtheta = axis * angle
+        out = np.empty(4)
+        picard_step(q, dtheta, out)
+        exact = quat.multiply(q, np.r_[np.cos(angle / 2), np.sin(angle / 2) * axis])
+        errors.append(np.linalg.norm(out - exact))
+        # the matrix form of eq 5: [(1 - Δθ₀²/8) I + (½ - Δθ₀²/48) Ω(Δθ)] q
+        m = (1 - angle ** 2 / 8) * np.eye(4) + (0.5 - angle ** 2 / 48) * quat.omega_matrix(dtheta)
+        np.testing.assert_allclose(out, m @ q, atol=1e-15)
+    ratios = np.array(errors[:-1]) / np.array(errors[1:])
+    np.testing.assert_allclose(ratios, 16.0, rtol=0.05)
+    # the leading error term is the Δθ₀⁴/384 of cos(Δθ₀/2)
+    assert errors[-1] == pytest.approx(0.025 ** 4 / 384, rel=0.05)
+
+
+def _jacobian_fd(fun, x0, h=1e-7):
+    y0 = fun(x0)
+    jac = np.empty((len(y0), len(x0)))
+    for k in range(len(x0)):
+        dx = np.zeros(len(x0))
+        dx[k] = h
+        jac[:, k] = (fun(x0 + dx) - fun(x0 - dx)) / (2 * h)
+    return jac
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_error_transition_against_finite_differences(seed):
+    rng = np.random.default_rng(seed)
+    rate = rng.normal(0.0, 2.0, 3)  # rad/s
+    dt = 0.02
+    a, b = np.empty((3, 3)), np.empty((3, 3))
+    error_transition(rate * dt, dt, a, b)
+
+    def f_e(e):
+        out = np.empty(3)
+        error_propagate(e, np.zeros(3), rate, dt, out)
+        return out
+
+    def f_beta(beta):
+        out = np.empty(3)
+        error_propagate(np.zeros(3), beta, rate, dt, out)
+        return out
+
+    np.testing.assert_allclose(a, _jacobian_fd(f_e, np.zeros(3)), atol=1e-8)
+    # b is -½Δt J_r(Δθ) to second order in Δθ (here ≈ 0.05 rad): its ¼Δt[Δθ]× term is 2.5 % of
+    # b, what is left out ~Δθ²/12 ≈ 0.02 %
+    fd = _jacobian_fd(f_beta, np.zeros(3))
+    np.testing.assert_allclose(b, fd, atol=5e-4 * dt)
+    assert np.abs(fd - (-0.5 * dt * np.eye(3))).max() > 20 * np.abs(fd - b).max()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_accel_jacobian_against_finite_differences(seed):
+    rng = np.random.default_rng(seed)
+    qbar = _random_unit_quaternions(rng, 1)[0]
+    h = np.empty(3)
+    accel_predict(qbar, np.zeros(3), h)
+    np.testing.assert_allclose(h, quat.to_dcm(qbar).T @ [0.0, 0.0, -1.0], atol=1e-14)
+    t = np.empty((2, 3))
+    accel_tangent(h, t)
+    np.testing.assert_allclose(t @ t.T, np.eye(2), atol=1e-14)
+    np.testing.assert_allclose(t @ h, 0.0, atol=1e-14)
+    hm = np.empty((2, 3))
+    accel_jacobian(h, t, hm)
+
+    def fun(e):
+        out = np.empty(3)
+        accel_predict(qbar, e, out)
+        return t @ out
+
+    np.testing.assert_allclose(hm, _jacobian_fd(fun, np.zeros(3)), atol=1e-7)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_mag_jacobian_against_finite_differences(seed):
+    rng = np.random.default_rng(seed)
+    qbar = _random_unit_quaternions(rng, 1)[0]
+    m_b = rng.normal(size=3)
+    c = quat.to_dcm(qbar)
+    m_n = c @ m_b
+    u = c.T @ np.r_[m_n[0], m_n[1], 0.0]  # the field's horizontal part, in the body frame
+    hm = np.empty(3)
+    mag_jacobian(qbar, hm)
+    np.testing.assert_allclose(hm, 2.0 * c[2], atol=1e-14)
+
+    def fun(e):
+        return np.array([mag_predict(qbar, e, u)])
+
+    assert mag_predict(qbar, np.zeros(3), u) == pytest.approx(np.arctan2(m_n[1], m_n[0]))
+    np.testing.assert_allclose(hm, _jacobian_fd(fun, np.zeros(3))[0], atol=1e-7)
+
+
+# ---------------------------------------------------------------- invariants and equivalence
+
+
+def test_invariants_over_a_million_noisy_steps():
+    rng = np.random.default_rng(5)
+    n = 1_000_000
+    t = np.cumsum(rng.uniform(0.001, 0.03, n))
+    t[n // 2:] += 5.0  # a gap in the log
+    gyro = rng.normal(0, 0.5, (n, 3))
+    gyro[::5000] = rng.normal(0, 8.0, (n // 5000, 3))  # spikes
+    accel = rng.normal([0, 0, -9.8], 3.0, (n, 3))
+    accel[::1000] = 0.0  # dropouts
+    accel[500::2000] = np.nan
+    mag = np.where(rng.random((n, 1)) < 0.1, rng.normal([2e-5, 0, 4e-5], 1e-5, (n, 3)), np.nan)
+    f = EqKf(declination=0.2)
+    f.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
+    states = []
+    for s in np.array_split(np.arange(n), 10):
+        q = f.update(t[s], gyro[s], accel[s], mag[s])
+        assert np.isfinite(q).all()
+        np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+        p = f.covariance
+        assert np.isfinite(p).all()
+        np.testing.assert_array_equal(p, p.T)
+        assert np.linalg.eigvalsh(p).min() > -1e-12 * np.abs(p).max()
+        d = f.diagnostics
+        assert np.isfinite(d["cov_trace"]).all() and (d["cov_trace"] > 0).all()
+        assert np.all((d["accel_weight"] >= 0) & (d["accel_weight"] <= 1))
+        states.append(d["accel_state"])
+    states = np.concatenate(states)
+    assert set(np.unique(states)) <= {0, 1, 2}
+    assert np.all(states[::1000][1:] == 2)  # a zero reading is skipped
+    # across the gap the attitude is held, not integrated over 5 s
+    f2 = EqKf(EqKfParams(use_mag=False))
+    f2.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
+    q2 = f2.update(t[n // 2 - 10: n // 2 + 1], gyro[n // 2 - 10: n // 2 + 1],
+                   np.full((11, 3), np.nan), None)
+    np.testing.assert_array_equal(q2[-1], q2[-2])
+
+
+def test_chunked_stepping_equals_one_batch():
+    """Live use feeds small chunks; replay one big one: the same numbers."""
+    sim = simtruth.figure8_120()
+    t, gyro, accel, mag = simtruth.inputs(sim)
+    from mavattitude.estimators import align
+    a = align(t, gyro, accel, mag, sim.declination_rad)
+    batch = EqKf(declination=sim.declination_rad)
+    batch.initialize(a.q0, a.gyro_bias)
+    q_batch = batch.update(t, gyro, accel, mag)
+    live = EqKf(declination=sim.declination_rad)
+    live.initialize(a.q0, a.gyro_bias)
+    rng = np.random.default_rng(0)
+    cuts = np.sort(rng.choice(np.arange(1, len(t)), size=300, replace=False))
+    parts, diags = [], []
+    for s in (slice(a_, b_) for a_, b_ in zip(np.r_[0, cuts], np.r_[cuts, len(t)])):
+        parts.append(live.update(t[s], gyro[s], accel[s], mag[s]))
+        diags.append(dict(live.diagnostics))
+    np.testing.assert_array_equal(np.vstack(parts), q_batch)
+    for key in EqKf.DIAGNOSTICS:
+        np.testing.assert_array_equal(np.concatenate([d[key] for d in diags]), batch.diagnostics[key])
+    np.testing.assert_array_equal(live.covariance, batch.covariance)
+    np.testing.assert_array_equal(live.gyro_bias, batch.gyro_bias)
+
+
+def test_params_are_floats_and_bools():
+    """The CLI sets parameters as --set eq-kf.<field>=value: floats and bools only."""
+    from dataclasses import fields
+    for fld in fields(EqKfParams):
+        assert fld.type in ("float", "bool", float, bool), fld
