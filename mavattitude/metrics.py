@@ -61,7 +61,7 @@ class Comparison:
 
 
 def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float = 10.0,
-            align_yaw: bool = False, name: str | None = None) -> Comparison:
+            align_yaw: bool = False, name: str | None = None, restarts=()) -> Comparison:
     """Score ``estimate`` against ``reference`` per Euler axis.
 
     - The estimate is interpolated (nlerp, ``quaternion.interpolate``) at the reference's
@@ -76,6 +76,10 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
       measure the yaw drift over the scored span only, and averaging over a second (rather than
       taking one sample) keeps noise out of the offset. The offset is subtracted from every row,
       warm-up included. With no scored sample there is nothing to align with: offset 0.
+      ``restarts`` (times, s) are where the estimator started again after a gap in the data:
+      with no heading reference its yaw after a gap is unrelated to before, so each span
+      between restarts gets its own offset, from its own first scored second.
+      ``yaw_offset_deg`` is the first span's.
     - R² is ``1 - SS_res / SS_tot`` with ``SS_tot`` about the reference's mean; for yaw the mean
       is circular and the deviations are wrapped, so a heading around ±180° is not a spread of
       360°. R² is NaN when the reference does not vary (SS_tot = 0: undefined).
@@ -117,9 +121,16 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
 
     yaw_offset = 0.0
     if align_yaw and scored.any():
-        window = scored & (t < t[scored].min() + YAW_ALIGN_WINDOW_S)
-        yaw_offset = float(_circular_mean_deg(error[window, 2]))
-        error[:, 2] = wrap_deg(error[:, 2] - yaw_offset)
+        bounds = np.concatenate([[-np.inf], np.sort(np.asarray(restarts, dtype=float)), [np.inf]])
+        offsets = []
+        for start, end in zip(bounds[:-1], bounds[1:]):
+            span = (t >= start) & (t < end)
+            if not (scored & span).any():
+                continue
+            window = scored & span & (t < t[scored & span].min() + YAW_ALIGN_WINDOW_S)
+            offsets.append(float(_circular_mean_deg(error[window, 2])))
+            error[span, 2] = wrap_deg(error[span, 2] - offsets[-1])
+        yaw_offset = offsets[0]
 
     error_scored, ref_scored = error[scored], euler_ref[scored]
     axes = {axis: axis_metrics(error_scored[:, k], ref_scored[:, k], circular=(axis == "yaw"))

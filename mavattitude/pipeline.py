@@ -177,7 +177,8 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     if ref is not None:
         for name, series in estimates.items():
             comparisons[name] = compare(ref, series, warmup_s=warmup_s,
-                                        align_yaw=not ctx["has_heading"][name], name=name)
+                                        align_yaw=not ctx["has_heading"][name], name=name,
+                                        restarts=[t for t, _ in ctx["restarts"]])
         if reference == "truth" and flight.attitude is not None:
             comparisons["autopilot"] = compare(ref, flight.attitude, warmup_s=warmup_s,
                                                name="autopilot")

@@ -246,3 +246,17 @@ def test_million_samples():
     est = series(t + 0.001, 10 * np.sin(0.3 * t) + 0.3, 5 * np.cos(0.2 * t), 60 * np.sin(0.05 * t))
     c = compare(ref, est, align_yaw=True)
     assert c.axes["roll"].n == np.count_nonzero((t >= t[0] + 10.001) & (t <= t[-1] + 0.001))
+
+
+def test_yaw_is_aligned_again_after_each_restart():
+    # An estimator without heading reference restarted at t = 50 s with an unrelated yaw:
+    # each span gets its own offset, so both spans score their drift only.
+    t = np.arange(0.0, 100.0, 0.1)
+    ref = AttitudeSeries("ATT", t, from_euler(0.0 * t, 0.0 * t, np.radians(10.0) * np.ones_like(t)))
+    yaw = np.where(t < 50.0, np.radians(40.0), np.radians(-100.0)) + np.radians(0.01) * t
+    est = AttitudeSeries("x", t, from_euler(0.0 * t, 0.0 * t, yaw))
+    c = compare(ref, est, warmup_s=5.0, align_yaw=True, restarts=[50.0])
+    assert c.axes["yaw"].max < 0.6  # the drift within a span, not the 140° jump
+    assert c.yaw_offset_deg == pytest.approx(30.0 + 0.05, abs=0.1)
+    whole = compare(ref, est, warmup_s=5.0, align_yaw=True)
+    assert whole.axes["yaw"].max > 100.0
