@@ -132,7 +132,8 @@ def format_events(result) -> str:
     for name, states in result.estimator_events.items():
         for state, c in states.items():
             if c["samples"]:
-                lines.append(f"{name}: accelerometer {state}: {c['spans']} spans, {c['seconds']:.1f} s "
+                lines.append(f"{name}: accelerometer {state}: {c['spans']} span{'s' if c['spans'] != 1 else ''}, "
+                             f"{c['seconds']:.1f} s "
                              f"({100.0 * c['samples'] / max(n, 1):.1f} % of samples)")
     return "\n".join(lines) + ("\n" if lines else "")
 
