@@ -108,18 +108,22 @@ def _sink_args(args, log_path: str) -> dict:
 
 def cmd_replay(args) -> int:
     from .estimators import needs_compile
-    from .pipeline import run_replay
+    from .pipeline import Event, run_replay
     from .report import estimator_extras, format_events, format_table, write_csv, write_json
 
-    from .params import build, load_file
+    from .params import build, load_file, log_defaults
 
     names = _estimator_names(args.estimators)
     if args.warmup < 0:
         raise UsageError("--warmup must be zero or more seconds")
-    params = build(names, load_file(args.params) if args.params else None, args.set or (),
-                   source=args.params or "--params")
+    file_values = load_file(args.params) if args.params else None
+    source = args.params or "--params"
+    params = build(names, file_values, args.set or (), source=source)  # bad values fail before reading
     sink = None if args.no_view else _sink_args(args, args.log)
     flight = _read(args.log, args.segment)
+    log_values, notes = log_defaults(flight, names, file_values, args.set or ())
+    if log_values:
+        params = build(names, file_values, args.set or (), source=source, log_values=log_values)
     pending = needs_compile(names)
     if pending:
         print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
@@ -127,6 +131,9 @@ def cmd_replay(args) -> int:
     result = run_replay(flight, names, reference=args.reference, imu_source=args.imu,
                         warmup_s=args.warmup, declination_deg=args.declination,
                         params=params, use_mag=not args.no_mag)
+    result.events += [Event(flight.time_span[0], "info", note) for note in notes]
+    for note in notes:
+        print(f"note: {note}")
     for event in result.events:
         if event.level == "warn":
             _warn(event.text)

@@ -2,7 +2,9 @@
 
 Every estimator's parameters are a small dataclass with the paper's defaults. A user
 overrides them with ``--params FILE`` (a TOML table per estimator) and ``--set
-NAME.FIELD=VALUE`` (applied after the file, so the command line wins)::
+NAME.FIELD=VALUE`` (applied after the file, so the command line wins). Below both, a log can
+supply a default of its own (``log_defaults``: eq-kf's airspeed from an ArduPlane's cruise
+airspeed)::
 
     [ncs-eskf]
     h_threshold_air = 0.02
@@ -53,11 +55,15 @@ def parse_assignment(text: str) -> tuple[str, str, str]:
 
 
 def build(names: list[str], file_values: dict | None = None, assignments: list[str] = (),
-          source: str = "--params") -> dict[str, object]:
-    """The parameter dataclass for each estimator in ``names``, defaults overridden."""
+          source: str = "--params", log_values: dict | None = None) -> dict[str, object]:
+    """The parameter dataclass for each estimator in ``names``, defaults overridden: first by
+    ``log_values`` (see ``log_defaults``), then the file, then the assignments."""
     from .estimators import ESTIMATORS
 
     values: dict[str, dict[str, tuple[object, str]]] = {}
+    for name, table in (log_values or {}).items():
+        for field, value in table.items():
+            values.setdefault(name, {})[field] = (value, "log")
     for name, table in (file_values or {}).items():
         for field, value in table.items():
             values.setdefault(name, {})[field] = (value, source)
@@ -80,6 +86,33 @@ def build(names: list[str], file_values: dict | None = None, assignments: list[s
             changes[field] = convert(value, getattr(defaults, field), f"{origin}: {name}.{field}")
         params[name] = dataclasses.replace(defaults, **changes)
     return params
+
+
+def log_defaults(flight, names: list[str], file_values: dict | None = None,
+                 assignments: list[str] = ()) -> tuple[dict, list[str]]:
+    """Defaults the log itself supplies, for the estimators in ``names`` and the fields the user
+    did not set (in ``file_values`` or ``assignments``): ({estimator: {field: value}}, a note
+    per value saying where it came from). Pass the first to ``build(log_values=...)``.
+
+    - eq-kf ``airspeed`` (turn compensation) on an ArduPlane log: a plane flies at about its
+      cruise airspeed, TRIM_ARSPD_CM (cm/s; AIRSPEED_CRUISE, m/s, from Plane 4.5 on).
+    """
+    found: dict[str, dict[str, tuple[object, str]]] = {}
+    if flight.vehicle == "ArduPlane":
+        for key, scale in (("TRIM_ARSPD_CM", 0.01), ("AIRSPEED_CRUISE", 1.0)):
+            value = flight.params.get(key)
+            if value is not None and value == value and 0.0 < value * scale < 200.0:
+                found.setdefault("eq-kf", {})["airspeed"] = (float(value) * scale, key)
+                break
+    user = {(name, field) for name, table in (file_values or {}).items() for field in table}
+    user |= {parse_assignment(text)[:2] for text in assignments}
+    values, notes = {}, []
+    for name, table in found.items():
+        for field, (value, key) in table.items():
+            if name in names and (name, field) not in user:
+                values.setdefault(name, {})[field] = value
+                notes.append(f"{name} {field} {value:g} m/s from {key} (the plane's cruise airspeed)")
+    return values, notes
 
 
 def convert(value, default, where: str):

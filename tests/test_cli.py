@@ -205,6 +205,22 @@ def test_set_and_params_file_reach_the_estimator(tmp_path, capsys):
     assert params == {"kp": 0.7, "ki": 0.002, "use_mag": False}  # --set wins over the file
 
 
+def test_plane_log_supplies_the_eq_kf_airspeed_param_unless_the_user_sets_it():
+    from types import SimpleNamespace
+
+    from mavattitude.params import build, log_defaults
+
+    plane = SimpleNamespace(vehicle="ArduPlane", params={"TRIM_ARSPD_CM": 1200.0})
+    values, notes = log_defaults(plane, ["mahony", "eq-kf"])
+    assert values == {"eq-kf": {"airspeed": 12.0}} and "TRIM_ARSPD_CM" in notes[0]
+    assert build(["eq-kf"], log_values=values)["eq-kf"].airspeed == 12.0
+    assert log_defaults(plane, ["eq-kf"], None, ["eq-kf.airspeed=0"]) == ({}, [])
+    assert log_defaults(plane, ["eq-kf"], {"eq-kf": {"airspeed": 9.0}}) == ({}, [])
+    assert log_defaults(plane, ["mahony"]) == ({}, [])
+    copter = SimpleNamespace(vehicle="ArduCopter", params={"TRIM_ARSPD_CM": 1200.0})
+    assert log_defaults(copter, ["eq-kf"]) == ({}, [])
+
+
 @pytest.mark.parametrize("extra, code, text", [
     (["--set", "mahony.kq=1"], 2, "mahony has no parameter 'kq'"),
     (["--set", "mahony.kp"], 2, "expected ESTIMATOR.PARAMETER=VALUE"),

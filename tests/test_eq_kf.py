@@ -292,3 +292,25 @@ def test_params_are_floats_and_bools():
     from dataclasses import fields
     for fld in fields(EqKfParams):
         assert fld.type in ("float", "bool", float, bool), fld
+
+
+def _orbit_roll_error(params, in_air=None):
+    sim = simtruth.flight("orbit", 120.0, seed=14, imu_rate=10.0)  # a plane's 10 Hz IMU
+    q, f = simtruth.run("eq-kf", sim, params, in_air=in_air)
+    return q, simtruth.errors_deg(sim, q, after_s=20.0)[:, 0], f.diagnostics["accel_weight"]
+
+
+def test_turn_compensation_on_a_fixed_wing_orbit():
+    """33° coordinated turns at 15 m/s: without the compensation the accelerometer is ~33° off
+    gravity and gated out almost throughout; with it the accelerometer is used again."""
+    n = len(simtruth.flight("orbit", 120.0, seed=14, imu_rate=10.0).t)
+    q_off, err_off, w_off = _orbit_roll_error(EqKfParams())
+    q_on, err_on, w_on = _orbit_roll_error(EqKfParams(airspeed=15.0), np.ones(n))
+    assert w_off.mean() < 0.2 and w_on.mean() > 0.8
+    assert err_on.mean() < 0.5 * err_off.mean() and err_on.mean() < 0.2
+    assert err_on.max() < err_off.max()
+    # unknown phase counts as air
+    np.testing.assert_array_equal(_orbit_roll_error(EqKfParams(airspeed=15.0))[0], q_on)
+    # on the ground, and with airspeed 0 whatever the phase: exactly the uncompensated filter
+    np.testing.assert_array_equal(_orbit_roll_error(EqKfParams(airspeed=15.0), np.zeros(n))[0], q_off)
+    np.testing.assert_array_equal(_orbit_roll_error(EqKfParams(), np.ones(n))[0], q_off)
