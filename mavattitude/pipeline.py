@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import aiding as aid
 from . import estimators as est
 from . import quaternion as quat
 from .errors import UsageError
@@ -48,6 +49,7 @@ class ReplayResult:
     # estimator name -> what happened to its accelerometer updates, see accel_state_events
     estimator_events: dict[str, dict] = field(default_factory=dict)
     params: dict = field(default_factory=dict)  # estimator name -> its parameter dataclass
+    aiding: aid.Aiding | None = None  # GPS / baro on the IMU clock, when an estimator used them
 
 
 def mag_on_imu_clock(imu_t: np.ndarray, mag: MagSeries | None) -> np.ndarray | None:
@@ -86,6 +88,7 @@ def run_estimators(flight: Flight, names: list[str], imu_source: str | None = No
     in_air = phase.on_clock(imu.t) if phase is not None else np.full(len(imu.t), np.nan)
     runs = contiguous_runs(imu.t)
     estimators = [est.create(name, (params or {}).get(name), declination) for name in names]
+    aiding = aid.from_flight(flight, imu.t) if any(e.uses_aiding for e in estimators) else None
     outputs = {name: np.empty((len(imu.t), 4)) for name in names}
     diagnostics = {name: {} for name in names}
     alignments = []
@@ -103,8 +106,10 @@ def run_estimators(flight: Flight, names: list[str], imu_source: str | None = No
                 roll, pitch, _ = quat.to_euler(q0)
                 q0 = quat.from_euler(roll, pitch, quat.to_euler(outputs[estimator.name][start - 1])[2])
             estimator.initialize(q0, alignment.gyro_bias)
+            extra = {"aiding": aiding[s]} if estimator.uses_aiding else {}
             outputs[estimator.name][s] = estimator.update(
-                imu.t[s], imu.gyro[s], imu.accel[s], None if mag is None else mag[s], in_air[s])
+                imu.t[s], imu.gyro[s], imu.accel[s], None if mag is None else mag[s], in_air[s],
+                **extra)
             for key, series in estimator.diagnostics.items():
                 full = diagnostics[estimator.name].get(key)
                 if full is None:
@@ -120,7 +125,8 @@ def run_estimators(flight: Flight, names: list[str], imu_source: str | None = No
                                           has_heading=has_heading, restarts=restarts, phase=phase,
                                           diagnostics=diagnostics,
                                           params={e.name: e.params for e in estimators},
-                                          accel_states={e.name: e.ACCEL_STATES for e in estimators})
+                                          accel_states={e.name: e.ACCEL_STATES for e in estimators},
+                                          aiding=aiding)
 
 
 def accel_state_events(t: np.ndarray, codes: np.ndarray, states: tuple) -> dict[str, dict]:
@@ -136,6 +142,12 @@ def accel_state_events(t: np.ndarray, codes: np.ndarray, states: tuple) -> dict[
         out[state] = {"samples": int(np.count_nonzero(hit)), "spans": int(starts),
                       "seconds": round(float(dt[hit].sum()), 3)}
     return out
+
+
+def reset_events(t: np.ndarray, reset: np.ndarray) -> dict:
+    """A watchdog's resets (the ``reset`` diagnostic, 1.0 at a reset): count and times (s)."""
+    hit = np.asarray(reset) == 1.0
+    return {"count": int(np.count_nonzero(hit)), "times": [round(float(x), 3) for x in t[hit]]}
 
 
 def contiguous_runs(t: np.ndarray) -> list[tuple[int, int]]:
@@ -188,12 +200,19 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     imu_t = flight.imu[ctx["imu_source"]].t
     estimator_events = {name: accel_state_events(imu_t, diag["accel_state"], ctx["accel_states"][name])
                         for name, diag in ctx["diagnostics"].items() if "accel_state" in diag}
+    for name, diag in ctx["diagnostics"].items():
+        if "reset" in diag:
+            resets = reset_events(imu_t, diag["reset"])
+            estimator_events.setdefault(name, {})["resets"] = resets
+            events += [Event(t, "warn", f"{name}: watchdog reset (EKF attitude too far from its "
+                                        "complementary filter): restarted from it")
+                       for t in resets["times"]]
     return ReplayResult(flight=flight, imu_source=ctx["imu_source"], reference=ref,
                         estimates=estimates, comparisons=comparisons, events=events,
                         declination=ctx["declination"], declination_source=ctx["declination_source"],
                         mag_source=ctx["mag_source"], alignment=alignment, phase=ctx["phase"],
                         diagnostics=ctx["diagnostics"], estimator_events=estimator_events,
-                        params=ctx["params"])
+                        params=ctx["params"], aiding=ctx["aiding"])
 
 
 def _events(flight: Flight, ctx: dict, alignment: est.Alignment) -> list[Event]:

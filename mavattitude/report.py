@@ -71,7 +71,8 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
     (degrees) and ``buckets`` (shares keyed by ``BUCKET_KEYS``); the yaw M also holds
     ``aligned``. M is null for an axis with no scored sample; a non-finite number is null.
     ``extras`` adds keys per estimator next to the axes: ``events`` (what became of its
-    accelerometer updates: {state: {samples, spans, seconds}}), ``diagnostics`` (median and
+    accelerometer updates: {state: {samples, spans, seconds}}; a watchdog's resets:
+    ``resets``: {count, times}), ``diagnostics`` (median and
     max of each diagnostic series) and ``params``.
     """
     estimators = {}
@@ -126,12 +127,16 @@ def estimator_extras(result) -> dict[str, dict]:
 
 def format_events(result) -> str:
     """One line per estimator state other than "used": how often and how long the
-    accelerometer update was skipped or down-weighted."""
+    accelerometer update was skipped or down-weighted; and one line for a watchdog's resets."""
     lines = []
     n = len(result.flight.imu[result.imu_source].t)
     for name, states in result.estimator_events.items():
         for state, c in states.items():
-            if c["samples"]:
+            if state == "resets":
+                times = ", ".join(f"{t:.1f}" for t in c["times"][:10]) + (" ..." if c["count"] > 10 else "")
+                lines.append(f"{name}: {c['count']} watchdog reset{'s' if c['count'] != 1 else ''}"
+                             + (f" at {times} s" if c["count"] else ""))
+            elif c["samples"]:
                 lines.append(f"{name}: accelerometer {state}: {c['spans']} span{'s' if c['spans'] != 1 else ''}, "
                              f"{c['seconds']:.1f} s "
                              f"({100.0 * c['samples'] / max(n, 1):.1f} % of samples)")

@@ -21,10 +21,16 @@ reference is neither of those, or an estimator's name, escaped for entity paths)
 - ``world/<s>/reference``  the reference attitude again, as a grey wireframe "ghost" in
   every other slot, so an estimate's error is visible as the gap between box and ghost
 - ``map/track``  static GeoLineStrings of the GPS track; ``map/position`` GeoPoints over time
+- ``map/estimate/<s>``  static GeoLineStrings of an estimator's own track (``pos_n``/``pos_e``
+  diagnostics, NED around the first GPS fix), ``map/estimate/<s>/position`` GeoPoints over time
+- ``track``  static ViewCoordinates FRD (NED); ``track/gps`` and ``track/<s>``: static LineStrips3D
+  of the GPS track and the estimated track, metres from the first fix (a "track" tab)
 - ``events``  TextLog of the replay's events (and one metrics line per comparison at the end)
 - ``diagnostics/<key>/<s>``  Scalars: what each filter exposes (``cov_trace``, ``adaptive_r``,
   ``accel_weight``, ...), peak-preserving like the errors; ``accel_state`` is the filter's
-  accelerometer state code over time (0 used; see ``mavattitude estimators`` for the codes)
+  accelerometer state code over time (0 used; see ``mavattitude estimators`` for the codes).
+  Keys of one vector, ``<group>_<axis>`` with the axis x, y, z or n, e, d (``gyro_bias_x``,
+  ``vel_n``), share a plot: ``diagnostics/<group>/<s>/<axis>``
 - ``phase/in_air``, ``phase/height``  the ground/air phase (1 = air) and the height above the
   start it comes from
 - ``summary``  static TextDocument (markdown): the flight and the metrics table
@@ -59,6 +65,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from . import quaternion as quat
+from .aiding import ned_to_geodetic
 from .flight import AttitudeSeries, GpsSeries
 from .metrics import AXES
 from .pipeline import Event, ReplayResult
@@ -206,7 +213,7 @@ _TEXT_LOG_COLUMNS = _text_log_columns()
 def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=None,
                    map_zoom: float | None = None, time_span: tuple[float, float] | None = None,
                    live: bool = False, diagnostics: Sequence[str] = (),
-                   has_phase: bool = False) -> rrb.Blueprint:
+                   has_phase: bool = False, has_track: bool = False) -> rrb.Blueprint:
     """The layout: per-axis attitude and error plots on the left, the 3D attitude boxes top
     right, map / summary / events in tabs below it.
 
@@ -217,8 +224,9 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
     ``time_span``: (start, end) seconds the plots open on (the whole replay); None: the
     viewer's default.
     ``live``: the time panel follows incoming data instead of standing paused.
-    ``diagnostics``: the diagnostic keys logged, each a plot in a "diagnostics" tab, with the
-    ground/air phase when ``has_phase``.
+    ``diagnostics``: the diagnostic keys logged, each a plot in a "diagnostics" tab (the axes
+    of one vector in one plot), with the ground/air phase when ``has_phase``.
+    ``has_track``: a "track" tab, the GPS and estimated tracks in 3D.
 
     One legend (in the roll plot) names every colour; the error plots have none: their
     lines have the same colours, faded where not scored (the warm-up).
@@ -264,13 +272,16 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
                                                                           spacing=1.0))
     tabs = [rrb.TextDocumentView(origin="summary", name="summary"),
             rrb.TextLogView(origin="events", name="events", columns=_TEXT_LOG_COLUMNS)]
+    groups = dict.fromkeys(diagnostic_group(key)[0] for key in diagnostics)
     plots = [rrb.TimeSeriesView(origin=f"diagnostics/{_part(key)}", name=DIAGNOSTIC_TITLES.get(key, key),
-                                axis_x=link) for key in diagnostics]
+                                axis_x=link) for key in groups]
     if has_phase:
         plots.append(rrb.TimeSeriesView(origin="phase", name="ground/air phase (1 = air), height (m)",
                                         axis_x=link))
     if plots:
         tabs.append(rrb.Vertical(*plots, name="diagnostics"))
+    if has_track:
+        tabs.insert(0, rrb.Spatial3DView(origin="track", name="track, NED (m)"))
     if has_gps:
         tabs.insert(0, rrb.MapView(origin="map", name="GPS track", zoom=map_zoom))
     right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[3, 2])
@@ -286,12 +297,13 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
 def send_blueprint(rec: rr.RecordingStream, *, has_gps: bool = True, n_slots: int = 4,
                    error_range_deg=None, map_zoom: float | None = None,
                    time_span: tuple[float, float] | None = None, live: bool = False,
-                   diagnostics: Sequence[str] = (), has_phase: bool = False) -> None:
+                   diagnostics: Sequence[str] = (), has_phase: bool = False,
+                   has_track: bool = False) -> None:
     """Send ``make_blueprint(...)`` and make it the active and default layout."""
     rec.send_blueprint(make_blueprint(has_gps=has_gps, n_slots=n_slots,
                                       error_range_deg=error_range_deg, map_zoom=map_zoom,
                                       time_span=time_span, live=live, diagnostics=diagnostics,
-                                      has_phase=has_phase),
+                                      has_phase=has_phase, has_track=has_track),
                        make_active=True, make_default=True)
 
 
@@ -514,18 +526,45 @@ DIAGNOSTIC_TITLES = {
     "accel_state": "accelerometer update (0 used, 1+ skipped / down-weighted)",
     "adaptive_r": "mahony-ekf adaptive R",
     "accel_weight": "accelerometer trust w (1 full, 0 skipped)",
+    "reset": "watchdog reset (1 at a reset)",
+    "watchdog_distance": "EKF vs complementary filter, Σ Δangle² (rad²)",
+    "gyro_bias": "gyro bias (°/s)",
+    "accel_bias": "z-accelerometer bias (m/s²)",
+    "mag_bias": "magnetometer bias (mGauss)",
+    "earth_field": "earth field NED (mGauss)",
+    "vel": "velocity NED (m/s)",
+    "pos": "position NED (m)",
+    "innov_mag": "magnetometer innovation (mGauss)",
+    "innov_gps_vel": "GPS velocity innovation (m/s)",
+    "innov_gps_pos": "GPS position innovation (m)",
+    "innov_baro": "baro height innovation (m)",
 }
+AXIS_SUFFIXES = ("x", "y", "z", "n", "e", "d")
+AXIS_SHADES = {"x": 1.0, "n": 1.0, "y": 0.7, "e": 0.7, "z": 0.45, "d": 0.45}
+
+
+def diagnostic_group(key: str) -> tuple[str, str | None]:
+    """("gyro_bias", "x") for "gyro_bias_x": the vector a key belongs to and its axis;
+    (key, None) for a key of its own."""
+    head, _, tail = key.rpartition("_")
+    return (head, tail) if head and tail in AXIS_SUFFIXES else (key, None)
 
 
 def diagnostic_path(key: str, name: str) -> str:
-    return f"diagnostics/{_part(key)}/{_part(name)}"
+    group, axis = diagnostic_group(key)
+    path = f"diagnostics/{_part(group)}/{_part(name)}"
+    return f"{path}/{axis}" if axis else path
 
 
 def setup_diagnostics(rec: rr.RecordingStream, name: str, keys: Iterable[str], *, color: Color) -> None:
-    """Static styling of one estimator's diagnostic lines."""
+    """Static styling of one estimator's diagnostic lines (a vector's axes in shades of its colour)."""
     for key in keys:
+        axis = diagnostic_group(key)[1]
+        shade = AXIS_SHADES.get(axis, 1.0)
         rec.log(diagnostic_path(key, name),
-                rr.SeriesLines(colors=[color], names=[name], widths=[1.5], aggregation_policy="MinMax"),
+                rr.SeriesLines(colors=[tuple(int(c * shade) for c in color)],
+                               names=[f"{name} {axis}" if axis else name], widths=[1.5],
+                               aggregation_policy="MinMax"),
                 static=True)
 
 
@@ -595,6 +634,57 @@ def log_gps(rec: rr.RecordingStream, gps: GpsSeries) -> bool:
     idx = _bin_first(t, GPS_MARKER_MAX_HZ)
     rec.send_columns("map/position", indexes=[_time(t[idx])],
                      columns=rr.GeoPoints.columns(positions=ll[idx]))
+    return True
+
+
+def estimated_tracks(result: ReplayResult) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{estimator: (t, (N, 3) NED m)} of the estimators that estimate a position."""
+    imu_t = result.flight.imu[result.imu_source].t
+    out = {}
+    for name, diag in result.diagnostics.items():
+        if all(k in diag for k in ("pos_n", "pos_e", "pos_d")):
+            ned = np.column_stack([diag["pos_n"], diag["pos_e"], diag["pos_d"]])
+            ok = np.isfinite(ned).all(axis=1)
+            if ok.any():
+                out[name] = (imu_t[ok], ned[ok])
+    return out
+
+
+def _thin(x: np.ndarray, n_max: int) -> np.ndarray:
+    """At most about ``n_max`` rows of ``x``, evenly strided, the last one kept."""
+    stride = max(1, math.ceil(len(x) / n_max))
+    out = x[::stride]
+    return out if len(x) == 0 or (len(out) - 1) * stride == len(x) - 1 else np.vstack([out, x[-1:]])
+
+
+def log_tracks(rec: rr.RecordingStream, result: ReplayResult, colors: dict[str, Color]) -> bool:
+    """Each estimated track next to the GPS one: on the map (around the first fix) and in
+    3D (``track``). False when there is none (no GPS origin, or no estimator with a position)."""
+    aiding = result.aiding
+    tracks = estimated_tracks(result)
+    if aiding is None or aiding.origin is None or not tracks:
+        return False
+    rec.log("track", rr.ViewCoordinates.FRD, static=True)  # NED: x north, y east, z down
+    gps = aiding.gps_pos[np.isfinite(aiding.gps_pos).all(axis=1)]
+    if len(gps):
+        rec.log("track/gps", rr.LineStrips3D([_thin(gps, GPS_TRACK_MAX_POINTS)], colors=[TRACK_COLOR],
+                                             radii=rr.Radius.ui_points(1.5), labels=["GPS"]),
+                static=True)
+    for name, (t, ned) in tracks.items():
+        color = colors.get(name, (200, 200, 200))
+        rec.log(f"track/{_part(name)}", rr.LineStrips3D([_thin(ned, GPS_TRACK_MAX_POINTS)], colors=[color],
+                                                         radii=rr.Radius.ui_points(1.5), labels=[name]),
+                static=True)
+        lat, lon, _ = ned_to_geodetic(aiding.origin, ned)
+        ll = np.column_stack([lat, lon])
+        path = f"map/estimate/{_part(name)}"
+        rec.log(path, rr.GeoLineStrings(lat_lon=[_thin(ll, GPS_TRACK_MAX_POINTS)],
+                                        radii=rr.Radius.ui_points(2.0), colors=[color]), static=True)
+        rec.log(f"{path}/position", rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(5.0), colors=[color]),
+                static=True)
+        idx = _bin_first(t, GPS_MARKER_MAX_HZ)
+        rec.send_columns(f"{path}/position", indexes=[_time(t[idx])],
+                         columns=rr.GeoPoints.columns(positions=ll[idx]))
     return True
 
 
@@ -716,7 +806,9 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
                        error_range_deg=_error_ranges(result),
                        map_zoom=map_zoom_for(gps_ll[:, 0], gps_ll[:, 1]) if has_gps else None,
                        time_span=fl.time_span, diagnostics=diag_keys,
-                       has_phase=result.phase is not None)
+                       has_phase=result.phase is not None,
+                       has_track=has_gps and bool(estimated_tracks(result))
+                       and result.aiding is not None and result.aiding.origin is not None)
 
     a, b = fl.time_span
     duration = max(b - a, max((float(s.t[-1] - s.t[0]) for _, _, s in series if len(s.t)),
@@ -751,6 +843,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
         log_phase_columns(rec, result.phase.t, result.phase.in_air, result.phase.height_m)
     if has_gps:
         log_gps(rec, fl.gps)
+        log_tracks(rec, result, colors)
     rec.log("summary", rr.TextDocument(summary_markdown(result), media_type="text/markdown"),
             static=True)
     log_events(rec, list(result.events) + _summary_events(result, b))

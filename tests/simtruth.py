@@ -61,3 +61,15 @@ def errors_deg(sim, q, after_s: float = 10.0) -> np.ndarray:
     keep = sim.t >= sim.t[0] + after_s
     err = quat.to_euler(q[keep]) - quat.to_euler(sim.truth.q[keep])
     return np.abs(quat.wrap_deg(np.degrees(err)))
+
+
+def run_aided(name: str, sim, params=None, mag: bool = True, gps: bool = True, q0=None):
+    """``run`` for an estimator that takes aiding (``uses_aiding``): also passes the simulated
+    GPS and baro on the IMU clock (``aiding.from_sim``), or none with ``gps=False``."""
+    from mavattitude.aiding import from_sim
+
+    t, gyro, accel, m = inputs(sim, mag)
+    a = align(t, gyro, accel, m, sim.declination_rad)
+    f = create(name, params, declination=sim.declination_rad)
+    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias)
+    return f.update(t, gyro, accel, m, aiding=from_sim(sim) if gps else None), f

@@ -10,6 +10,9 @@ Inputs are SI on the autopilot clock: ``t`` (N,) s, ``gyro`` (N, 3) rad/s, ``acc
 m/s² specific force, ``mag`` (N, 3) tesla: the latest magnetometer sample at each IMU time
 (held between samples, as the pipeline's ``mag_on_imu_clock`` gives it), NaN where there is
 none or it is stale, ``in_air`` (N,) 1.0 in the air, 0.0 on the ground, NaN unknown (see ``phase``).
+An estimator with ``uses_aiding`` also gets ``aiding``: the GPS and baro measurements of the
+chunk on the IMU clock (``mavattitude.aiding.Aiding``, NaN where none), or None when the log
+has none.
 Output: (N, 4) quaternions [w, x, y, z], body FRD -> NED.
 
 Diagnostics: after each ``update`` an estimator leaves per-sample series for that chunk in
@@ -36,6 +39,7 @@ class Estimator:
     kernels: tuple = ()  # the numba functions it runs, to tell when a first run must compile them
     DIAGNOSTICS: dict = {}  # diagnostic series name -> what it holds, with its unit
     ACCEL_STATES: tuple = ()  # meaning of each accel_state code, code 0 = "used"
+    uses_aiding: bool = False  # takes GPS / baro measurements: update(..., aiding=Aiding)
 
     def __init__(self, params=None, declination: float = 0.0):
         self.params = params if params is not None else self.Params()
@@ -47,8 +51,10 @@ class Estimator:
         """Start from attitude ``q0`` with gyro bias ``gyro_bias`` (rad/s) already known."""
         raise NotImplementedError
 
-    def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
-        """Process a chunk of samples; returns the attitude after each one, (N, 4)."""
+    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
+        """Process a chunk of samples; returns the attitude after each one, (N, 4).
+        ``aiding`` (the chunk's ``aiding.Aiding`` rows) is passed only to estimators with
+        ``uses_aiding``."""
         raise NotImplementedError
 
     @property

@@ -54,6 +54,18 @@ class SensorParams:
     autopilot_tilt_error: float = np.radians(0.15)  # rad, RMS of the autopilot's roll and pitch error
     autopilot_yaw_error: float = np.radians(0.3)  # rad, RMS of its yaw error
     autopilot_error_periods: tuple[float, float] = (15.0, 120.0)  # s, range of the error's wander periods
+    # Off by default (zero): when off, no random numbers are drawn for them, so every other
+    # output stays bit-identical.
+    accel_vibration: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m/s², peak per axis (x, y, z) of
+    # motor vibration in the accelerometer: white, uniform in ±peak, independent per sample (a
+    # multirotor's vibration aliased by a low logging rate; paper 003 measured ±0.49 g x/y, ±0.73 g z)
+    accel_vibration_start: float = 0.0  # s since log start: the motors start; no vibration before
+    mag_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)  # T, body frame: hard iron the
+    # autopilot's calibration left in the logged field (constant)
+    mag_fault_window: tuple[float, float] = (0.0, 0.0)  # s since log start: [start, end) of a
+    # magnetometer fault (e.g. a current-carrying cable or steel nearby); empty = no fault
+    mag_fault_field: tuple[float, float, float] = (0.0, 0.0, 0.0)  # T, body frame, added during the fault
+    mag_fault_scale: float = 1.0  # the field reads this many times the true one during the fault
 
 
 @dataclass
@@ -119,6 +131,10 @@ def imu(truth: TrajectorySample, params: SensorParams, rate: float, rng: np.rand
     gyro = truth.omega_b + gyro_bias + rng.normal(0.0, params.gyro_noise_density * np.sqrt(rate), (n, 3))
     accel = (truth.specific_force_b + accel_bias
              + rng.normal(0.0, params.accel_noise_density * np.sqrt(rate), (n, 3)))
+    peak = np.asarray(params.accel_vibration, dtype=float)
+    if np.any(peak != 0.0):  # drawn last, so the other errors do not depend on it
+        running = (truth.t >= params.accel_vibration_start)[:, None]
+        accel = accel + rng.uniform(-1.0, 1.0, (n, 3)) * peak * running
     return ImuTrack(truth.t + t_offset, gyro, accel, gyro_bias, accel_bias, params.imu_temperature_c)
 
 
@@ -132,6 +148,13 @@ def magnetometer(truth: TrajectorySample, field: earth.EarthField, params: Senso
     hard_iron = rng.normal(0.0, params.mag_hard_iron_sigma, 3)
     body = quat.rotate(quat.conjugate(truth.q), field.ned())
     noisy = body + rng.normal(0.0, params.mag_noise, body.shape)
+    if any(b != 0.0 for b in params.mag_bias):
+        noisy = noisy + np.asarray(params.mag_bias, dtype=float)
+    start, end = params.mag_fault_window
+    if end > start:  # no random numbers: the fault is deterministic
+        during = (truth.t >= start) & (truth.t < end)
+        noisy[during] = (noisy[during] * params.mag_fault_scale
+                         + np.asarray(params.mag_fault_field, dtype=float))
     return MagTrack(truth.t + t_offset, noisy, -hard_iron)
 
 

@@ -319,3 +319,77 @@ register(Scenario(
     _accel_motion,
     still_until=STILL_S,
 ))
+
+
+# Circling flight (paper 003 §2.3: a loaded multirotor circling a point, 5 m/s): take off to
+# 30 m, then a 75 m radius circle clockwise seen from above (north, then east), yaw along the
+# track, coordinated (thrust-aligned): 5 m/s, one lap in 94 s, centripetal 0.33 m/s² (1.9°
+# of bank). It starts at home, heading north, the circle's centre 75 m east.
+CIRCLE_RADIUS = 75.0  # m
+CIRCLE_SPEED = 5.0  # m/s
+CIRCLE_HEIGHT = 30.0  # m
+CIRCLE_CLIMB = (STILL_S, 8.0)  # climb start, duration (s)
+CIRCLE_RAMP = (CIRCLE_CLIMB[0] + CIRCLE_CLIMB[1] + 2.0, 8.0)  # after 2 s of hover, 8 s to full speed
+
+
+def _circle_motion(t):
+    n = len(t)
+    progress, rate, rate_dot = ramped_progress(t, *CIRCLE_RAMP)
+    omega = CIRCLE_SPEED / CIRCLE_RADIUS
+    phi, phi_dot, phi_ddot = omega * progress, omega * rate, omega * rate_dot
+    r, s, c = CIRCLE_RADIUS, np.sin(phi), np.cos(phi)
+    climb = take_off(t, *CIRCLE_CLIMB, CIRCLE_HEIGHT)
+    pos = _stack(n, r * s, r * (1 - c), climb[0])
+    vel = _stack(n, r * c * phi_dot, r * s * phi_dot, climb[1])
+    acc = _stack(n, r * (c * phi_ddot - s * phi_dot ** 2), r * (s * phi_ddot + c * phi_dot ** 2), climb[2])
+    return Motion(pos, vel, acc, thrust_aligned(acc, phi))  # yaw along the track: the heading is φ
+
+
+register(Scenario(
+    "circle",
+    "take-off to 30 m, then circling at 5 m/s on a 75 m radius (94 s per lap), yaw along the track",
+    _circle_motion,
+    still_until=CIRCLE_CLIMB[0],
+))
+
+
+# Fixed-wing orbit: the turn a plane flies, for the turn compensation of eq-kf. From rest at
+# home, heading north, the vehicle speeds up to 15 m/s along a 35 m radius circle clockwise
+# seen from above (centre 35 m east) over 10 s, then circles, climbing 40 m over 20 s on the
+# way: 6.4 m/s² centripetal, 33° of bank, 14.7 s per lap. Unlike the multirotor scenarios the
+# body x axis points along the velocity (pitch = flight-path angle) and the bank is the one
+# that keeps the specific force in the body x-z plane (a coordinated turn, no sideslip), so
+# the accelerometer reads the turn's ω × V x̂ on top of gravity.
+ORBIT_RADIUS = 35.0  # m
+ORBIT_SPEED = 15.0  # m/s
+ORBIT_RAMP = (STILL_S, 10.0)  # speed-up start, duration (s)
+ORBIT_CLIMB = (ORBIT_RAMP[0] + ORBIT_RAMP[1] + 2.0, 20.0, 40.0)  # climb start (s), duration (s), height (m)
+
+
+def _orbit_motion(t):
+    n = len(t)
+    progress, rate, rate_dot = ramped_progress(t, *ORBIT_RAMP)
+    omega = ORBIT_SPEED / ORBIT_RADIUS
+    phi, phi_dot, phi_ddot = omega * progress, omega * rate, omega * rate_dot
+    r, s, c = ORBIT_RADIUS, np.sin(phi), np.cos(phi)
+    climb = take_off(t, *ORBIT_CLIMB)
+    pos = _stack(n, r * s, r * (1 - c), climb[0])
+    vel = _stack(n, r * c * phi_dot, r * s * phi_dot, climb[1])
+    acc = _stack(n, r * (c * phi_ddot - s * phi_dot ** 2), r * (s * phi_ddot + c * phi_dot ** 2), climb[2])
+    yaw = phi  # along the track
+    pitch = np.arctan2(-climb[1], r * phi_dot)  # body x along the velocity (0 at rest)
+    f = acc - GRAVITY_NED  # roll: no body-y specific force, tan φ = f'_y / -f'_z in the yaw-pitch frame
+    fx = c * f[:, 0] + s * f[:, 1]
+    fy = -s * f[:, 0] + c * f[:, 1]
+    fz = np.sin(pitch) * fx + np.cos(pitch) * f[:, 2]
+    roll = np.arctan2(fy, -fz)
+    return Motion(pos, vel, acc, quat.from_euler(roll, pitch, yaw))
+
+
+register(Scenario(
+    "orbit",
+    "fixed-wing: speeds up to 15 m/s on a 35 m radius circle, then circles at 33° of bank, "
+    "climbing 40 m, body x along the velocity (14.7 s per lap)",
+    _orbit_motion,
+    still_until=ORBIT_RAMP[0],
+))

@@ -1,0 +1,1128 @@
+"""20-state EKF with GPS, baro and magnetometer, reset by a complementary filter (paper 003).
+
+Paper 003: Wu, Bai, Pei, Ma, Peng, Gao, "Attitude calculation method based on CPF-EKF for
+large load plant protection UAV", Transactions of the CSAM 49(6), 2018, DOI
+10.6041/j.issn.1000-1298.2018.06.003; restated in ../shared/ALGORITHMS.md "cpf-ekf".
+
+State (eq 1), 20 numbers: x = [q (4), V (3, NED m/s), S (3, NED m), ω_b (3, gyro bias rad/s),
+a_zb (1, z-accelerometer bias m/s²), M (3, earth field NED, gauss), m_b (3, body
+magnetometer bias, gauss)]. Each IMU sample (one "cycle"):
+
+- Predict (eq 4-9), with ω̄, ā the means of this and the previous sample (trapezoidal) and
+  φ = (ω̄ - ω_b)Δt:
+    q ← q ⊗ Exp(φ)                                  (eq 5: its first-order form; see below)
+    V ← V + (C(q_mid) [ā_x, ā_y, ā_z - a_zb] + [0, 0, g]) Δt,  q_mid = q ⊗ Exp(φ/2)   (eq 6)
+    S ← S + ½ (V + V⁺) Δt                            (eq 7, trapezoidal)
+    ω_b, a_zb, M, m_b unchanged;  P ← F P Fᵀ + G Q Gᵀ + Q_s   (eq 9).
+- Magnetometer (eq 11-16): m = C(q)ᵀ M + m_b, fused one axis at a time (three scalar EKF
+  updates, each with h and H re-evaluated at the updated state), once per fresh compass sample.
+- GPS (eq 17-19): NED velocity (vertical where the receiver gives it) and horizontal position,
+  scalar Kalman updates (H picks a state: linear); baro height updates S_d.
+- Divergence watchdog (eq 21): a Mahony complementary filter (the project's ``mahony``, same
+  gains by default) runs alongside on the same samples. If (θ₁-θ₂)² + (φ₁-φ₂)² + (ψ₁-ψ₂)² > N
+  (rad², differences wrapped to ±π) on ``reset_cycles`` consecutive watchdog cycles, the EKF is
+  reset: attitude from the CPF, P re-initialised, V and S re-initialised (to the latest GPS
+  velocity and position when GPS is active, else V = 0 and S kept), bias estimates kept,
+  M re-initialised from the latest compass sample seen through the CPF attitude (as at the
+  start). Each reset is reported (``reset`` diagnostic; the pipeline makes events of them).
+
+Jacobians (the printed F and G blocks of eq 8 and 10 have typos, e.g. a₃ and all of b, c; they
+are derived here and checked against finite differences in tests/test_cpf_ekf.py). With
+L(q), R(p) the matrices of q ⊗ p = L(q) p = R(p) q, Exp(v) = [cos ½|v|, sin ½|v| v/|v|] and
+D(v) = ∂Exp(v)/∂v (4×3):
+    F_qq = R(Exp(φ))                 (exact: q ⊗ Exp(φ) is linear in q; the paper's F_4×4 is
+                                     its first-order form I + ½Ω(ω-ω_b)Δt, printed without Δt)
+    F_qω = -Δt L(q) D(φ)             (first order -½ Ξ(q)Δt: the paper's F_4×3, without Δt)
+    F_Vq = Δt J(q_mid, a') R(Exp(φ/2)),  J(q, a) = ∂(C(q) a)/∂q (3×4, C in the homogeneous
+                                     quadratic form, as eq 2 at |q| = 1)
+    F_Vω = -½ Δt² J(q_mid, a') L(q) D(φ/2)   (second order; the paper has none)
+    F_Va = -Δt C(q_mid) e_z          (the paper's F_3×1)
+    F_S  = I_S + Δt I_V + ½ Δt (F_V - I_V)   (from the trapezoidal position step)
+  and G maps the gyro noise (½ Ξ(q⁺)Δt, so G Q Gᵀ = ¼ σ_g²Δt (I - q⁺q⁺ᵀ) for white rate noise
+  of density σ_g) and the accelerometer noise (C(q)Δt: σ_a²Δt I for an isotropic density σ_a).
+  Q_s: random walks of ω_b, a_zb, M and m_b. F P Fᵀ is formed with F's sparsity (rows and
+  columns of q, V, S only), about 1.5k multiply-adds per sample instead of 16k.
+  Magnetometer H_x = [∂m_x/∂q, 0…, ∂m_x/∂M = first column of C(q), ∂m_x/∂m_xb = 1, 0, 0]
+  (eq 12-13), likewise for y, z.
+
+Choices the paper leaves open, made here:
+- Integration: exact rotation for the trapezoidal rate (as ``mahony``) instead of eq 5's
+  first-order step, and the specific force turned with the mid-step attitude (at the 10-50 Hz
+  of many logs, the start attitude tilts the integrated acceleration in turns); F is the
+  Jacobian of exactly this step.
+- Heading: with M a free state, rotating both the attitude and M about the vertical leaves
+  every magnetometer reading unchanged, so the yaw would be fixed only by the initial M. A
+  declination pseudo-measurement, atan2(M_E, M_N) = declination (σ ``declination_noise_deg``),
+  is fused with each compass sample (as PX4's and ArduPilot's EKFs do). M starts from the first
+  compass sample turned to NED by the current attitude (the alignment's heading already uses
+  the declination).
+- Tilt needs velocity or position aiding: the accelerometer enters only through V (the paper
+  uses GPS for it and keeps the accelerometer out of the attitude update, its point for a
+  vibrating vehicle). Without GPS for ``gps_timeout_s`` (no GPS in the log, before the first
+  fix, a dropout), a synthetic zero velocity (σ ``synthetic_vel_noise``) is fused at 5 Hz,
+  horizontally, and vertically too when no height source is fresh — the non-aiding mode of
+  ArduPilot's and PX4's EKFs. On the first fix after such a spell, V and S are reset to the
+  fix (horizontally; vertically too when there is no baro).
+- Height from the baro when it is fresh (≤ ``baro_timeout_s``), else from the GPS altitude.
+- GPS noise: the reported horizontal accuracy where the log gives it, else ``gps_pos_noise``;
+  velocity ``gps_vel_noise``. ``gps_delay_s`` compares the fix with the state that long ago
+  (state minus the predicted increments since, a ring buffer; 0: none).
+- No magnetometer in the log (or ``use_mag`` false): M and m_b stay unobserved and decoupled
+  (no heading states); the yaw is the gyro's plus what GPS velocity reveals during
+  accelerations, starting with σ ``yaw_sigma0_nomag_deg``; the watchdog compares roll and
+  pitch only (the CPF has no heading reference then).
+- A compass sample is fresh when its row differs from the previous one (the interface holds
+  the latest sample on every IMU row), so each is fused once.
+- Noise values: the paper gives none. Defaults start from ArduPilot's EKF3 figures (gyro
+  0.015 rad/s and accelerometer 0.35 m/s² at 100 Hz as densities, compass 0.05 G, GPS
+  velocity 0.3 m/s), then accelerometer density and compass noise were chosen on the shared
+  logs (scripts/replay_shared_logs.py): 0.2 m/s²/√Hz and 0.05 G. The claim tests give the
+  filter the simulated sensors' own noise instead.
+- ``innovation_gate``: an optional χ gate (in σ) per scalar update, off by default as in the
+  paper.
+- Watchdog cycle: the paper checks eq 21 once per 15 ms solution cycle (IMU 50 Hz). Here one
+  check per ``watchdog_period_s`` (0.02 s) of autopilot time, on the first IMU sample of each
+  period (every sample when the IMU is slower), so "3 cycles" means the same span at any IMU
+  rate; the check's atan2/asin then run at most at 50 Hz.
+- Reset details the paper leaves open: the bias *estimates* are kept (its figures 9-10 show
+  them continuous through resets); their variances go back to P₀
+  (``reset_bias_covariance``), so that biases dragged off by whatever made the EKF diverge
+  can come back; cross-covariances are zeroed.
+- A step longer than ``MAX_STEP_S`` (a gap) is neither predicted nor integrated by the CPF.
+
+Known limits (see tests/test_cpf_ekf.py and the shared-log table): tilt is only as good as the
+velocity aiding (without GPS a hover is assumed); the accelerometer's x-y bias is not a state,
+so it tilts the estimate by bias/g; with M and m_b free, the heading at rest is held by their
+priors, not observed; the CPF, which the watchdog trusts, is itself wrong in sustained turns
+(fixed-wing), where resets then cost accuracy (``watchdog=false`` there).
+
+Reported (paper 003): IMU 50 Hz, compass 10 Hz, GPS 5 Hz; static roll/pitch ±0.05°, yaw ±0.2°;
+dynamic (a loaded 16-rotor circling at 5 m/s with ±0.49 g x/y, ±0.73 g z vibration) against an
+Xsens MTi: ±0.1° roll/pitch, ±0.5° yaw; 3 resets in 1000 s with N = 0.27416; without the
+watchdog, yaw lagged from 320 s and diverged by 700 s.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ..flight import GRAVITY
+from .base import MAX_STEP_S, Estimator, as_chunk
+
+NX = 20
+IQ, IV, IS, IB, IA, IM, IMB = 0, 4, 7, 10, 13, 14, 17  # first index of each state block
+TESLA_TO_GAUSS = 1e4
+RING = 512  # rows of the predicted-increment history (for gps_delay_s)
+SYNTH_PERIOD_S = 0.2  # synthetic zero-velocity fusion period without GPS
+
+# Diagnostic columns (the kernel writes one row of these per sample).
+DIAG_KEYS = (
+    "cov_trace", "reset", "watchdog_distance",
+    "gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "accel_bias_z",
+    "mag_bias_x", "mag_bias_y", "mag_bias_z",
+    "earth_field_n", "earth_field_e", "earth_field_d",
+    "vel_n", "vel_e", "vel_d", "pos_n", "pos_e", "pos_d",
+    "innov_mag_x", "innov_mag_y", "innov_mag_z",
+    "innov_gps_vel_n", "innov_gps_vel_e", "innov_gps_vel_d",
+    "innov_gps_pos_n", "innov_gps_pos_e", "innov_gps_pos_d", "innov_baro",
+)
+D_TRACE, D_RESET, D_WD, D_BG, D_BA, D_MB, D_M, D_V, D_S, D_IM, D_IV, D_IP, D_IB = (
+    0, 1, 2, 3, 6, 7, 10, 13, 16, 19, 22, 25, 28)
+NDIAG = len(DIAG_KEYS)
+
+# aux: the filter's scalar memory between chunks
+A_TPREV, A_GYRO, A_ACC, A_MAG, A_COUNT, A_MAGINIT, A_TGPS, A_TBARO, A_TSYNTH, A_GVEL, A_GPOS, \
+    A_HEAD, A_FILL, A_RESETS, A_LASTMAG, A_WDBIN = 0, 1, 4, 7, 10, 11, 12, 13, 14, 15, 18, 21, 22, 23, 24, 27
+NAUX = 28
+
+
+@dataclass
+class CpfEkfParams:
+    gyro_noise: float = 1.5e-3  # gyro rate noise density, rad/s/√Hz
+    accel_noise: float = 0.2  # accelerometer noise density (vibration included), m/s²/√Hz
+    gyro_bias_walk: float = 5e-5  # gyro bias random walk, rad/s/√s
+    accel_bias_walk: float = 1e-3  # z-accelerometer bias random walk, m/s²/√s
+    earth_field_walk: float = 1e-4  # earth field random walk, gauss/√s
+    body_field_walk: float = 1e-5  # magnetometer bias random walk, gauss/√s
+    mag_noise: float = 0.05  # magnetometer noise per axis (interference included), gauss (1σ per sample)
+    declination_noise_deg: float = 5.0  # declination pseudo-measurement, degrees (1σ per compass sample)
+    gps_vel_noise: float = 0.3  # GPS velocity noise per axis, m/s (1σ)
+    gps_pos_noise: float = 1.0  # GPS horizontal position noise when the log gives no accuracy, m (1σ)
+    gps_pos_noise_min: float = 0.3  # floor under a reported horizontal accuracy, m
+    gps_alt_noise: float = 3.0  # GPS altitude noise (used without a fresh baro), m (1σ)
+    gps_delay_s: float = 0.0  # how old a GPS fix is when logged, s (0: fused as current)
+    baro_noise: float = 1.0  # baro height noise, m (1σ)
+    gps_timeout_s: float = 2.0  # no GPS for longer: synthetic zero velocity, s
+    baro_timeout_s: float = 2.0  # no baro for longer: GPS altitude instead, s
+    synthetic_vel_noise: float = 1.0  # synthetic zero-velocity noise without GPS, m/s (1σ; 0: none)
+    innovation_gate: float = 0.0  # reject a scalar update with |ν| > gate·√S, σ (0: no gate)
+    tilt_sigma0_deg: float = 2.0  # initial (and reset) roll/pitch 1σ, degrees
+    yaw_sigma0_deg: float = 5.0  # initial (and reset) yaw 1σ with a magnetometer, degrees
+    yaw_sigma0_nomag_deg: float = 30.0  # initial yaw 1σ without a magnetometer, degrees
+    vel_sigma0: float = 1.0  # initial velocity 1σ, m/s
+    pos_sigma0: float = 5.0  # initial position 1σ, m
+    gyro_bias_sigma0_dps: float = 0.1  # initial gyro bias 1σ, °/s
+    accel_bias_sigma0: float = 0.1  # initial z-accelerometer bias 1σ, m/s²
+    earth_field_sigma0: float = 0.02  # initial earth field 1σ, gauss
+    body_field_sigma0: float = 0.02  # initial magnetometer bias 1σ, gauss
+    watchdog: bool = True  # reset the EKF from the complementary filter on divergence (eq 21)
+    reset_threshold: float = 0.27416  # N of eq 21: squared Euler-angle difference sum, rad²
+    reset_cycles: int = 3  # consecutive watchdog cycles over N that trigger a reset
+    reset_bias_covariance: bool = True  # on a reset, bias variances back to their initial values (estimates kept)
+    watchdog_period_s: float = 0.02  # watchdog cycle: one check per this span (the paper's 50 Hz IMU; 0: every IMU sample), s
+    cpf_kp: float = 0.2  # complementary filter proportional gain, 1/s (as mahony)
+    cpf_ki: float = 0.0005  # complementary filter integral gain, 1/s² (as mahony)
+    use_mag: bool = True  # fuse the magnetometer when the log has one
+    use_gps: bool = True  # fuse GPS velocity and position when the log has them
+    use_baro: bool = True  # fuse baro height when the log has it
+
+
+# parameter vector layout for the kernel
+(P_GN, P_AN, P_BW, P_AW, P_MW, P_MBW, P_MAGN, P_DECN, P_GVN, P_GPN, P_GPMIN, P_GAN, P_GDEL,
+ P_BARON, P_GTO, P_BTO, P_SYN, P_GATE, P_TILT0, P_YAW0, P_VEL0, P_POS0, P_NRESET,
+ P_CYCLES, P_KP, P_KI, P_DEC, P_USEMAG, P_WATCHDOG, P_G, P_MAXSTEP, P_YAW0NOMAG, P_M0, P_WDPER,
+ P_RESETBIAS, P_BG0, P_AB0, P_MB0) = range(38)
+NPRM = 38
+
+
+def _param_vector(p: CpfEkfParams, declination: float) -> np.ndarray:
+    v = np.zeros(NPRM)
+    v[P_GN], v[P_AN], v[P_BW], v[P_AW] = p.gyro_noise, p.accel_noise, p.gyro_bias_walk, p.accel_bias_walk
+    v[P_MW], v[P_MBW], v[P_MAGN] = p.earth_field_walk, p.body_field_walk, p.mag_noise
+    v[P_DECN] = math.radians(p.declination_noise_deg)
+    v[P_GVN], v[P_GPN], v[P_GPMIN], v[P_GAN] = p.gps_vel_noise, p.gps_pos_noise, p.gps_pos_noise_min, p.gps_alt_noise
+    v[P_GDEL], v[P_BARON], v[P_GTO], v[P_BTO] = p.gps_delay_s, p.baro_noise, p.gps_timeout_s, p.baro_timeout_s
+    v[P_SYN], v[P_GATE] = p.synthetic_vel_noise, p.innovation_gate
+    v[P_TILT0], v[P_YAW0] = math.radians(p.tilt_sigma0_deg), math.radians(p.yaw_sigma0_deg)
+    v[P_YAW0NOMAG] = math.radians(p.yaw_sigma0_nomag_deg)
+    v[P_VEL0], v[P_POS0], v[P_M0] = p.vel_sigma0, p.pos_sigma0, p.earth_field_sigma0
+    v[P_NRESET], v[P_CYCLES], v[P_WDPER] = p.reset_threshold, p.reset_cycles, p.watchdog_period_s
+    v[P_KP], v[P_KI], v[P_DEC] = p.cpf_kp, p.cpf_ki, declination
+    v[P_USEMAG], v[P_WATCHDOG] = float(p.use_mag), float(p.watchdog)
+    v[P_RESETBIAS] = float(p.reset_bias_covariance)
+    v[P_BG0], v[P_AB0], v[P_MB0] = math.radians(p.gyro_bias_sigma0_dps), p.accel_bias_sigma0, p.body_field_sigma0
+    v[P_G], v[P_MAXSTEP] = GRAVITY, MAX_STEP_S
+    return v
+
+
+# ---------------------------------------------------------------- model functions (njit)
+
+
+@njit(cache=True)
+def exp_dexp(v, e, d):
+    """e = Exp(v) (4,) and d = ∂Exp(v)/∂v (4×3), written in place."""
+    th2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    th = math.sqrt(th2)
+    if th < 1e-4:
+        c = 1.0 - th2 / 8.0
+        f1 = 0.5 - th2 / 48.0  # sin(θ/2)/θ
+        f2 = -1.0 / 24.0 + th2 / 960.0  # (½ θ cos(θ/2) - sin(θ/2)) / θ³
+    else:
+        s4 = math.sin(0.25 * th)  # one sine and cosine of θ/4 give both of θ/2
+        c4 = math.cos(0.25 * th)
+        s = 2.0 * s4 * c4
+        c = c4 * c4 - s4 * s4
+        f1 = s / th
+        f2 = (0.5 * th * c - s) / (th2 * th)
+    e[0] = c
+    for i in range(3):
+        e[1 + i] = f1 * v[i]
+        d[0, i] = -0.5 * f1 * v[i]
+        for j in range(3):
+            d[1 + i, j] = f2 * v[i] * v[j]
+        d[1 + i, i] += f1
+
+
+@njit(cache=True)
+def exp_dexp_pair(v, e, d, eh, dh):
+    """``exp_dexp`` of v into (e, d) and of v/2 into (eh, dh), from one sine and cosine."""
+    th2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    th = math.sqrt(th2)
+    hh2 = 0.25 * th2
+    if th < 1e-4:
+        c, f1, f2 = 1.0 - th2 / 8.0, 0.5 - th2 / 48.0, -1.0 / 24.0 + th2 / 960.0
+        ch, f1h, f2h = 1.0 - hh2 / 8.0, 0.5 - hh2 / 48.0, -1.0 / 24.0 + hh2 / 960.0
+    else:
+        s4 = math.sin(0.25 * th)
+        c4 = math.cos(0.25 * th)
+        s = 2.0 * s4 * c4
+        c = c4 * c4 - s4 * s4
+        f1 = s / th
+        f2 = (0.5 * th * c - s) / (th2 * th)
+        hh = 0.5 * th
+        ch = c4
+        f1h = s4 / hh
+        f2h = (0.5 * hh * c4 - s4) / (hh2 * hh)
+    e[0] = c
+    eh[0] = ch
+    for i in range(3):
+        vi = v[i]
+        hi = 0.5 * vi
+        e[1 + i] = f1 * vi
+        eh[1 + i] = f1h * hi
+        d[0, i] = -0.5 * f1 * vi
+        dh[0, i] = -0.5 * f1h * hi
+        for j in range(3):
+            d[1 + i, j] = f2 * vi * v[j]
+            dh[1 + i, j] = f2h * hi * 0.5 * v[j]
+        d[1 + i, i] += f1
+        dh[1 + i, i] += f1h
+
+
+@njit(cache=True)
+def rmat(p, out):
+    """R(p): q ⊗ p = R(p) q."""
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = p[0], -p[1], -p[2], -p[3]
+    out[1, 0], out[1, 1], out[1, 2], out[1, 3] = p[1], p[0], p[3], -p[2]
+    out[2, 0], out[2, 1], out[2, 2], out[2, 3] = p[2], -p[3], p[0], p[1]
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = p[3], p[2], -p[1], p[0]
+
+
+@njit(cache=True)
+def lmat(q, out):
+    """L(q): q ⊗ p = L(q) p."""
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = q[0], -q[1], -q[2], -q[3]
+    out[1, 0], out[1, 1], out[1, 2], out[1, 3] = q[1], q[0], -q[3], q[2]
+    out[2, 0], out[2, 1], out[2, 2], out[2, 3] = q[2], q[3], q[0], -q[1]
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = q[3], -q[2], q[1], q[0]
+
+
+@njit(cache=True)
+def rot_jacobian(q, a, out):
+    """J = ∂(C(q) a)/∂q (3×4), C in the homogeneous quadratic form of eq 2."""
+    q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
+    ax, ay, az = a[0], a[1], a[2]
+    out[0, 0] = 2 * (q0 * ax - q3 * ay + q2 * az)
+    out[0, 1] = 2 * (q1 * ax + q2 * ay + q3 * az)
+    out[0, 2] = 2 * (-q2 * ax + q1 * ay + q0 * az)
+    out[0, 3] = 2 * (-q3 * ax - q0 * ay + q1 * az)
+    out[1, 0] = 2 * (q3 * ax + q0 * ay - q1 * az)
+    out[1, 1] = 2 * (q2 * ax - q1 * ay - q0 * az)
+    out[1, 2] = 2 * (q1 * ax + q2 * ay + q3 * az)
+    out[1, 3] = 2 * (q0 * ax - q3 * ay + q2 * az)
+    out[2, 0] = 2 * (-q2 * ax + q1 * ay + q0 * az)
+    out[2, 1] = 2 * (q3 * ax + q0 * ay - q1 * az)
+    out[2, 2] = 2 * (-q0 * ax + q3 * ay - q2 * az)
+    out[2, 3] = 2 * (q1 * ax + q2 * ay + q3 * az)
+
+
+@njit(cache=True)
+def rotate_h(q, a, out):
+    """C(q) a with C in the homogeneous quadratic form (= eq 2 at |q| = 1)."""
+    q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
+    out[0] = ((q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3) * a[0] + 2 * (q1 * q2 - q0 * q3) * a[1]
+              + 2 * (q1 * q3 + q0 * q2) * a[2])
+    out[1] = (2 * (q1 * q2 + q0 * q3) * a[0] + (q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3) * a[1]
+              + 2 * (q2 * q3 - q0 * q1) * a[2])
+    out[2] = (2 * (q1 * q3 - q0 * q2) * a[0] + 2 * (q2 * q3 + q0 * q1) * a[1]
+              + (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3) * a[2])
+
+
+@njit(cache=True)
+def mag_model(x, axis, h_q):
+    """Predicted magnetometer axis ``axis`` (eq 11), m = C(q)ᵀ M + m_b, and ∂m/∂q into h_q (4,).
+    ∂m/∂M is row ``axis`` of C(q)ᵀ (column of C), ∂m/∂m_b the unit vector: see ``mag_jacobian``."""
+    q0, q1, q2, q3 = x[0], x[1], x[2], x[3]
+    mn, me, md = x[IM], x[IM + 1], x[IM + 2]
+    if axis == 0:
+        h = ((q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3) * mn + 2 * (q1 * q2 + q0 * q3) * me
+             + 2 * (q1 * q3 - q0 * q2) * md)
+        h_q[0] = 2 * (q0 * mn + q3 * me - q2 * md)
+        h_q[1] = 2 * (q1 * mn + q2 * me + q3 * md)
+        h_q[2] = 2 * (-q2 * mn + q1 * me - q0 * md)
+        h_q[3] = 2 * (-q3 * mn + q0 * me + q1 * md)
+    elif axis == 1:
+        h = (2 * (q1 * q2 - q0 * q3) * mn + (q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3) * me
+             + 2 * (q2 * q3 + q0 * q1) * md)
+        h_q[0] = 2 * (-q3 * mn + q0 * me + q1 * md)
+        h_q[1] = 2 * (q2 * mn - q1 * me + q0 * md)
+        h_q[2] = 2 * (q1 * mn + q2 * me + q3 * md)
+        h_q[3] = 2 * (-q0 * mn - q3 * me + q2 * md)
+    else:
+        h = (2 * (q1 * q3 + q0 * q2) * mn + 2 * (q2 * q3 - q0 * q1) * me
+             + (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3) * md)
+        h_q[0] = 2 * (q2 * mn - q1 * me + q0 * md)
+        h_q[1] = 2 * (q3 * mn - q0 * me - q1 * md)
+        h_q[2] = 2 * (q0 * mn + q3 * me - q2 * md)
+        h_q[3] = 2 * (q1 * mn + q2 * me + q3 * md)
+    return h + x[IMB + axis]
+
+
+@njit(cache=True)
+def mag_jacobian(x, axis, H):
+    """The full 20-element H row of magnetometer axis ``axis`` (eq 12-13), for tests."""
+    h_q = np.zeros(4)
+    mag_model(x, axis, h_q)
+    for k in range(NX):
+        H[k] = 0.0
+    for k in range(4):
+        H[k] = h_q[k]
+    c = np.empty(3)  # column ``axis`` of C(q): row ``axis`` of C(q)ᵀ
+    e = np.zeros(3)
+    e[axis] = 1.0
+    rotate_h(x[:4], e, c)
+    for k in range(3):
+        H[IM + k] = c[k]
+    H[IMB + axis] = 1.0
+
+
+@njit(cache=True)
+def predict_state(x, w_mean, a_mean, dt, g, xn):
+    """The state step f(x) of eq 5-7 as implemented (see the module docstring), into ``xn``."""
+    phi = np.empty(3)
+    for i in range(3):
+        phi[i] = (w_mean[i] - x[IB + i]) * dt
+    e = np.empty(4)
+    d = np.empty((4, 3))
+    exp_dexp(phi, e, d)
+    rm = np.empty((4, 4))
+    rmat(e, rm)
+    half = np.empty(3)
+    for i in range(3):
+        half[i] = 0.5 * phi[i]
+    eh = np.empty(4)
+    dh = np.empty((4, 3))
+    exp_dexp(half, eh, dh)
+    rh = np.empty((4, 4))
+    rmat(eh, rh)
+    qm = np.zeros(4)
+    for i in range(4):
+        s = 0.0
+        sm = 0.0
+        for k in range(4):
+            s += rm[i, k] * x[k]
+            sm += rh[i, k] * x[k]
+        xn[i] = s
+        qm[i] = sm
+    ap = np.empty(3)
+    ap[0], ap[1], ap[2] = a_mean[0], a_mean[1], a_mean[2] - x[IA]
+    an = np.empty(3)
+    rotate_h(qm, ap, an)
+    an[2] += g
+    for i in range(3):
+        xn[IV + i] = x[IV + i] + an[i] * dt
+        xn[IS + i] = x[IS + i] + 0.5 * (x[IV + i] + xn[IV + i]) * dt
+    for k in range(IB, NX):
+        xn[k] = x[k]
+
+
+@njit(cache=True)
+def transition_blocks(x, w_mean, a_mean, dt, fqq, fqb, fvq, fvb, fva):
+    """The non-trivial blocks of F (see the module docstring)."""
+    phi = np.empty(3)
+    for i in range(3):
+        phi[i] = (w_mean[i] - x[IB + i]) * dt
+    e = np.empty(4)
+    d = np.empty((4, 3))
+    exp_dexp(phi, e, d)
+    rmat(e, fqq)
+    lq = np.empty((4, 4))
+    lmat(x[:4], lq)
+    for i in range(4):
+        for j in range(3):
+            s = 0.0
+            for k in range(4):
+                s += lq[i, k] * d[k, j]
+            fqb[i, j] = -dt * s
+    half = np.empty(3)
+    for i in range(3):
+        half[i] = 0.5 * phi[i]
+    eh = np.empty(4)
+    dh = np.empty((4, 3))
+    exp_dexp(half, eh, dh)
+    rh = np.empty((4, 4))
+    rmat(eh, rh)
+    qm = np.zeros(4)
+    for i in range(4):
+        for k in range(4):
+            qm[i] += rh[i, k] * x[k]
+    ap = np.empty(3)
+    ap[0], ap[1], ap[2] = a_mean[0], a_mean[1], a_mean[2] - x[IA]
+    jm = np.empty((3, 4))
+    rot_jacobian(qm, ap, jm)
+    ez = np.zeros(3)
+    ez[2] = 1.0
+    cz = np.empty(3)
+    rotate_h(qm, ez, cz)
+    for i in range(3):
+        for j in range(4):
+            s = 0.0
+            for k in range(4):
+                s += jm[i, k] * rh[k, j]
+            fvq[i, j] = dt * s
+        for j in range(3):
+            s = 0.0
+            for k in range(4):
+                lk = 0.0
+                for m in range(4):
+                    lk += lq[k, m] * dh[m, j]
+                s += jm[i, k] * lk
+            fvb[i, j] = -0.5 * dt * dt * s
+        fva[i] = -dt * cz[i]
+
+
+def transition_matrix(x, w_mean, a_mean, dt) -> np.ndarray:
+    """The full 20×20 F of ``predict_state`` at ``x`` (for tests; the kernel uses the blocks)."""
+    fqq, fqb, fvq, fvb, fva = np.empty((4, 4)), np.empty((4, 3)), np.empty((3, 4)), np.empty((3, 3)), np.empty(3)
+    transition_blocks(np.asarray(x, dtype=float), np.asarray(w_mean, dtype=float),
+                      np.asarray(a_mean, dtype=float), float(dt), fqq, fqb, fvq, fvb, fva)
+    F = np.eye(NX)
+    F[IQ:IQ + 4, IQ:IQ + 4] = fqq
+    F[IQ:IQ + 4, IB:IB + 3] = fqb
+    F[IV:IV + 3, IQ:IQ + 4] = fvq
+    F[IV:IV + 3, IB:IB + 3] = fvb
+    F[IV:IV + 3, IA] = fva
+    F[IS:IS + 3, :] += 0.5 * dt * (F[IV:IV + 3, :] - np.eye(NX)[IV:IV + 3])
+    F[IS:IS + 3, IV:IV + 3] += dt * np.eye(3)
+    return F
+
+
+# ---------------------------------------------------------------- the kernel
+
+
+@njit(cache=True)
+def _scalar_update(x, P, idx, val, nh, innov, r, gate, pht):
+    """One scalar Kalman update with a sparse H (``nh`` entries ``idx``/``val``). Returns the
+    innovation variance S, or -1 when skipped (S not positive, or outside the gate)."""
+    for j in range(NX):
+        s = 0.0
+        for k in range(nh):
+            s += P[j, idx[k]] * val[k]
+        pht[j] = s
+    s_inn = r
+    for k in range(nh):
+        s_inn += val[k] * pht[idx[k]]
+    if not (s_inn > 0.0):
+        return -1.0
+    if gate > 0.0 and innov * innov > gate * gate * s_inn:
+        return -1.0
+    inv = 1.0 / s_inn
+    for j in range(NX):
+        x[j] += pht[j] * inv * innov
+    for i in range(NX):
+        ki = pht[i] * inv
+        for j in range(i, NX):
+            v = P[i, j] - ki * pht[j]
+            P[i, j] = v
+            P[j, i] = v
+    return s_inn
+
+
+@njit(cache=True)
+def _state_update(x, P, k, innov, r, gate, pht, idx, val):
+    """Scalar update of a directly measured state ``k``."""
+    idx[0] = k
+    val[0] = 1.0
+    return _scalar_update(x, P, idx, val, 1, innov, r, gate, pht)
+
+
+@njit(cache=True)
+def _normalize_q(x):
+    n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
+    for i in range(4):
+        x[i] /= n
+
+
+@njit(cache=True)
+def _init_attitude_cov(P, q, sig_tilt, sig_yaw):
+    """P_qq = ¼ Σ_k σ_k² (e_k ⊗ q)(e_k ⊗ q)ᵀ: navigation-frame tilt and yaw errors."""
+    rq = np.empty((4, 4))
+    rmat(q, rq)  # column k of R(q) is e_k ⊗ q
+    for i in range(4):
+        for j in range(4):
+            s = 0.0
+            for k in range(1, 4):
+                sig = sig_yaw if k == 3 else sig_tilt
+                s += sig * sig * rq[i, k] * rq[j, k]
+            P[i, j] = 0.25 * s
+
+
+@njit(cache=True)
+def init_covariance(P, x, prm, heading, bias_var):
+    """P₀: attitude, velocity and position from the parameters; the bias blocks get
+    ``bias_var`` (7,: ω_b (3), a_zb, ...) on the diagonal; earth field and body field P₀."""
+    for i in range(NX):
+        for j in range(NX):
+            P[i, j] = 0.0
+    _init_attitude_cov(P, x, prm[P_TILT0], prm[P_YAW0] if heading else prm[P_YAW0NOMAG])
+    for i in range(3):
+        P[IV + i, IV + i] = prm[P_VEL0] ** 2
+        P[IS + i, IS + i] = prm[P_POS0] ** 2
+        P[IB + i, IB + i] = bias_var[i]
+        P[IM + i, IM + i] = bias_var[4]
+        P[IMB + i, IMB + i] = bias_var[5]
+    P[IA, IA] = bias_var[3]
+
+
+@njit(cache=True)
+def _euler(q0, q1, q2, q3):
+    roll = math.atan2(2 * (q0 * q1 + q2 * q3), 1 - 2 * (q1 * q1 + q2 * q2))
+    s = 2 * (q0 * q2 - q3 * q1)
+    s = 1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)
+    pitch = math.asin(s)
+    yaw = math.atan2(2 * (q0 * q3 + q1 * q2), 1 - 2 * (q2 * q2 + q3 * q3))
+    return roll, pitch, yaw
+
+
+@njit(cache=True)
+def _wrap(a):
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+@njit(cache=True)
+def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro, use_gps, use_baro,
+                x, P, qc, bc, aux, ring, prm, out, diag):
+    """Run the filter over a chunk. State (updated in place): ``x`` (20,), ``P`` (20×20), the
+    complementary filter's ``qc`` (4,) and integral term ``bc`` (3,), ``aux`` (scalar memory),
+    ``ring`` (RING×7 predicted increments). Writes the attitude to ``out`` (N×4) and the
+    diagnostics to ``diag`` (N×NDIAG)."""
+    n = len(t)
+    g = prm[P_G]
+    max_step = prm[P_MAXSTEP]
+    gn2, an2 = prm[P_GN] ** 2, prm[P_AN] ** 2
+    bw2, aw2, mw2, mbw2 = prm[P_BW] ** 2, prm[P_AW] ** 2, prm[P_MW] ** 2, prm[P_MBW] ** 2
+    r_mag = prm[P_MAGN] ** 2
+    r_dec = prm[P_DECN] ** 2
+    r_gv = prm[P_GVN] ** 2
+    gate = prm[P_GATE]
+    declination = prm[P_DEC]
+    use_mag = prm[P_USEMAG] > 0.5
+    watchdog = prm[P_WATCHDOG] > 0.5
+    kp, ki = prm[P_KP], prm[P_KI]
+    north_x, north_y = math.cos(declination), math.sin(declination)
+    gps_delay = prm[P_GDEL]
+    wd_period = prm[P_WDPER]
+    # scratch, allocated once per chunk
+    fqq = np.empty((4, 4))
+    fqb = np.empty((4, 3))
+    fvq = np.empty((3, 4))
+    fvb = np.empty((3, 3))
+    fva = np.empty(3)
+    A = np.empty((10, NX))
+    dv = np.empty((3, NX))
+    pht = np.empty(NX)
+    idx = np.zeros(8, dtype=np.int64)
+    val = np.zeros(8)
+    h_q = np.empty(4)
+    phi = np.empty(3)
+    e = np.empty(4)
+    d = np.empty((4, 3))
+    eh = np.empty(4)
+    dh = np.empty((4, 3))
+    rh = np.empty((4, 4))
+    lq = np.empty((4, 4))
+    qm = np.empty(4)
+    ap = np.empty(3)
+    an = np.empty(3)
+    cz = np.empty(3)
+    ez = np.zeros(3)
+    ez[2] = 1.0
+    jm = np.empty((3, 4))
+    ldh = np.empty((4, 3))
+    qn = np.empty(4)
+    bias_var = np.empty(6)
+    mbv = np.empty(3)
+
+    tp = aux[A_TPREV]
+    for i in range(n):
+        ti = t[i]
+        dt = ti - tp if tp == tp else 0.0
+        tp = ti
+        g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
+        a0, a1, a2 = accel[i, 0], accel[i, 1], accel[i, 2]
+        if dt > 0.0:
+            w0 = 0.5 * (g0 + aux[A_GYRO])
+            w1 = 0.5 * (g1 + aux[A_GYRO + 1])
+            w2 = 0.5 * (g2 + aux[A_GYRO + 2])
+            am0 = 0.5 * (a0 + aux[A_ACC])
+            am1 = 0.5 * (a1 + aux[A_ACC + 1])
+            am2 = 0.5 * (a2 + aux[A_ACC + 2])
+        else:
+            w0, w1, w2, am0, am1, am2 = g0, g1, g2, a0, a1, a2
+        aux[A_GYRO], aux[A_GYRO + 1], aux[A_GYRO + 2] = g0, g1, g2
+        aux[A_ACC], aux[A_ACC + 1], aux[A_ACC + 2] = a0, a1, a2
+        for k in range(NDIAG):
+            diag[i, k] = math.nan
+        diag[i, D_RESET] = 0.0
+
+        # ------------------------------------------------ complementary filter (mahony)
+        c20 = 2 * (qc[1] * qc[3] - qc[0] * qc[2])
+        c21 = 2 * (qc[2] * qc[3] + qc[0] * qc[1])
+        c22 = 1 - 2 * (qc[1] * qc[1] + qc[2] * qc[2])
+        e0 = e1 = e2 = 0.0
+        a_norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        if a_norm > 0.0:
+            u0, u1, u2 = a0 / a_norm, a1 / a_norm, a2 / a_norm
+            e0 += -u1 * c22 + u2 * c21
+            e1 += -u2 * c20 + u0 * c22
+            e2 += -u0 * c21 + u1 * c20
+        m0 = mag[i, 0]
+        if use_mag and m0 == m0:
+            m1, m2 = mag[i, 1], mag[i, 2]
+            q0, q1, q2, q3 = qc[0], qc[1], qc[2], qc[3]
+            mn0 = ((1 - 2 * (q2 * q2 + q3 * q3)) * m0 + 2 * (q1 * q2 - q0 * q3) * m1
+                   + 2 * (q1 * q3 + q0 * q2) * m2)
+            mn1 = (2 * (q1 * q2 + q0 * q3) * m0 + (1 - 2 * (q1 * q1 + q3 * q3)) * m1
+                   + 2 * (q2 * q3 - q0 * q1) * m2)
+            if mn0 * mn0 + mn1 * mn1 > 0.0:
+                gamma = math.atan2(mn0 * north_y - mn1 * north_x, mn0 * north_x + mn1 * north_y)
+                e0 += gamma * c20
+                e1 += gamma * c21
+                e2 += gamma * c22
+        step_ok = 0.0 < dt <= max_step
+        if step_ok:
+            bc[0] += ki * e0 * dt
+            bc[1] += ki * e1 * dt
+            bc[2] += ki * e2 * dt
+            rx, ry, rz = w0 + kp * e0 + bc[0], w1 + kp * e1 + bc[1], w2 + kp * e2 + bc[2]
+            ang = math.sqrt(rx * rx + ry * ry + rz * rz) * dt
+            if ang < 1e-12:
+                d0, d1, d2, d3 = 1.0, 0.5 * rx * dt, 0.5 * ry * dt, 0.5 * rz * dt
+            else:
+                sn = math.sin(0.5 * ang) / (ang / dt)
+                d0, d1, d2, d3 = math.cos(0.5 * ang), rx * sn, ry * sn, rz * sn
+            q0, q1, q2, q3 = qc[0], qc[1], qc[2], qc[3]
+            r0 = q0 * d0 - q1 * d1 - q2 * d2 - q3 * d3
+            r1 = q0 * d1 + q1 * d0 + q2 * d3 - q3 * d2
+            r2 = q0 * d2 - q1 * d3 + q2 * d0 + q3 * d1
+            r3 = q0 * d3 + q1 * d2 - q2 * d1 + q3 * d0
+            nrm = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3)
+            qc[0], qc[1], qc[2], qc[3] = r0 / nrm, r1 / nrm, r2 / nrm, r3 / nrm
+
+        # ------------------------------------------------ EKF predict (eq 4-9)
+        if step_ok:
+            phi[0] = (w0 - x[IB]) * dt
+            phi[1] = (w1 - x[IB + 1]) * dt
+            phi[2] = (w2 - x[IB + 2]) * dt
+            exp_dexp_pair(phi, e, d, eh, dh)
+            rmat(e, fqq)
+            lmat(x, lq)
+            for r in range(4):
+                for c in range(3):
+                    fqb[r, c] = -dt * (lq[r, 0] * d[0, c] + lq[r, 1] * d[1, c]
+                                       + lq[r, 2] * d[2, c] + lq[r, 3] * d[3, c])
+            rmat(eh, rh)
+            for r in range(4):
+                qm[r] = rh[r, 0] * x[0] + rh[r, 1] * x[1] + rh[r, 2] * x[2] + rh[r, 3] * x[3]
+                qn[r] = fqq[r, 0] * x[0] + fqq[r, 1] * x[1] + fqq[r, 2] * x[2] + fqq[r, 3] * x[3]
+            ap[0], ap[1], ap[2] = am0, am1, am2 - x[IA]
+            rot_jacobian(qm, ap, jm)
+            rotate_h(qm, ap, an)
+            an[2] += g
+            rotate_h(qm, ez, cz)
+            for r in range(4):
+                for c in range(3):
+                    ldh[r, c] = (lq[r, 0] * dh[0, c] + lq[r, 1] * dh[1, c]
+                                 + lq[r, 2] * dh[2, c] + lq[r, 3] * dh[3, c])
+            for r in range(3):
+                for c in range(4):
+                    fvq[r, c] = dt * (jm[r, 0] * rh[0, c] + jm[r, 1] * rh[1, c]
+                                      + jm[r, 2] * rh[2, c] + jm[r, 3] * rh[3, c])
+                for c in range(3):
+                    fvb[r, c] = -0.5 * dt * dt * (jm[r, 0] * ldh[0, c] + jm[r, 1] * ldh[1, c]
+                                                  + jm[r, 2] * ldh[2, c] + jm[r, 3] * ldh[3, c])
+                fva[r] = -dt * cz[r]
+            # FP rows 0-9 (A) over all columns, row by row (contiguous, vectorised over j)
+            for r in range(4):
+                f0, f1, f2, f3 = fqq[r, 0], fqq[r, 1], fqq[r, 2], fqq[r, 3]
+                fb0, fb1, fb2 = fqb[r, 0], fqb[r, 1], fqb[r, 2]
+                for j in range(NX):
+                    A[r, j] = (f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
+                               + fb0 * P[IB, j] + fb1 * P[IB + 1, j] + fb2 * P[IB + 2, j])
+            for r in range(3):
+                f0, f1, f2, f3 = fvq[r, 0], fvq[r, 1], fvq[r, 2], fvq[r, 3]
+                fb0, fb1, fb2, fa = fvb[r, 0], fvb[r, 1], fvb[r, 2], fva[r]
+                hdt = 0.5 * dt
+                for j in range(NX):
+                    dvr = (f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
+                           + fb0 * P[IB, j] + fb1 * P[IB + 1, j] + fb2 * P[IB + 2, j] + fa * P[IA, j])
+                    dv[r, j] = dvr
+                    pv = P[IV + r, j]
+                    A[IV + r, j] = pv + dvr
+                    A[IS + r, j] = P[IS + r, j] + dt * pv + hdt * dvr
+            # P' = A Fᵀ: rows 0-9 against every column; columns >= 10 are A itself
+            for r in range(10):
+                for c in range(10, NX):
+                    P[r, c] = A[r, c]
+                    P[c, r] = A[r, c]
+            for r in range(10):
+                a0_, a1_, a2_, a3_ = A[r, 0], A[r, 1], A[r, 2], A[r, 3]
+                ab0, ab1, ab2, aa = A[r, IB], A[r, IB + 1], A[r, IB + 2], A[r, IA]
+                for c in range(4):
+                    if c >= r:
+                        v = (a0_ * fqq[c, 0] + a1_ * fqq[c, 1] + a2_ * fqq[c, 2] + a3_ * fqq[c, 3]
+                             + ab0 * fqb[c, 0] + ab1 * fqb[c, 1] + ab2 * fqb[c, 2])
+                        P[r, c] = v
+                        P[c, r] = v
+                for c in range(3):
+                    dvc = (a0_ * fvq[c, 0] + a1_ * fvq[c, 1] + a2_ * fvq[c, 2] + a3_ * fvq[c, 3]
+                           + ab0 * fvb[c, 0] + ab1 * fvb[c, 1] + ab2 * fvb[c, 2] + aa * fva[c])
+                    av = A[r, IV + c]
+                    if IV + c >= r:
+                        v = av + dvc
+                        P[r, IV + c] = v
+                        P[IV + c, r] = v
+                    if IS + c >= r:
+                        v = A[r, IS + c] + dt * av + 0.5 * dt * dvc
+                        P[r, IS + c] = v
+                        P[IS + c, r] = v
+            # state
+            for r in range(4):
+                x[r] = qn[r]
+            _normalize_q(x)
+            for r in range(3):
+                vnew = x[IV + r] + an[r] * dt
+                dsr = 0.5 * (x[IV + r] + vnew) * dt
+                if gps_delay > 0.0:
+                    h = int(aux[A_HEAD])
+                    ring[h, 1 + r] = an[r] * dt
+                    ring[h, 4 + r] = dsr
+                x[IS + r] += dsr
+                x[IV + r] = vnew
+            if gps_delay > 0.0:
+                h = int(aux[A_HEAD])
+                ring[h, 0] = ti
+                aux[A_HEAD] = (h + 1) % RING
+                aux[A_FILL] = min(aux[A_FILL] + 1.0, RING)
+            # process noise: G Q Gᵀ + Q_s
+            qg = 0.25 * gn2 * dt
+            for r in range(4):
+                for c in range(r, 4):
+                    v = -qg * x[r] * x[c]
+                    if r == c:
+                        v += qg
+                    P[r, c] += v
+                    if c != r:
+                        P[c, r] += v
+            for r in range(3):
+                P[IV + r, IV + r] += an2 * dt
+                P[IB + r, IB + r] += bw2 * dt
+                P[IM + r, IM + r] += mw2 * dt
+                P[IMB + r, IMB + r] += mbw2 * dt
+            P[IA, IA] += aw2 * dt
+
+        # ------------------------------------------------ magnetometer (eq 11-16)
+        fresh = False
+        if use_mag and m0 == m0:
+            fresh = (m0 != aux[A_LASTMAG] or mag[i, 1] != aux[A_LASTMAG + 1]
+                     or mag[i, 2] != aux[A_LASTMAG + 2])
+            aux[A_LASTMAG], aux[A_LASTMAG + 1], aux[A_LASTMAG + 2] = m0, mag[i, 1], mag[i, 2]
+        if fresh:
+            mg0 = m0 * TESLA_TO_GAUSS
+            mg1 = mag[i, 1] * TESLA_TO_GAUSS
+            mg2 = mag[i, 2] * TESLA_TO_GAUSS
+            if aux[A_MAGINIT] < 0.5:
+                # M from this sample through the current attitude; P_M with no correlations
+                ap[0], ap[1], ap[2] = mg0 - x[IMB], mg1 - x[IMB + 1], mg2 - x[IMB + 2]
+                rotate_h(x, ap, an)
+                # its horizontal part along the declination: the heading's reference
+                hmag = math.sqrt(an[0] * an[0] + an[1] * an[1])
+                an[0], an[1] = hmag * north_x, hmag * north_y
+                for r in range(3):
+                    x[IM + r] = an[r]
+                    for c in range(NX):
+                        P[IM + r, c] = 0.0
+                        P[c, IM + r] = 0.0
+                    P[IM + r, IM + r] = prm[P_M0] ** 2
+                aux[A_MAGINIT] = 1.0
+            else:
+                for axis in range(3):
+                    hval = mag_model(x, axis, h_q)
+                    ez[0], ez[1], ez[2] = 0.0, 0.0, 0.0
+                    ez[axis] = 1.0
+                    rotate_h(x, ez, cz)
+                    for k in range(4):
+                        idx[k] = k
+                        val[k] = h_q[k]
+                    for k in range(3):
+                        idx[4 + k] = IM + k
+                        val[4 + k] = cz[k]
+                    idx[7] = IMB + axis
+                    val[7] = 1.0
+                    z = mg0 if axis == 0 else (mg1 if axis == 1 else mg2)
+                    innov = z - hval
+                    if _scalar_update(x, P, idx, val, 8, innov, r_mag, gate, pht) > 0.0:
+                        diag[i, D_IM + axis] = innov * 1e3
+                    _normalize_q(x)
+                ez[0], ez[1], ez[2] = 0.0, 0.0, 1.0
+                # declination pseudo-measurement: atan2(M_E, M_N) = declination
+                mn_, me_ = x[IM], x[IM + 1]
+                hh = mn_ * mn_ + me_ * me_
+                if hh > 0.0:
+                    idx[0], idx[1] = IM, IM + 1
+                    val[0], val[1] = -me_ / hh, mn_ / hh
+                    innov = _wrap(declination - math.atan2(me_, mn_))
+                    _scalar_update(x, P, idx, val, 2, innov, r_dec, 0.0, pht)
+                    _normalize_q(x)
+
+        # ------------------------------------------------ GPS and baro (eq 17-19)
+        baro_fresh = aux[A_TBARO] == aux[A_TBARO] and ti - aux[A_TBARO] <= prm[P_BTO]
+        if use_baro and baro[i] == baro[i]:
+            aux[A_TBARO] = ti
+            baro_fresh = True
+            innov = -baro[i] - x[IS + 2]
+            if _state_update(x, P, IS + 2, innov, prm[P_BARON] ** 2, gate, pht, idx, val) > 0.0:
+                diag[i, D_IB] = innov
+            _normalize_q(x)
+        gps_active = aux[A_TGPS] == aux[A_TGPS] and ti - aux[A_TGPS] <= prm[P_GTO]
+        has_pos = use_gps and gps_pos[i, 0] == gps_pos[i, 0]
+        has_vel = use_gps and gps_vel[i, 0] == gps_vel[i, 0]
+        if has_pos or has_vel:
+            # the state at the fix's time: now minus the predicted increments since
+            sv0 = sv1 = sv2 = ss0 = ss1 = ss2 = 0.0
+            if gps_delay > 0.0:
+                h = int(aux[A_HEAD])
+                for k in range(int(aux[A_FILL])):
+                    h = (h - 1) % RING
+                    if ring[h, 0] <= ti - gps_delay:
+                        break
+                    sv0 += ring[h, 1]
+                    sv1 += ring[h, 2]
+                    sv2 += ring[h, 3]
+                    ss0 += ring[h, 4]
+                    ss1 += ring[h, 5]
+                    ss2 += ring[h, 6]
+            if not gps_active:
+                # (re)start aiding: take the fix as it is
+                for r in range(3):
+                    zv = gps_vel[i, r] if has_vel else math.nan
+                    zp = gps_pos[i, r] if has_pos else math.nan
+                    if r == 2 and baro_fresh:
+                        zp = math.nan
+                    if zv == zv:
+                        x[IV + r] = zv + (sv0 if r == 0 else (sv1 if r == 1 else sv2))
+                        for c in range(NX):
+                            P[IV + r, c] = 0.0
+                            P[c, IV + r] = 0.0
+                        P[IV + r, IV + r] = r_gv
+                    if zp == zp:
+                        x[IS + r] = zp + (ss0 if r == 0 else (ss1 if r == 1 else ss2))
+                        for c in range(NX):
+                            P[IS + r, c] = 0.0
+                            P[c, IS + r] = 0.0
+                        sp = gps_hacc[i] if (r < 2 and gps_hacc[i] == gps_hacc[i]) else prm[P_GPN]
+                        if r == 2:
+                            sp = gps_vacc[i] if gps_vacc[i] == gps_vacc[i] else prm[P_GAN]
+                        P[IS + r, IS + r] = sp * sp
+            else:
+                if has_vel:
+                    for r in range(3):
+                        zv = gps_vel[i, r]
+                        if zv == zv:
+                            innov = zv - (x[IV + r] - (sv0 if r == 0 else (sv1 if r == 1 else sv2)))
+                            if _state_update(x, P, IV + r, innov, r_gv, gate, pht, idx, val) > 0.0:
+                                diag[i, D_IV + r] = innov
+                            _normalize_q(x)
+                if has_pos:
+                    sp = gps_hacc[i] if gps_hacc[i] == gps_hacc[i] else prm[P_GPN]
+                    sp = max(sp, prm[P_GPMIN])
+                    for r in range(3):
+                        if r == 2:
+                            if baro_fresh:
+                                break
+                            sp = gps_vacc[i] if gps_vacc[i] == gps_vacc[i] else prm[P_GAN]
+                        innov = gps_pos[i, r] - (x[IS + r] - (ss0 if r == 0 else (ss1 if r == 1 else ss2)))
+                        if _state_update(x, P, IS + r, innov, sp * sp, gate, pht, idx, val) > 0.0:
+                            diag[i, D_IP + r] = innov
+                        _normalize_q(x)
+            aux[A_TGPS] = ti
+            if has_vel:
+                for r in range(3):
+                    aux[A_GVEL + r] = gps_vel[i, r]
+            if has_pos:
+                for r in range(3):
+                    aux[A_GPOS + r] = gps_pos[i, r]
+            gps_active = True
+        if not gps_active and step_ok and prm[P_SYN] > 0.0 and not (aux[A_TSYNTH] == aux[A_TSYNTH]
+                                               and ti - aux[A_TSYNTH] < SYNTH_PERIOD_S):
+            # non-aiding mode: a synthetic zero velocity keeps tilt observable
+            aux[A_TSYNTH] = ti
+            r_syn = prm[P_SYN] ** 2
+            for r in range(3):
+                if r == 2 and baro_fresh:
+                    break
+                _state_update(x, P, IV + r, -x[IV + r], r_syn, 0.0, pht, idx, val)
+                _normalize_q(x)
+
+        # ------------------------------------------------ watchdog (eq 21), once per cycle
+        check = True
+        if wd_period > 0.0:
+            wd_bin = math.floor(ti / wd_period)
+            check = wd_bin != aux[A_WDBIN]
+            aux[A_WDBIN] = wd_bin
+        heading = use_mag and aux[A_MAGINIT] > 0.5
+        dist = 0.0
+        if check:
+            er, ep, ey = _euler(x[0], x[1], x[2], x[3])
+            cr, cp, cy = _euler(qc[0], qc[1], qc[2], qc[3])
+            dr, dp_ = _wrap(er - cr), _wrap(ep - cp)
+            dist = dr * dr + dp_ * dp_
+            if heading:
+                dy = _wrap(ey - cy)
+                dist += dy * dy
+            diag[i, D_WD] = dist
+        if watchdog and check:
+            if dist > prm[P_NRESET]:
+                aux[A_COUNT] += 1.0
+            else:
+                aux[A_COUNT] = 0.0
+            if aux[A_COUNT] >= prm[P_CYCLES]:
+                # reset: attitude from the CPF, P and V/S re-initialised, biases kept
+                aux[A_COUNT] = 0.0
+                aux[A_RESETS] += 1.0
+                diag[i, D_RESET] = 1.0
+                reset_bias = prm[P_RESETBIAS] > 0.5
+                for r in range(3):
+                    mbv[r] = prm[P_MB0] ** 2 if reset_bias else P[IMB + r, IMB + r]
+                    bias_var[r] = prm[P_BG0] ** 2 if reset_bias else P[IB + r, IB + r]
+                bias_var[3] = prm[P_AB0] ** 2 if reset_bias else P[IA, IA]
+                bias_var[4] = prm[P_M0] ** 2  # earth field: re-initialised below
+                bias_var[5] = 0.0
+                for r in range(4):
+                    x[r] = qc[r]
+                init_covariance(P, x, prm, heading, bias_var)
+                for r in range(3):
+                    P[IMB + r, IMB + r] = mbv[r]
+                if gps_active:
+                    for r in range(3):
+                        gv = aux[A_GVEL + r]
+                        x[IV + r] = gv if gv == gv else 0.0
+                        gp = aux[A_GPOS + r]
+                        if gp == gp and not (r == 2 and baro_fresh):
+                            x[IS + r] = gp
+                else:
+                    for r in range(3):
+                        x[IV + r] = 0.0
+                if heading:
+                    lm0 = aux[A_LASTMAG]
+                    if lm0 == lm0:
+                        ap[0] = lm0 * TESLA_TO_GAUSS - x[IMB]
+                        ap[1] = aux[A_LASTMAG + 1] * TESLA_TO_GAUSS - x[IMB + 1]
+                        ap[2] = aux[A_LASTMAG + 2] * TESLA_TO_GAUSS - x[IMB + 2]
+                        rotate_h(x, ap, an)
+                        hmag = math.sqrt(an[0] * an[0] + an[1] * an[1])
+                        an[0], an[1] = hmag * north_x, hmag * north_y  # as at the start
+                        for r in range(3):
+                            x[IM + r] = an[r]
+
+        # ------------------------------------------------ outputs
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x[0], x[1], x[2], x[3]
+        tr = 0.0
+        for k in range(NX):
+            tr += P[k, k]
+        diag[i, D_TRACE] = tr
+        for r in range(3):
+            diag[i, D_BG + r] = x[IB + r] * 57.29577951308232
+            diag[i, D_MB + r] = x[IMB + r] * 1e3
+            diag[i, D_M + r] = x[IM + r] * 1e3
+            diag[i, D_V + r] = x[IV + r]
+            diag[i, D_S + r] = x[IS + r]
+        diag[i, D_BA] = x[IA]
+    aux[A_TPREV] = tp
+    return out
+
+
+# ---------------------------------------------------------------- the estimator
+
+
+class CpfEkf(Estimator):
+    """20-state EKF with complementary-filter reset (paper 003); see the module docstring."""
+    name = "cpf-ekf"
+    Params = CpfEkfParams
+    uses_mag = True
+    uses_aiding = True
+    kernels = (cpf_ekf_run,)
+    DIAGNOSTICS = {
+        "cov_trace": "trace of the 20×20 covariance P (mixed units)",
+        "reset": "1 at a watchdog reset (eq 21: EKF reset from the complementary filter), else 0",
+        "watchdog_distance": "eq 21's (Δθ)² + (Δφ)² + (Δψ)² between EKF and CPF, rad² (yaw only with a compass)",
+        "gyro_bias_x": "estimated gyro bias, x (y, z likewise), °/s",
+        "gyro_bias_y": "estimated gyro bias, y, °/s",
+        "gyro_bias_z": "estimated gyro bias, z, °/s",
+        "accel_bias_z": "estimated z-accelerometer bias a_zb, m/s²",
+        "mag_bias_x": "estimated magnetometer bias m_b, x (y, z likewise), mGauss",
+        "mag_bias_y": "estimated magnetometer bias, y, mGauss",
+        "mag_bias_z": "estimated magnetometer bias, z, mGauss",
+        "earth_field_n": "estimated earth field M, north (east, down likewise), mGauss",
+        "earth_field_e": "estimated earth field, east, mGauss",
+        "earth_field_d": "estimated earth field, down, mGauss",
+        "vel_n": "estimated velocity, north (east, down likewise), m/s",
+        "vel_e": "estimated velocity, east, m/s",
+        "vel_d": "estimated velocity, down, m/s",
+        "pos_n": "estimated position north of the first GPS fix (east, down likewise), m",
+        "pos_e": "estimated position, east, m",
+        "pos_d": "estimated position, down (from the baro's start when it has one), m",
+        "innov_mag_x": "magnetometer innovation z - h, x (y, z likewise), mGauss, where fused",
+        "innov_mag_y": "magnetometer innovation, y, mGauss",
+        "innov_mag_z": "magnetometer innovation, z, mGauss",
+        "innov_gps_vel_n": "GPS velocity innovation, north (east, down likewise), m/s, where fused",
+        "innov_gps_vel_e": "GPS velocity innovation, east, m/s",
+        "innov_gps_vel_d": "GPS velocity innovation, down, m/s",
+        "innov_gps_pos_n": "GPS position innovation, north (east, down likewise), m, where fused",
+        "innov_gps_pos_e": "GPS position innovation, east, m",
+        "innov_gps_pos_d": "GPS altitude innovation (only without a fresh baro), m",
+        "innov_baro": "baro height innovation (on S_d), m, where fused",
+    }
+
+    def initialize(self, q0, gyro_bias) -> None:
+        p = self.params
+        self._prm = _param_vector(p, self.declination)
+        self._x = np.zeros(NX)
+        self._x[:4] = np.asarray(q0, dtype=np.float64) / np.linalg.norm(q0)
+        self._x[IB:IB + 3] = np.asarray(gyro_bias, dtype=np.float64)
+        self._P = np.zeros((NX, NX))
+        bias_var = np.array([math.radians(p.gyro_bias_sigma0_dps) ** 2] * 3
+                            + [p.accel_bias_sigma0 ** 2, p.earth_field_sigma0 ** 2,
+                               p.body_field_sigma0 ** 2])
+        init_covariance(self._P, self._x, self._prm, p.use_mag, bias_var)
+        self._qc = np.array(q0, dtype=np.float64)  # as mahony takes it
+        self._bc = -np.asarray(gyro_bias, dtype=np.float64).copy()
+        self._aux = np.zeros(NAUX)
+        self._aux[[A_TPREV, A_TGPS, A_TBARO, A_TSYNTH, A_WDBIN]] = np.nan
+        self._aux[A_GVEL:A_GVEL + 3] = np.nan
+        self._aux[A_GPOS:A_GPOS + 3] = np.nan
+        self._aux[A_LASTMAG:A_LASTMAG + 3] = np.nan
+        self._ring = np.zeros((RING, 7))
+        self.initialized = True
+
+    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
+        t, gyro, accel, mag, _ = as_chunk(t, gyro, accel, mag)
+        n = len(t)
+        if aiding is None:
+            from ..aiding import Aiding
+            aiding = Aiding.empty(n)
+        if len(aiding) != n:
+            raise ValueError(f"aiding has {len(aiding)} rows for {n} IMU samples")
+
+        def arr(a, shape):
+            return np.ascontiguousarray(a, dtype=np.float64).reshape(shape)
+
+        out = np.empty((n, 4))
+        diag = np.empty((n, NDIAG))
+        p = self.params
+        cpf_ekf_run(t, gyro, accel, mag, arr(aiding.gps_pos, (n, 3)), arr(aiding.gps_vel, (n, 3)),
+                    arr(aiding.gps_h_acc, n), arr(aiding.gps_v_acc, n), arr(aiding.baro_height, n),
+                    bool(p.use_gps), bool(p.use_baro), self._x, self._P, self._qc, self._bc,
+                    self._aux, self._ring, self._prm, out, diag)
+        self.diagnostics = {key: diag[:, k] for k, key in enumerate(DIAG_KEYS)}
+        return out
+
+    def has_heading_reference(self, mag_available: bool) -> bool:
+        return self.params.use_mag and mag_available
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self._P.copy()
+
+    @property
+    def state(self) -> np.ndarray:
+        """The 20-element state [q, V, S, ω_b, a_zb, M (gauss), m_b (gauss)] (a copy)."""
+        return self._x.copy()
+
+    @property
+    def resets(self) -> int:
+        """Watchdog resets since ``initialize``."""
+        return int(self._aux[A_RESETS])
