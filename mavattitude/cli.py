@@ -330,7 +330,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "imufusion's Ahrs called per sample from Python on part of it, with "
                                    "and without the magnetometer. Prints samples/s, the ratio to "
                                    "imufusion and whether the targets are met (every estimator >= 5x "
-                                   "imufusion, mahony >= 1 M samples/s). imufusion is optional: "
+                                   "imufusion, cpf-ekf >= 1x, mahony >= 1 M samples/s). imufusion "
+                                   "is optional: "
                                    'pip install "mavattitude[bench]".')
     p.add_argument("--estimators", default="all", metavar="LIST",
                    help="comma-separated estimator names, or 'all' (default: all)")

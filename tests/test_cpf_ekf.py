@@ -14,8 +14,8 @@ from mavattitude import quaternion as quat
 from mavattitude.aiding import Aiding, from_sim
 from mavattitude.estimators import ESTIMATORS, align, create
 from mavattitude.estimators.cpf_ekf import (IA, IB, IM, IMB, IS, IV, NX, CpfEkf, CpfEkfParams,
-                                            mag_jacobian, mag_model, predict_state,
-                                            transition_matrix)
+                                            _reset_yaw_covariance, mag_jacobian, mag_model,
+                                            predict_state, transition_matrix, yaw_model)
 from mavattitude.flight import GRAVITY
 from mavattitude.sim import SensorParams, simulate
 
@@ -98,6 +98,42 @@ def test_magnetometer_jacobian_matches_finite_differences():
             # eq 11 at a unit quaternion: C(q)ᵀ M + m_b
             expected = quat.rotate(quat.conjugate(x[:4]), x[IM:IM + 3]) + x[IMB:IMB + 3]
             assert mag_model(x, axis, np.empty(4)) == pytest.approx(expected[axis])
+
+
+def test_heading_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        x = _random_state(rng)
+        x[:4] *= rng.uniform(0.5, 2.0)  # the homogeneous form: ψ does not depend on |q|
+        h_q = np.empty(4)
+        yaw = yaw_model(x, h_q)
+        assert yaw == pytest.approx(quat.to_euler(x[:4] / np.linalg.norm(x[:4]))[2], abs=1e-12)
+        numeric = np.empty(4)
+        for k in range(4):
+            xp, xm = x.copy(), x.copy()
+            xp[k] += 1e-7
+            xm[k] -= 1e-7
+            numeric[k] = quat.wrap_deg(np.degrees(yaw_model(xp, np.empty(4)) - yaw_model(xm, np.empty(4))))
+        np.testing.assert_allclose(np.degrees(h_q), numeric / 2e-7, rtol=1e-5, atol=1e-6)
+        assert h_q @ x[:4] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_reset_yaw_covariance_sets_the_heading_variance_and_nothing_else():
+    rng = np.random.default_rng(9)
+    q = quat.normalize(rng.normal(size=4))
+    x = np.zeros(NX)
+    x[:4] = q
+    A = rng.normal(size=(NX, NX)) * 0.1
+    P = A @ A.T + 1e-3 * np.eye(NX)
+    before = P.copy()
+    _reset_yaw_covariance(P, x, np.radians(7.0), np.empty((4, 4)))
+    u = quat.multiply(np.array([0.0, 0.0, 0.0, 1.0]), q)  # e_z ⊗ q: a turn about the vertical
+    assert 4.0 * u @ P[:4, :4] @ u == pytest.approx(np.radians(7.0) ** 2, rel=1e-12)
+    np.testing.assert_allclose(u @ P[:4, 4:], 0.0, atol=1e-15)  # no correlations left
+    T = np.eye(NX)
+    T[:4, :4] -= np.outer(u, u)
+    np.testing.assert_allclose(T @ P @ T.T, T @ before @ T.T, atol=1e-14)  # the rest unchanged
+    assert np.array_equal(P, P.T) and np.linalg.eigvalsh(P).min() > 0
 
 
 def test_sparse_covariance_step_equals_dense_f_p_ft_plus_q():
@@ -312,6 +348,24 @@ def test_without_magnetometer_no_heading_states(circle):
     t0 = quat.to_euler(circle.truth.q[0])
     q, f = st.run_aided("cpf-ekf", circle, None, mag=False, q0=quat.from_euler(t0[0], t0[1], t0[2] + 0.9))
     assert f.resets == 0
+
+
+def test_without_magnetometer_the_heading_is_held_not_driven_by_gps(circle):
+    """No compass and a start yaw 90° off (the usual case: without a compass the start yaw is
+    arbitrary). Unheld, the EKF linearised about the wrong yaw turns GPS velocity innovations
+    into a z gyro bias and the yaw wanders; held, the yaw is the gyro's (it keeps its offset)
+    and the z gyro bias stays where the still period put it."""
+    t0 = quat.to_euler(circle.truth.q[0])
+    q0 = quat.from_euler(t0[0], t0[1], t0[2] + np.radians(90.0))
+    yaw_err = {}
+    bias_err = {}
+    for hold in (0.5, 0.0):
+        q, f = st.run_aided("cpf-ekf", circle, CpfEkfParams(heading_hold_noise_deg=hold), mag=False, q0=q0)
+        e = quat.wrap_deg(np.degrees(quat.to_euler(q)[:, 2] - quat.to_euler(circle.truth.q)[:, 2]))
+        yaw_err[hold] = e
+        bias_err[hold] = abs(np.degrees(f.state[IB + 2] - circle.gyro_bias[-1][2]))
+    assert np.abs(yaw_err[0.5] - 90.0).max() < 8.0 and bias_err[0.5] < 0.05
+    assert np.abs(yaw_err[0.0] - 90.0).max() > 60.0 and bias_err[0.0] > 0.2
 
 
 @pytest.mark.parametrize("axis", ["roll", "yaw"])

@@ -68,9 +68,20 @@ Choices the paper leaves open, made here:
   velocity ``gps_vel_noise``. ``gps_delay_s`` compares the fix with the state that long ago
   (state minus the predicted increments since, a ring buffer; 0: none).
 - No magnetometer in the log (or ``use_mag`` false): M and m_b stay unobserved and decoupled
-  (no heading states); the yaw is the gyro's plus what GPS velocity reveals during
-  accelerations, starting with σ ``yaw_sigma0_nomag_deg``; the watchdog compares roll and
-  pitch only (the CPF has no heading reference then).
+  (no heading states), and the heading is held: before each GPS or synthetic velocity update
+  a zero-innovation heading pseudo-measurement (h = ψ(q), the ZYX yaw, H = ∂ψ/∂q, σ
+  ``heading_hold_noise_deg``) keeps GPS velocity from moving the yaw and the z gyro bias, as
+  ArduPilot's EKF3 does without a yaw source. The yaw is then the gyro's, like every
+  estimator without a heading reference (the metrics align its start). Why: GPS velocity
+  makes yaw observable only in accelerated flight, and the start yaw without a compass is
+  arbitrary (0, or carried over a logging gap while the vehicle turned); an EKF linearised
+  about a yaw tens of degrees off turns the velocity innovations into a z gyro bias instead
+  (copter-3.3 after its 22 s gap: 0.9°/s, the yaw drifting 180° in 3 minutes; plane-3.1:
+  2°/s). The cost: from a wrong start yaw, GPS velocity in strong manoeuvres now pulls the
+  tilt instead (simulated figure-eight, start yaw 90° off: 3.5° mean tilt error, where the
+  unheld filter happened to turn its yaw right). Aligning the yaw from GPS (EKF3's
+  Gaussian-sum yaw estimator) would remove that; it is not done here.
+  The watchdog compares roll and pitch only (the CPF has no heading reference then).
 - A compass sample is fresh when its row differs from the previous one (the interface holds
   the latest sample on every IMU row), so each is fused once.
 - Noise values: the paper gives none. Defaults start from ArduPilot's EKF3 figures (gyro
@@ -162,6 +173,7 @@ class CpfEkfParams:
     tilt_sigma0_deg: float = 2.0  # initial (and reset) roll/pitch 1σ, degrees
     yaw_sigma0_deg: float = 5.0  # initial (and reset) yaw 1σ with a magnetometer, degrees
     yaw_sigma0_nomag_deg: float = 30.0  # initial yaw 1σ without a magnetometer, degrees
+    heading_hold_noise_deg: float = 0.5  # without a magnetometer: zero-innovation heading measurement, degrees (1σ; 0: off)
     vel_sigma0: float = 1.0  # initial velocity 1σ, m/s
     pos_sigma0: float = 5.0  # initial position 1σ, m
     gyro_bias_sigma0_dps: float = 0.1  # initial gyro bias 1σ, °/s
@@ -184,8 +196,8 @@ class CpfEkfParams:
 (P_GN, P_AN, P_BW, P_AW, P_MW, P_MBW, P_MAGN, P_DECN, P_GVN, P_GPN, P_GPMIN, P_GAN, P_GDEL,
  P_BARON, P_GTO, P_BTO, P_SYN, P_GATE, P_TILT0, P_YAW0, P_VEL0, P_POS0, P_NRESET,
  P_CYCLES, P_KP, P_KI, P_DEC, P_USEMAG, P_WATCHDOG, P_G, P_MAXSTEP, P_YAW0NOMAG, P_M0, P_WDPER,
- P_RESETBIAS, P_BG0, P_AB0, P_MB0) = range(38)
-NPRM = 38
+ P_RESETBIAS, P_BG0, P_AB0, P_MB0, P_HOLD) = range(39)
+NPRM = 39
 
 
 def _param_vector(p: CpfEkfParams, declination: float) -> np.ndarray:
@@ -198,6 +210,7 @@ def _param_vector(p: CpfEkfParams, declination: float) -> np.ndarray:
     v[P_SYN], v[P_GATE] = p.synthetic_vel_noise, p.innovation_gate
     v[P_TILT0], v[P_YAW0] = math.radians(p.tilt_sigma0_deg), math.radians(p.yaw_sigma0_deg)
     v[P_YAW0NOMAG] = math.radians(p.yaw_sigma0_nomag_deg)
+    v[P_HOLD] = math.radians(p.heading_hold_noise_deg)
     v[P_VEL0], v[P_POS0], v[P_M0] = p.vel_sigma0, p.pos_sigma0, p.earth_field_sigma0
     v[P_NRESET], v[P_CYCLES], v[P_WDPER] = p.reset_threshold, p.reset_cycles, p.watchdog_period_s
     v[P_KP], v[P_KI], v[P_DEC] = p.cpf_kp, p.cpf_ki, declination
@@ -370,6 +383,25 @@ def mag_jacobian(x, axis, H):
 
 
 @njit(cache=True)
+def yaw_model(x, h_q):
+    """The ZYX yaw ψ of the attitude in ``x`` and ∂ψ/∂q into h_q (4,), from the homogeneous
+    form (ψ does not change with |q|): ψ = atan2(n, d), n = 2(q0q3 + q1q2),
+    d = q0² + q1² - q2² - q3². Returns NaN where ψ is undefined (n = d = 0: pitch ±90°)."""
+    q0, q1, q2, q3 = x[0], x[1], x[2], x[3]
+    n = 2.0 * (q0 * q3 + q1 * q2)
+    d = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3
+    den = n * n + d * d
+    if not (den > 1e-12):
+        return math.nan
+    # ∂ψ = (d ∂n - n ∂d) / (n² + d²),  ∂n = 2 [q3, q2, q1, q0],  ∂d = 2 [q0, q1, -q2, -q3]
+    h_q[0] = 2.0 * (d * q3 - n * q0) / den
+    h_q[1] = 2.0 * (d * q2 - n * q1) / den
+    h_q[2] = 2.0 * (d * q1 + n * q2) / den
+    h_q[3] = 2.0 * (d * q0 + n * q3) / den
+    return math.atan2(n, d)
+
+
+@njit(cache=True)
 def predict_state(x, w_mean, a_mean, dt, g, xn):
     """The state step f(x) of eq 5-7 as implemented (see the module docstring), into ``xn``."""
     phi = np.empty(3)
@@ -517,6 +549,46 @@ def _state_update(x, P, k, innov, r, gate, pht, idx, val):
     idx[0] = k
     val[0] = 1.0
     return _scalar_update(x, P, idx, val, 1, innov, r, gate, pht)
+
+
+@njit(cache=True)
+def _hold_heading(x, P, sigma, pht, idx, val, h_q):
+    """Zero-innovation heading measurement (no yaw source): the state stays, the yaw's
+    variance and its correlations shrink, so the next update cannot turn the yaw."""
+    if sigma > 0.0 and yaw_model(x, h_q) == yaw_model(x, h_q):
+        for k in range(4):
+            idx[k] = k
+            val[k] = h_q[k]
+        _scalar_update(x, P, idx, val, 4, 0.0, sigma * sigma, 0.0, pht)
+
+
+@njit(cache=True)
+def _reset_yaw_covariance(P, x, sigma, rq):
+    """Forget what P says of the heading (the attitude's rotation about the vertical) and give
+    it variance σ²: P ← T P Tᵀ + ¼σ² u uᵀ, T = I - u uᵀ on the q block, u = e_z ⊗ q."""
+    rmat(x, rq)  # column 3: e_z ⊗ q, unit
+    u0, u1, u2, u3 = rq[0, 3], rq[1, 3], rq[2, 3], rq[3, 3]
+    for c in range(NX):  # T P: remove the u component of each column's q part
+        s = u0 * P[0, c] + u1 * P[1, c] + u2 * P[2, c] + u3 * P[3, c]
+        P[0, c] -= s * u0
+        P[1, c] -= s * u1
+        P[2, c] -= s * u2
+        P[3, c] -= s * u3
+    for r in range(NX):  # (T P) Tᵀ
+        s = u0 * P[r, 0] + u1 * P[r, 1] + u2 * P[r, 2] + u3 * P[r, 3]
+        P[r, 0] -= s * u0
+        P[r, 1] -= s * u1
+        P[r, 2] -= s * u2
+        P[r, 3] -= s * u3
+    v = 0.25 * sigma * sigma
+    for r in range(4):
+        for c in range(4):
+            P[r, c] += v * rq[r, 3] * rq[c, 3]
+    for r in range(4):  # exactly symmetric
+        for c in range(r + 1, NX):
+            m = 0.5 * (P[r, c] + P[c, r])
+            P[r, c] = m
+            P[c, r] = m
 
 
 @njit(cache=True)
@@ -827,6 +899,9 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                         P[IM + r, c] = 0.0
                         P[c, IM + r] = 0.0
                     P[IM + r, IM + r] = prm[P_M0] ** 2
+                # the compass is the heading's reference from now: its uncertainty is σ₀ again,
+                # whatever a heading hold before this first sample made of it
+                _reset_yaw_covariance(P, x, prm[P_YAW0], lq)
                 aux[A_MAGINIT] = 1.0
             else:
                 for axis in range(3):
@@ -859,6 +934,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                     _normalize_q(x)
 
         # ------------------------------------------------ GPS and baro (eq 17-19)
+        hold = not (use_mag and aux[A_MAGINIT] > 0.5)  # no heading reference: hold the yaw
         baro_fresh = aux[A_TBARO] == aux[A_TBARO] and ti - aux[A_TBARO] <= prm[P_BTO]
         if use_baro and baro[i] == baro[i]:
             aux[A_TBARO] = ti
@@ -870,6 +946,8 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
         gps_active = aux[A_TGPS] == aux[A_TGPS] and ti - aux[A_TGPS] <= prm[P_GTO]
         has_pos = use_gps and gps_pos[i, 0] == gps_pos[i, 0]
         has_vel = use_gps and gps_vel[i, 0] == gps_vel[i, 0]
+        if (has_pos or has_vel) and hold:
+            _hold_heading(x, P, prm[P_HOLD], pht, idx, val, h_q)
         if has_pos or has_vel:
             # the state at the fix's time: now minus the predicted increments since
             sv0 = sv1 = sv2 = ss0 = ss1 = ss2 = 0.0
@@ -941,6 +1019,8 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
             # non-aiding mode: a synthetic zero velocity keeps tilt observable
             aux[A_TSYNTH] = ti
             r_syn = prm[P_SYN] ** 2
+            if hold:
+                _hold_heading(x, P, prm[P_HOLD], pht, idx, val, h_q)
             for r in range(3):
                 if r == 2 and baro_fresh:
                     break

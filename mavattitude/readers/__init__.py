@@ -129,10 +129,12 @@ def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
 def _fill_series(flight: Flight, col: Collector, segment: int) -> None:
     def columns(kind, key):
         t, v, stats = col.columns(kind, key, segment)
-        if stats["duplicates"]:
-            flight.notes.append(f"{key}: dropped {stats['duplicates']} samples with repeated timestamps")
-        if stats["reordered"]:
-            flight.notes.append(f"{key}: sorted {stats['reordered']} out-of-order samples")
+        # a message that feeds two series (RAW_IMU: IMU and compass) has the same fixes in both
+        for text in ((f"{key}: dropped {stats['duplicates']} samples with repeated timestamps"
+                      if stats["duplicates"] else None),
+                     (f"{key}: sorted {stats['reordered']} out-of-order samples" if stats["reordered"] else None)):
+            if text and text not in flight.notes:
+                flight.notes.append(text)
         return t, v
 
     def plausible(key, v, limits):
