@@ -36,6 +36,9 @@ BARO_START_S = 3.0  # s: the baro height's zero is the median over this first sp
 MIN_PRESSURE_PA = 1e3  # below this a pressure reading is not plausible
 
 
+_SHARED = ("origin", "baro_zero")
+
+
 @dataclass
 class Aiding:
     """Per-IMU-sample aiding measurements; NaN where none is fused (see the module docstring)."""
@@ -46,14 +49,15 @@ class Aiding:
     gps_v_acc: np.ndarray  # (N,) m, reported vertical 1σ accuracy; NaN unknown
     baro_height: np.ndarray  # (N,) m, up, relative to the baro's start
     origin: tuple[float, float, float] | None = None  # (lat °, lon °, alt m AMSL) of the first good fix
+    baro_zero: float | None = None  # m, the standard-atmosphere height ``baro_height`` is relative to
 
     def __len__(self) -> int:
         return len(self.baro_height)
 
     def __getitem__(self, s: slice) -> "Aiding":
-        """The rows of an IMU chunk (a slice); the origin is shared."""
-        return Aiding(*(getattr(self, f.name)[s] for f in fields(self) if f.name != "origin"),
-                      origin=self.origin)
+        """The rows of an IMU chunk (a slice); the origin and baro zero are shared."""
+        return Aiding(*(getattr(self, f.name)[s] for f in fields(self) if f.name not in _SHARED),
+                      origin=self.origin, baro_zero=self.baro_zero)
 
     @property
     def has_gps(self) -> bool:
@@ -122,10 +126,15 @@ def _increasing(t: np.ndarray) -> np.ndarray:
     return ok
 
 
-def build(imu_t: np.ndarray, gps: GpsSeries | None, baro: BaroSeries | None) -> Aiding:
-    """The aiding measurements of ``gps`` and ``baro`` on the IMU timestamps ``imu_t``."""
+def build(imu_t: np.ndarray, gps: GpsSeries | None, baro: BaroSeries | None,
+          origin: tuple[float, float, float] | None = None, baro_zero: float | None = None) -> Aiding:
+    """The aiding measurements of ``gps`` and ``baro`` on the IMU timestamps ``imu_t``.
+
+    ``origin`` and ``baro_zero`` fix the GPS origin and the baro height's zero (live, chunk by
+    chunk: each chunk keeps the first's); without them they come from these samples."""
     imu_t = np.asarray(imu_t, dtype=float)
     out = Aiding.empty(len(imu_t))
+    out.origin, out.baro_zero = origin, baro_zero
     if len(imu_t) == 0:
         return out
     if gps is not None and len(gps.t):
@@ -137,8 +146,9 @@ def build(imu_t: np.ndarray, gps: GpsSeries | None, baro: BaroSeries | None) -> 
                 & np.isfinite(alt) & ~((lat == 0) & (lon == 0)) & np.isfinite(t))
         good &= _increasing(np.where(good, t, -np.inf))
         if good.any():
-            first = int(np.flatnonzero(good)[0])
-            out.origin = (float(lat[first]), float(lon[first]), float(alt[first]))
+            if out.origin is None:
+                first = int(np.flatnonzero(good)[0])
+                out.origin = (float(lat[first]), float(lon[first]), float(alt[first]))
             row, keep = _rows(imu_t, np.where(good, t, np.inf))
             keep &= good
             pos = geodetic_to_ned(out.origin, lat, lon, alt)
@@ -158,10 +168,12 @@ def build(imu_t: np.ndarray, gps: GpsSeries | None, baro: BaroSeries | None) -> 
         t = np.asarray(baro.t, dtype=float)
         good = np.isfinite(p) & (p > MIN_PRESSURE_PA) & np.isfinite(t)
         good &= _increasing(np.where(good, t, -np.inf))
-        if np.count_nonzero(good) >= 2:
+        if np.count_nonzero(good) >= (1 if out.baro_zero is not None else 2):
             h = pressure_height(np.where(good, p, np.nan))
-            start = good & (t <= t[good][0] + BARO_START_S)
-            h = h - np.median(h[start])
+            if out.baro_zero is None:
+                start = good & (t <= t[good][0] + BARO_START_S)
+                out.baro_zero = float(np.median(h[start]))
+            h = h - out.baro_zero
             row, keep = _rows(imu_t, np.where(good, t, np.inf))
             keep &= good
             out.baro_height[row[keep]] = h[keep]

@@ -9,6 +9,7 @@ import argparse
 import json
 import os
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -28,6 +29,8 @@ examples:
   mavattitude replay flight.bin --estimators all --set ncs-eskf.h_threshold_air=0.02
   mavattitude estimators
   mavattitude simulate --scenario figure8 --duration 120 -o figure8.tlog
+  mavattitude live udpin:0.0.0.0:14550 --estimators all --spawn
+  mavattitude simulate --live udpout:127.0.0.1:14550   # a simulated vehicle for 'live'
   mavattitude bench --json bench.json
 """
 
@@ -214,18 +217,110 @@ def cmd_simulate(args) -> int:
         for name, description in SCENARIOS.items():
             print(f"{name:12s} {description}")
         return 0
-    if not args.output:
-        raise UsageError("simulate needs -o FILE.tlog or FILE.bin (or --list)")
+    if not args.output and not args.live:
+        raise UsageError("simulate needs -o FILE.tlog or FILE.bin, or --live URL (or --list)")
+    if args.output and args.live:
+        raise UsageError("choose -o FILE or --live URL, not both")
     if args.scenario not in SCENARIOS:
         raise UsageError(f"unknown scenario {args.scenario!r}; choose from: {', '.join(SCENARIOS)}")
-    if Path(args.output).suffix.lower() not in (".tlog", ".bin"):
+    if args.output and Path(args.output).suffix.lower() not in (".tlog", ".bin"):
         raise UsageError(f"{args.output}: the output must end in .tlog or .bin")
     if args.duration <= 0 or args.imu_rate <= 0:
         raise UsageError("--duration and --imu-rate must be positive")
+    if args.speed < 0:
+        raise UsageError("--speed must be zero (as fast as possible) or positive")
+    if args.live:
+        return _simulate_live(args)
     sim = simulate(args.scenario, args.duration, seed=args.seed, imu_rate=args.imu_rate)
     path = write_log(sim, args.output)
     print(f"{path}: {args.scenario}, {args.duration:g} s, IMU {args.imu_rate:g} Hz, seed {args.seed} "
           f"({path.stat().st_size / 1e6:.2f} MB)")
+    return 0
+
+
+def _simulate_live(args) -> int:
+    import signal
+
+    from .live.link import open_link
+    from .sim import simulate
+    from .sim.autopilot import SimAutopilot
+
+    print(f"simulating {args.scenario}, {args.duration:g} s at {args.imu_rate:g} Hz ...", file=sys.stderr)
+    sim = simulate(args.scenario, args.duration, seed=args.seed, imu_rate=args.imu_rate)
+    conn = open_link(args.live)
+    stopped = []
+    previous = {sig: signal.signal(sig, lambda s, f: stopped.append(s)) for sig in (signal.SIGINT, signal.SIGTERM)}
+    autopilot = SimAutopilot(sim, conn)
+    print(f"streaming to {args.live} as system 1 at {args.speed:g}x real time"
+          + (" (as fast as possible)" if args.speed == 0 else "") + "; Ctrl-C to stop", file=sys.stderr)
+    try:
+        stats = autopilot.serve(speed=args.speed, stop=lambda: bool(stopped))
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        conn.close()
+    for line in stats.requests:
+        print(f"request honoured: {line}", file=sys.stderr)
+    sent = ", ".join(f"{n} {c}" for n, c in sorted(stats.sent.items()))
+    print(f"{'stopped' if stats.stopped else 'done'} after {stats.seconds:.1f} s; sent {sent}")
+    return 0
+
+
+# ---------------------------------------------------------------- live
+
+
+def cmd_live(args) -> int:
+    from .estimators import needs_compile, warm_up
+    from .live import LiveOptions, default_record_path, run_live
+    from .live.session import check_ended_with_vehicle
+    from .params import build, load_file
+    from .report import format_table, write_json
+
+    names = _estimator_names(args.estimators)
+    for flag, value in (("--imu-rate", args.imu_rate), ("--window", args.window), ("--timeout", args.timeout)):
+        if not value > 0:
+            raise UsageError(f"{flag} must be positive")
+    if args.duration is not None and not args.duration > 0:
+        raise UsageError("--duration must be positive")
+    if args.warmup < 0:
+        raise UsageError("--warmup must be zero or more seconds")
+    params = build(names, load_file(args.params) if args.params else None, args.set or (),
+                   source=args.params or "--params")
+    chosen = [x for x in ("rrd", "spawn", "connect", "web") if getattr(args, x)]
+    sink = {chosen[0]: getattr(args, chosen[0])} if chosen else None
+    record = None if args.no_record else (args.record or default_record_path())
+    pending = needs_compile(names)
+    if pending:
+        print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
+              file=sys.stderr, flush=True)
+    warm_up(names, params)
+    if sink is None:
+        print("no Rerun viewer: add --spawn, --connect URL or --web to watch, or --rrd FILE to keep a "
+              "recording", file=sys.stderr)
+    result = run_live(LiveOptions(
+        url=args.url, baud=args.baud, sysid=args.sysid, names=names, params=params,
+        imu_rate=args.imu_rate, request=not args.no_request, imu_source=args.imu, window=args.window,
+        timeout=args.timeout, record=record, warmup=args.warmup, declination=args.declination,
+        reference=args.reference, use_mag=not args.no_mag, duration=args.duration, sink=sink))
+    m = result.monitor
+    print(f"session: {result.seconds:.1f} s, {m.packets} packets ({m.lost} lost by sequence number, "
+          f"{m.bad} corrupt), {result.estimation.samples} IMU samples estimated"
+          + (f"; {result.recorded} packets recorded to {record}" if record else ""))
+    check_ended_with_vehicle(result, args.url)
+    if result.comparisons:
+        n_segments = len(result.estimation.segments)
+        where = (f" (clock segment {result.segment} of {n_segments}: the vehicle rebooted)"
+                 if n_segments > 1 else "")
+        print(f"final metrics against {result.reference} after a {args.warmup:g} s warm-up{where}:")
+        print(format_table(result.comparisons, result.reference))
+    else:
+        print("nothing scored: " + ("no IMU samples were estimated" if not result.estimation.samples
+                                    else "no reference attitude (ATTITUDE / SIMSTATE) arrived"))
+    if args.json:
+        write_json(args.json, args.url, result.reference or "none", result.comparisons)
+        print(f"metrics written to {args.json}")
+    if sink and "rrd" in sink:
+        print(f"Rerun recording written to {sink['rrd']}; open it with: rerun {sink['rrd']}")
     return 0
 
 
@@ -321,8 +416,73 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--imu-rate", type=float, default=100.0, metavar="HZ", help="IMU rate (default 100)")
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed (default 0)")
     p.add_argument("-o", "--output", metavar="FILE", help="output file: .tlog or .bin")
+    p.add_argument("--live", metavar="URL",
+                   help="instead of a file, act as an autopilot on this MAVLink connection (e.g. "
+                        "udpout:127.0.0.1:14550): stream the flight in real time, honouring "
+                        "SET_MESSAGE_INTERVAL and REQUEST_DATA_STREAM")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+                   help="with --live: times real time (default 1; 0 = as fast as possible)")
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser(
+        "live", help="watch a vehicle over MAVLink: estimate in real time, stream to Rerun, record",
+        description=textwrap.fill(
+            "Connect to a vehicle (or SITL, or 'mavattitude simulate --live'), ask it for its IMU, "
+            "ATTITUDE, GPS and baro messages, run the estimators as samples arrive, and show a "
+            "status line (rates, packets lost, rolling MAE against the autopilot). Every packet "
+            "received is recorded to a .tlog that 'mavattitude replay' reads. Ctrl-C ends the "
+            "session cleanly and prints the final metrics.", 79),
+        epilog="examples:\n"
+               "  mavattitude live                                  # listen on udpin:0.0.0.0:14550\n"
+               "  mavattitude live tcp:127.0.0.1:5760 --spawn       # ArduPilot SITL's TCP port, Rerun viewer\n"
+               "  mavattitude live /dev/ttyUSB0 --baud 57600 --estimators all --web\n"
+               "  mavattitude live udpin:0.0.0.0:14550 --no-request --no-record   # listen only\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("url", nargs="?", default="udpin:0.0.0.0:14550",
+                   help="a pymavlink connection string: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, "
+                        "or a serial device (default udpin:0.0.0.0:14550)")
+    p.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
+    p.add_argument("--sysid", type=int, default=None, metavar="ID",
+                   help="the vehicle's MAVLink system id (default: the first autopilot heard)")
+    p.add_argument("--estimators", default="mahony", metavar="LIST",
+                   help="comma-separated estimator names, or 'all' (default: mahony)")
+    p.add_argument("--imu-rate", type=float, default=50.0, metavar="HZ",
+                   help="IMU rate to ask the vehicle for (default 50; ATTITUDE up to 50 Hz, GPS 5 Hz, "
+                        "baro up to 10 Hz)")
+    p.add_argument("--no-request", action="store_true",
+                   help="do not ask for rates: leave the vehicle's streams as they are (listen-only links)")
+    p.add_argument("--imu", default=None, metavar="SOURCE",
+                   help="IMU message to estimate from (and ask for), e.g. RAW_IMU, SCALED_IMU2, HIGHRES_IMU "
+                        "(default: ask for RAW_IMU, use the best that arrives)")
+    p.add_argument("--window", type=float, default=10.0, metavar="S",
+                   help="seconds of the rolling metrics (default 10)")
+    p.add_argument("--timeout", type=float, default=5.0, metavar="S",
+                   help="seconds without packets before the link counts as lost (default 5)")
+    p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
+                   help="score against the vehicle's ATTITUDE (default) or SITL's SIMSTATE truth")
+    p.add_argument("--warmup", type=float, default=10.0, metavar="S",
+                   help="seconds not scored in the final metrics while estimators converge (default 10)")
+    p.add_argument("--declination", type=float, default=None, metavar="DEG",
+                   help="magnetic declination, degrees east (default: the vehicle's COMPASS_DEC, else 0)")
+    p.add_argument("--no-mag", action="store_true", help="ignore the magnetometer")
+    p.add_argument("--set", action="append", metavar="NAME.PARAM=VALUE",
+                   help="override an estimator parameter (repeatable; see 'mavattitude estimators')")
+    p.add_argument("--params", metavar="FILE", help="a TOML file of estimator parameters")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after this many seconds (default: run until Ctrl-C)")
+    rec = p.add_argument_group("recording")
+    rec.add_argument("--record", metavar="FILE",
+                     help="the .tlog every received packet goes to (default live-<UTC time>.tlog)")
+    rec.add_argument("--no-record", action="store_true", help="do not record")
+    rec.add_argument("--json", metavar="FILE", help="write the final metrics as JSON")
+    viewer = p.add_argument_group("viewer (one of)").add_mutually_exclusive_group()
+    viewer.add_argument("--spawn", action="store_true", help="stream to a newly spawned Rerun viewer")
+    viewer.add_argument("--connect", metavar="URL", help="stream to a running Rerun viewer "
+                                                         "(e.g. rerun+http://127.0.0.1:9876/proxy)")
+    viewer.add_argument("--web", action="store_true", help="serve Rerun's web viewer")
+    viewer.add_argument("--rrd", metavar="FILE", help="write the Rerun recording to FILE")
+    p.set_defaults(func=cmd_live)
 
     p = sub.add_parser("bench", help="time every estimator on a simulated flight, against imufusion",
                        description="Simulate a flight (default: 1 h at 400 Hz), time each estimator's "

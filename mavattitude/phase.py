@@ -17,11 +17,13 @@ slightly below or above its start is still judged correctly by the hysteresis ba
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from .flight import BaroSeries, Flight, GpsSeries
+from .growing import Growing
 
 AIR_ABOVE_M = 3.0  # m above the start: in the air
 GROUND_BELOW_M = 1.5  # m above the start: back on the ground
@@ -94,3 +96,54 @@ def _running_median(t: np.ndarray, x: np.ndarray, span_s: float) -> np.ndarray:
     padded = np.pad(x, k, mode="edge")
     windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1)
     return np.median(windows, axis=1)
+
+
+class PhaseTracker:
+    """The ground/air phase sample by sample, for a live link (``detect_phase`` sees the
+    whole log; this sees only the past). Same thresholds and hysteresis; causal versions of
+    the rest: the height is the median of the last ``SMOOTH_S`` of samples, the start is the
+    median of the samples of the first ``START_S`` (of those seen so far, until then).
+
+    ``add(t, height)`` takes a chunk of raw heights (baro pressure height, or GPS altitude)
+    in time order; ``on_clock(t)`` gives the phase at other times like ``PhaseSeries.on_clock``.
+    """
+
+    def __init__(self, source: str):
+        self.source = source
+        self._recent: deque[tuple[float, float]] = deque()  # (t, raw height) of the last SMOOTH_S
+        self._start_heights: list[float] = []
+        self._t0: float | None = None
+        self._state = 0.0
+        self._rows = Growing(3)  # t, height above the start (smoothed), in_air
+
+    def add(self, t, height) -> None:
+        for ti, hi in zip(np.asarray(t, dtype=float).tolist(), np.asarray(height, dtype=float).tolist()):
+            last = self._rows.last
+            if not np.isfinite(hi) or (last is not None and ti <= last[0]):
+                continue
+            if self._t0 is None:
+                self._t0 = ti
+            if ti <= self._t0 + START_S:
+                self._start_heights.append(hi)
+            self._recent.append((ti, hi))
+            while self._recent[0][0] < ti - SMOOTH_S:
+                self._recent.popleft()
+            h = float(np.median([x for _, x in self._recent])) - float(np.median(self._start_heights))
+            if h > AIR_ABOVE_M:
+                self._state = 1.0
+            elif h < GROUND_BELOW_M:
+                self._state = 0.0
+            self._rows.append((ti, h, self._state))
+
+    @property
+    def n(self) -> int:
+        return len(self._rows)
+
+    def series(self) -> PhaseSeries:
+        rows = self._rows.view()
+        return PhaseSeries(self.source, rows[:, 0], rows[:, 1], rows[:, 2])
+
+    def on_clock(self, t: np.ndarray) -> np.ndarray:
+        if not len(self._rows):
+            return np.full(len(t), np.nan)
+        return self.series().on_clock(np.asarray(t, dtype=float))

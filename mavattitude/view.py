@@ -213,7 +213,8 @@ _TEXT_LOG_COLUMNS = _text_log_columns()
 def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=None,
                    map_zoom: float | None = None, time_span: tuple[float, float] | None = None,
                    live: bool = False, diagnostics: Sequence[str] = (),
-                   has_phase: bool = False, has_track: bool = False) -> rrb.Blueprint:
+                   has_phase: bool = False, has_track: bool = False,
+                   live_window: float | None = None) -> rrb.Blueprint:
     """The layout: per-axis attitude and error plots on the left, the 3D attitude boxes top
     right, map / summary / events in tabs below it.
 
@@ -227,6 +228,8 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
     ``diagnostics``: the diagnostic keys logged, each a plot in a "diagnostics" tab (the axes
     of one vector in one plot), with the ground/air phase when ``has_phase``.
     ``has_track``: a "track" tab, the GPS and estimated tracks in 3D.
+    ``live_window``: a live session's "link" tab (its first): the rolling MAE over that many
+    seconds (``rolling/<axis>/<s>``) and the link's arrival rates and losses (``link/...``).
 
     One legend (in the roll plot) names every colour; the error plots have none: their
     lines have the same colours, faded where not scored (the warm-up).
@@ -284,6 +287,13 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
         tabs.insert(0, rrb.Spatial3DView(origin="track", name="track, NED (m)"))
     if has_gps:
         tabs.insert(0, rrb.MapView(origin="map", name="GPS track", zoom=map_zoom))
+    if live_window is not None:
+        tabs.insert(0, rrb.Vertical(
+            rrb.TimeSeriesView(origin="rolling", name=f"rolling MAE over the last {live_window:g} s (deg)",
+                               axis_x=link),
+            rrb.TimeSeriesView(origin="link", name="link: arrivals (Hz), packets lost and corrupt",
+                               axis_x=link),
+            name="link"))
     right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[3, 2])
     return rrb.Blueprint(
         rrb.Horizontal(rrb.Vertical(*rows), right, column_shares=[3, 2]),
@@ -298,12 +308,13 @@ def send_blueprint(rec: rr.RecordingStream, *, has_gps: bool = True, n_slots: in
                    error_range_deg=None, map_zoom: float | None = None,
                    time_span: tuple[float, float] | None = None, live: bool = False,
                    diagnostics: Sequence[str] = (), has_phase: bool = False,
-                   has_track: bool = False) -> None:
+                   has_track: bool = False, live_window: float | None = None) -> None:
     """Send ``make_blueprint(...)`` and make it the active and default layout."""
     rec.send_blueprint(make_blueprint(has_gps=has_gps, n_slots=n_slots,
                                       error_range_deg=error_range_deg, map_zoom=map_zoom,
                                       time_span=time_span, live=live, diagnostics=diagnostics,
-                                      has_phase=has_phase, has_track=has_track),
+                                      has_phase=has_phase, has_track=has_track,
+                                      live_window=live_window),
                        make_active=True, make_default=True)
 
 

@@ -37,3 +37,21 @@ def create(name: str, params=None, declination: float = 0.0) -> Estimator:
 def needs_compile(names: list[str]) -> list[str]:
     """Which of these estimators will compile on first use (numba cache empty)."""
     return _needs_compile([ESTIMATORS[n] for n in names])
+
+
+def warm_up(names: list[str], params: dict | None = None) -> None:
+    """Run each estimator over a few synthetic samples, so its compiled kernel is loaded (or
+    compiled) now rather than on the first samples of a live link."""
+    import numpy as np
+
+    from ..aiding import Aiding
+    n = 5
+    t = np.arange(n) * 0.01
+    gyro = np.zeros((n, 3))
+    accel = np.tile([0.0, 0.0, -9.80665], (n, 1))
+    mag = np.tile([2e-5, 0.0, 4e-5], (n, 1))
+    for name in names:
+        e = create(name, (params or {}).get(name))
+        e.initialize(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3))
+        extra = {"aiding": Aiding.empty(n)} if e.uses_aiding else {}
+        e.update(t, gyro, accel, mag, np.zeros(n), **extra)

@@ -119,7 +119,7 @@ def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
     flight = Flight(path=path, format=fmt, params=params, message_counts=counts,
                     segments=segments, segment_index=segment, notes=notes)
     _fill_series(flight, col, segment)
-    flight.vehicle, flight.firmware = _identify(texts, counts)
+    flight.vehicle, flight.firmware = identify_vehicle(texts)
     if not flight.imu:
         raise InputError(path, "no IMU data (looked for IMU/IMU2/IMU3 in .bin; RAW_IMU, SCALED_IMU/2/3 "
                                "and HIGHRES_IMU in .tlog)")
@@ -217,7 +217,7 @@ def _attitude(col: Collector, prefix: str, segment: int, columns) -> AttitudeSer
     return best
 
 
-def _identify(texts: list[str], counts: dict) -> tuple[str | None, str | None]:
+def identify_vehicle(texts: list[str]) -> tuple[str | None, str | None]:
     """(vehicle, firmware) from the version strings the autopilot wrote."""
     for text in texts:
         m = re.search(r"(Ardu(?:Copter|Plane|Rover|Sub)|APM:(?:Copter|Plane|Rover)|PX4)[^\n]*", text)
@@ -251,8 +251,13 @@ def imu_rate(series: ImuSeries) -> float:
 
 def best_imu_source(flight: Flight) -> str:
     """The IMU to estimate from: the highest sample count (within 2 %), then IMU_PREFERENCE."""
-    top = max(len(s.t) for s in flight.imu.values())
-    candidates = [k for k, s in flight.imu.items() if len(s.t) >= 0.98 * top]
+    return pick_imu({k: len(s.t) for k, s in flight.imu.items()})
+
+
+def pick_imu(counts: dict[str, int]) -> str:
+    """``best_imu_source`` on {source: sample count} (a log's, or what a live link has sent)."""
+    top = max(counts.values())
+    candidates = [k for k, n in counts.items() if n >= 0.98 * top]
 
     def rank(key):
         return IMU_PREFERENCE.index(key) if key in IMU_PREFERENCE else len(IMU_PREFERENCE)
@@ -261,9 +266,14 @@ def best_imu_source(flight: Flight) -> str:
 
 def mag_for_imu(flight: Flight, imu_source: str) -> str | None:
     """The magnetometer to pair with an IMU: the one in the same message (tlog), else the first."""
-    if imu_source in flight.mag:
+    return pick_mag(list(flight.mag), imu_source)
+
+
+def pick_mag(mag_sources: list[str], imu_source: str) -> str | None:
+    """``mag_for_imu`` on a list of magnetometer sources."""
+    if imu_source in mag_sources:
         return imu_source
     for key in ("MAG[0]", "HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2"):
-        if key in flight.mag:
+        if key in mag_sources:
             return key
-    return next(iter(flight.mag), None)
+    return mag_sources[0] if mag_sources else None

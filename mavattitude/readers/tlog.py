@@ -64,6 +64,84 @@ def _vehicle_version(msg) -> str:
     return f"{(v >> 24) & 0xFF}.{(v >> 16) & 0xFF}.{(v >> 8) & 0xFF}"
 
 
+class MessageDecoder:
+    """One vehicle's MAVLink messages -> samples in SI units on its clock.
+
+    ``decode(msg, add)`` calls ``add(kind, key, t, row)`` for each sample a message carries
+    (kinds: imu, mag, gps, baro, att_euler, att_quat, truth_euler; ``t`` seconds since boot),
+    and keeps parameters (``params``) and identity texts (``texts``: STATUSTEXT, version,
+    heartbeat type). Shared by the .tlog reader and the live link, so a packet converts the same
+    way whether it came from a file or a socket.
+    """
+
+    def __init__(self):
+        self.params: dict[str, float] = {}
+        self.texts: list[str] = []
+        self.heard_heartbeat = False
+        self.last_t = None  # the vehicle's latest boot time, for messages that carry none
+
+    def decode(self, msg, add) -> None:
+        name = msg.get_type()
+        if name == "PARAM_VALUE":
+            self.params[msg.param_id] = float(msg.param_value)
+            return
+        if name == "STATUSTEXT":
+            self.texts.append(msg.text)
+            return
+        if name == "AUTOPILOT_VERSION":
+            self.texts.append(f"version {_vehicle_version(msg)}")
+            return
+        if name == "HEARTBEAT":
+            if not self.heard_heartbeat:  # the vehicle's type, once
+                self.texts.append(f"heartbeat type {msg.type} autopilot {msg.autopilot}")
+                self.heard_heartbeat = True
+            return
+        t = _boot_time(msg)
+        if t is None:
+            t = self.last_t
+        elif name != "GPS_RAW_INT":  # its time is the fix's, older than the send time
+            self.last_t = t
+        if t is None:
+            return
+        if name in SCALED_IMUS:
+            key = _imu_key(name, msg)
+            add("imu", key, t,
+                (msg.xgyro * MRAD_TO_RAD, msg.ygyro * MRAD_TO_RAD, msg.zgyro * MRAD_TO_RAD,
+                 msg.xacc * MILLI_G_TO_MS2, msg.yacc * MILLI_G_TO_MS2, msg.zacc * MILLI_G_TO_MS2))
+            add("mag", key, t,
+                (msg.xmag * MILLIGAUSS_TO_TESLA, msg.ymag * MILLIGAUSS_TO_TESLA,
+                 msg.zmag * MILLIGAUSS_TO_TESLA))
+        elif name == "HIGHRES_IMU":
+            key = _imu_key(name, msg)
+            add("imu", key, t, (msg.xgyro, msg.ygyro, msg.zgyro, msg.xacc, msg.yacc, msg.zacc))
+            add("mag", key, t,
+                (msg.xmag * GAUSS_TO_TESLA, msg.ymag * GAUSS_TO_TESLA, msg.zmag * GAUSS_TO_TESLA))
+        elif name == "GPS_RAW_INT":
+            speed = msg.vel * 0.01 if msg.vel != 65535 else math.nan
+            course = math.radians(msg.cog * 0.01) if msg.cog != 65535 else math.nan
+            h_acc = msg.h_acc * 1e-3 if getattr(msg, "h_acc", 0) else math.nan
+            add("gps", "GPS_RAW_INT", t,
+                (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
+                 speed * math.cos(course), speed * math.sin(course), math.nan,
+                 msg.fix_type, msg.satellites_visible, h_acc))
+        elif name == "SCALED_PRESSURE":
+            add("baro", "SCALED_PRESSURE", t, (msg.press_abs * HPA_TO_PA, math.nan))
+        elif name == "ATTITUDE":
+            add("att_euler", "ATTITUDE", t, (msg.roll, msg.pitch, msg.yaw))
+        elif name == "ATTITUDE_QUATERNION":
+            add("att_quat", "ATTITUDE_QUATERNION", t, (msg.q1, msg.q2, msg.q3, msg.q4))
+        elif name == "SIMSTATE":
+            add("truth_euler", "SIMSTATE", t, (msg.roll, msg.pitch, msg.yaw))
+
+
+def is_vehicle(msg) -> bool:
+    """Whether a message says its sender is the vehicle: an autopilot's HEARTBEAT, or IMU or
+    attitude data (a ground station or a companion computer sends neither)."""
+    name = msg.get_type()
+    return ((name == "HEARTBEAT" and msg.autopilot != MAV_AUTOPILOT_INVALID)
+            or name in SCALED_IMUS or name in ("HIGHRES_IMU", "ATTITUDE"))
+
+
 def read_tlog(path: str, progress=None):
     """Decode a .tlog into a Collector plus metadata. ``progress(fraction)`` is called as it goes."""
     try:
@@ -71,14 +149,11 @@ def read_tlog(path: str, progress=None):
     except Exception as exc:
         raise InputError(path, f"not a readable telemetry log ({exc})")
     col = Collector()
-    params: dict[str, float] = {}
-    texts: list[str] = []
+    decoder = MessageDecoder()
     counts: dict[str, int] = {}
     size = max(os.path.getsize(path), 1)
     vehicle_sysid = None
     other_systems = set()
-    heard_heartbeat = False
-    last_t = None  # the vehicle's latest boot time, for messages that carry none
     n = 0
     while True:
         try:
@@ -97,67 +172,17 @@ def read_tlog(path: str, progress=None):
         sysid = msg.get_srcSystem()
         if vehicle_sysid is None:
             # The vehicle: the first system that says it is an autopilot, or that sends IMU data.
-            if (name == "HEARTBEAT" and msg.autopilot != MAV_AUTOPILOT_INVALID) or \
-                    name in SCALED_IMUS or name in ("HIGHRES_IMU", "ATTITUDE"):
-                vehicle_sysid = sysid
-            else:
+            if not is_vehicle(msg):
                 continue
+            vehicle_sysid = sysid
         if sysid != vehicle_sysid:
             other_systems.add(sysid)
             continue
-        if name == "PARAM_VALUE":
-            params[msg.param_id] = float(msg.param_value)
-            continue
-        if name == "STATUSTEXT":
-            texts.append(msg.text)
-            continue
-        if name == "AUTOPILOT_VERSION":
-            texts.append(f"version {_vehicle_version(msg)}")
-            continue
-        if name == "HEARTBEAT":
-            if not heard_heartbeat:  # the vehicle's type, once
-                texts.append(f"heartbeat type {msg.type} autopilot {msg.autopilot}")
-                heard_heartbeat = True
-            continue
-        t = _boot_time(msg)
-        if t is None:
-            t = last_t
-        elif name != "GPS_RAW_INT":  # its time is the fix's, older than the send time
-            last_t = t
-        if t is None:
-            continue
-        if name in SCALED_IMUS:
-            col.add("imu", _imu_key(name, msg), t,
-                    (msg.xgyro * MRAD_TO_RAD, msg.ygyro * MRAD_TO_RAD, msg.zgyro * MRAD_TO_RAD,
-                     msg.xacc * MILLI_G_TO_MS2, msg.yacc * MILLI_G_TO_MS2, msg.zacc * MILLI_G_TO_MS2))
-            col.add("mag", _imu_key(name, msg), t,
-                    (msg.xmag * MILLIGAUSS_TO_TESLA, msg.ymag * MILLIGAUSS_TO_TESLA,
-                     msg.zmag * MILLIGAUSS_TO_TESLA))
-        elif name == "HIGHRES_IMU":
-            col.add("imu", _imu_key(name, msg), t,
-                    (msg.xgyro, msg.ygyro, msg.zgyro, msg.xacc, msg.yacc, msg.zacc))
-            col.add("mag", _imu_key(name, msg), t,
-                    (msg.xmag * GAUSS_TO_TESLA, msg.ymag * GAUSS_TO_TESLA, msg.zmag * GAUSS_TO_TESLA))
-        elif name == "GPS_RAW_INT":
-            speed = msg.vel * 0.01 if msg.vel != 65535 else math.nan
-            course = math.radians(msg.cog * 0.01) if msg.cog != 65535 else math.nan
-            h_acc = msg.h_acc * 1e-3 if getattr(msg, "h_acc", 0) else math.nan
-            col.add("gps", "GPS_RAW_INT", t,
-                    (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
-                     speed * math.cos(course), speed * math.sin(course), math.nan,
-                     msg.fix_type, msg.satellites_visible, h_acc))
-        elif name == "SCALED_PRESSURE":
-            col.add("baro", "SCALED_PRESSURE", t, (msg.press_abs * HPA_TO_PA, math.nan))
-        elif name == "ATTITUDE":
-            col.add("att_euler", "ATTITUDE", t, (msg.roll, msg.pitch, msg.yaw))
-        elif name == "ATTITUDE_QUATERNION":
-            col.add("att_quat", "ATTITUDE_QUATERNION", t, (msg.q1, msg.q2, msg.q3, msg.q4))
-        elif name == "SIMSTATE":
-            col.add("truth_euler", "SIMSTATE", t, (msg.roll, msg.pitch, msg.yaw))
+        decoder.decode(msg, col.add)
     notes = []
     if other_systems:
         notes.append(f"ignored messages from other MAVLink systems {sorted(other_systems)} "
                      f"(vehicle is system {vehicle_sysid})")
     if counts.get("BAD_DATA"):
         notes.append(f"{counts['BAD_DATA']} corrupt or unknown packets skipped")
-    return col, params, texts, counts, notes
+    return col, decoder.params, decoder.texts, counts, notes

@@ -73,20 +73,25 @@ def write_tlog(sim, path) -> None:
 
 
 def _heartbeat_packets(sim, t_heartbeat, mav, epoch_us):
+    per = heartbeat_packers(sim, t_heartbeat, mav, epoch_us)
+    return lambda i: tuple(pack(i) for pack in per.values())
+
+
+def heartbeat_packers(sim, t_heartbeat, mav, epoch_us) -> dict:
+    """{message name: packer(i) -> bytes} for the 1 Hz messages at ``t_heartbeat[i]``."""
     base = (mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
             | mavlink2.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED)
     armed = (t_heartbeat >= sim.still_until).tolist()
     boot_ms = _int_list(t_heartbeat * 1e3)
     unix_us = (epoch_us + np.rint(t_heartbeat * 1e6).astype(np.int64)).tolist()
 
-    def packets(i):
+    def heartbeat(i):
         mode = base | (mavlink2.MAV_MODE_FLAG_SAFETY_ARMED if armed[i] else 0)
         state = mavlink2.MAV_STATE_ACTIVE if armed[i] else mavlink2.MAV_STATE_STANDBY
-        return (mavlink2.MAVLink_heartbeat_message(
-                    mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, mode, 0, state, 3
-                ).pack(mav),
-                mavlink2.MAVLink_system_time_message(unix_us[i], boot_ms[i]).pack(mav))
-    return packets
+        return mavlink2.MAVLink_heartbeat_message(
+            mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, mode, 0, state, 3).pack(mav)
+    return {"HEARTBEAT": heartbeat,
+            "SYSTEM_TIME": lambda i: mavlink2.MAVLink_system_time_message(unix_us[i], boot_ms[i]).pack(mav)}
 
 
 def _start_packets(sim, mav):
@@ -103,6 +108,13 @@ def _start_packets(sim, mav):
 
 
 def _imu_packets(sim, mav):
+    per = imu_packers(sim, mav)
+    return lambda i: tuple(pack(i) for pack in per.values())
+
+
+def imu_packers(sim, mav) -> dict:
+    """{message name: packer(i) -> bytes} for the messages of IMU sample ``i``, in the order
+    ArduPilot sends them: RAW_IMU, SCALED_IMU2, ATTITUDE, SIMSTATE."""
     t = sim.truth.t
     time_usec = _int_list(t * 1e6)
     boot_ms = _int_list(t * 1e3)
@@ -123,14 +135,15 @@ def _imu_packets(sim, mav):
     raw, second = scaled  # RAW_IMU carries IMU 0, SCALED_IMU2 IMU 1
     raw_t, second_t = temperature
 
-    def packets(i):
-        return (
-            mavlink2.MAVLink_raw_imu_message(time_usec[i], *raw[i], *mag[i], 0, raw_t).pack(mav),
-            mavlink2.MAVLink_scaled_imu2_message(boot_ms[i], *second[i], *mag[i], second_t).pack(mav),
-            mavlink2.MAVLink_attitude_message(boot_ms[i], *estimate[i], *rates[i]).pack(mav),
-            mavlink2.MAVLink_simstate_message(*true[i], *force[i], *rates[i], lat_e7[i], lon_e7[i]).pack(mav),
-        )
-    return packets
+    return {
+        "RAW_IMU": lambda i: mavlink2.MAVLink_raw_imu_message(
+            time_usec[i], *raw[i], *mag[i], 0, raw_t).pack(mav),
+        "SCALED_IMU2": lambda i: mavlink2.MAVLink_scaled_imu2_message(
+            boot_ms[i], *second[i], *mag[i], second_t).pack(mav),
+        "ATTITUDE": lambda i: mavlink2.MAVLink_attitude_message(boot_ms[i], *estimate[i], *rates[i]).pack(mav),
+        "SIMSTATE": lambda i: mavlink2.MAVLink_simstate_message(
+            *true[i], *force[i], *rates[i], lat_e7[i], lon_e7[i]).pack(mav),
+    }
 
 
 def _gps_packets(sim, mav):

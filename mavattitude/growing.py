@@ -1,0 +1,47 @@
+"""An append-only table of float64 rows for data that arrives a little at a time (a live link).
+
+Appending is amortised O(1) (the storage doubles when full); ``view()`` is the filled part, a
+numpy view that stays valid (it keeps the storage it was taken from) even after later appends.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+class Growing:
+    def __init__(self, width: int, capacity: int = 1024):
+        self.width = width
+        self._data = np.empty((capacity, width))
+        self.n = 0
+
+    def __len__(self) -> int:
+        return self.n
+
+    def append(self, row) -> None:
+        if self.n == len(self._data):
+            self._grow(self.n + 1)
+        self._data[self.n] = row
+        self.n += 1
+
+    def extend(self, rows) -> None:
+        rows = np.asarray(rows, dtype=float).reshape(-1, self.width)
+        if self.n + len(rows) > len(self._data):
+            self._grow(self.n + len(rows))
+        self._data[self.n:self.n + len(rows)] = rows
+        self.n += len(rows)
+
+    def _grow(self, need: int) -> None:
+        data = np.empty((max(need, 2 * len(self._data)), self.width))
+        data[:self.n] = self._data[:self.n]
+        self._data = data
+
+    def view(self) -> np.ndarray:
+        """(n, width): every row so far."""
+        return self._data[:self.n]
+
+    def column(self, k: int) -> np.ndarray:
+        return self._data[:self.n, k]
+
+    @property
+    def last(self) -> np.ndarray | None:
+        return self._data[self.n - 1] if self.n else None

@@ -1,0 +1,192 @@
+"""What a live session shows: the Rerun recording, streamed as it goes, and the terminal's
+one-line status.
+
+The recording has replay's layout and entity paths (``view``), laid out for following the
+data, plus a "link" tab: ``rolling/<axis>/<s>`` (MAE over the last ``--window`` seconds),
+``link/rate/<message>`` (arrivals per second), ``link/lost`` and ``link/bad`` (packets missing
+by sequence number, corrupt data). Everything time-varying is on the autopilot clock and goes
+out with ``send_columns``, batched: ``LiveView.push`` collects, ``flush`` sends (a few times a
+second), so a 1 kHz IMU does not mean a thousand calls a second.
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import rerun as rr
+
+from .. import view
+from ..metrics import AXES
+from .estimation import Chunk, LiveEstimation
+
+FLUSH_PERIOD_S = 0.2  # s of wall time between sends to the viewer
+RATE_NAMES = ("imu", "ATTITUDE", "GPS_RAW_INT", "SCALED_PRESSURE")
+
+
+class LiveView:
+    """Streams a ``LiveEstimation`` to ``rec`` (a Rerun recording stream)."""
+
+    def __init__(self, rec: rr.RecordingStream, estimation: LiveEstimation, window_s: float):
+        self.rec = rec
+        self.est = estimation
+        self.window_s = window_s
+        names = estimation.names
+        ref_key = "truth" if estimation.reference == "truth" else "autopilot"
+        self.ref_key = ref_key
+        self.series = [ref_key] + (["autopilot"] if ref_key == "truth" else []) + names
+        self.colors = view.assign_colors(self.series)
+        self.has_gps = False
+        self.diagnostic_keys: list[str] = []
+        self._send_blueprint()
+        view.setup_world(rec)
+        labels = {"autopilot": "autopilot (ATTITUDE)", "truth": "truth (SIMSTATE)"}
+        for slot, key in enumerate(self.series):
+            label = labels.get(key, key) + (" = reference" if key == ref_key else "")
+            view.setup_series(rec, key, color=self.colors[key], label=label, slot=slot,
+                              ghost=key != ref_key, errors=key in names)
+        for k, axis in enumerate(AXES):
+            for name in names:
+                rec.log(f"rolling/{axis}/{view._part(name)}",
+                        rr.SeriesLines(colors=[self.colors[name]], names=[f"{name} {axis}"],
+                                       widths=[1.5 if k == 0 else 1.0]), static=True)
+        self._pending: list[Chunk] = []
+        self._ref_sent = {"autopilot": -np.inf, "truth": -np.inf}
+        self._err_sent = {name: -np.inf for name in self.series}
+        self._gps_sent = 0
+        self._events_sent = 0
+        self._segment = 0
+
+    def _send_blueprint(self) -> None:
+        view.send_blueprint(self.rec, has_gps=self.has_gps, n_slots=len(self.series), live=True,
+                            diagnostics=self.diagnostic_keys, live_window=self.window_s)
+
+    def push(self, chunk: Chunk) -> None:
+        self._pending.append(chunk)
+
+    def flush(self) -> None:
+        """Send what arrived since the last flush."""
+        rec, est = self.rec, self.est
+        seg = est.seg
+        if seg.index != self._segment:  # a reboot: the clock starts again
+            self._segment = seg.index
+            self._ref_sent = {k: -np.inf for k in self._ref_sent}
+            self._err_sent = {k: -np.inf for k in self._err_sent}
+            self._gps_sent = 0
+        chunks, self._pending = self._pending, []
+        new_keys = [k for c in chunks for d in c.diagnostics.values() for k in d if k not in self.diagnostic_keys]
+        if new_keys:
+            self.diagnostic_keys += list(dict.fromkeys(new_keys))
+            for name in est.names:
+                keys = [k for c in chunks for k in c.diagnostics.get(name, {})]
+                if keys:
+                    view.setup_diagnostics(rec, name, dict.fromkeys(keys), color=self.colors[name])
+            self._send_blueprint()
+        for c in chunks:
+            for name, q in c.q.items():
+                view.log_attitude_columns(rec, name, c.t, q)
+                view.log_diagnostic_columns(rec, name, c.t, c.diagnostics.get(name, {}))
+        for key, series in (("truth", est.reference_series() if self.ref_key == "truth" else None),
+                            ("autopilot", est.autopilot_series())):
+            if series is None:
+                continue
+            new = series.t > self._ref_sent[key]
+            if new.any():
+                ghosts = [k for k in self.series if k != self.ref_key] if key == self.ref_key else ()
+                view.log_attitude_columns(rec, key, series.t[new], series.q[new], ghost_in=ghosts)
+                self._ref_sent[key] = float(series.t[-1])
+        for name in est.names:
+            got = est.errors(name, self._err_sent[name])
+            if got is not None:
+                t, err, scored = got
+                view.log_error_columns(rec, name, t, err, scored)
+                self._err_sent[name] = float(t[-1])
+        self._flush_gps()
+        self._flush_events()
+
+    def _flush_gps(self) -> None:
+        g = self.est.seg.gps
+        if g.n <= self._gps_sent:
+            return
+        rows = g.view()
+        ok = (rows[:, 7] >= 2) & np.isfinite(rows[:, 1]) & ~((rows[:, 1] == 0) & (rows[:, 2] == 0))
+        if not ok.any():
+            self._gps_sent = g.n
+            return
+        if not self.has_gps:
+            self.has_gps = True
+            self._send_blueprint()
+            self.rec.log("map/position", rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(7.0),
+                                                                  colors=[view.POSITION_COLOR]), static=True)
+        track = rows[ok][:, 1:3]
+        self.rec.log("map/track", rr.GeoLineStrings(lat_lon=[view._thin(track, view.GPS_TRACK_MAX_POINTS)],
+                                                    radii=rr.Radius.ui_points(2.0), colors=[view.TRACK_COLOR]),
+                     static=True)
+        new = ok.copy()
+        new[:self._gps_sent] = False
+        if new.any():
+            self.rec.send_columns("map/position", indexes=[view._time(rows[new, 0])],
+                                  columns=rr.GeoPoints.columns(positions=rows[new][:, 1:3]))
+        self._gps_sent = g.n
+
+    def _flush_events(self) -> None:
+        events = self.est.events[self._events_sent:]
+        if events:
+            view.log_events(self.rec, events)
+            self._events_sent += len(events)
+
+    def status(self, t: float, rates: dict[str, float], lost: int, bad: int,
+               rolling: dict[str, tuple[float, float, float]], extra_events=()) -> None:
+        """The link and the rolling metrics at autopilot time ``t`` (once a second or so)."""
+        rec = self.rec
+        idx = [view._time(np.array([t]))]
+        for name, value in rates.items():
+            rec.send_columns(f"link/rate/{view._part(name)}", indexes=idx,
+                             columns=rr.Scalars.columns(scalars=[value]))
+        for name, value in (("lost", lost), ("bad", bad)):
+            rec.send_columns(f"link/{name}", indexes=idx, columns=rr.Scalars.columns(scalars=[float(value)]))
+        for name, maes in rolling.items():
+            for axis, value in zip(AXES, maes):
+                if np.isfinite(value):
+                    rec.send_columns(f"rolling/{axis}/{view._part(name)}", indexes=idx,
+                                     columns=rr.Scalars.columns(scalars=[value]))
+        if extra_events:
+            view.log_events(rec, list(extra_events))
+
+
+class StatusLine:
+    """A status line on stderr: redrawn in place about once a second on a terminal; on a
+    pipe or file, a full line every ``every_s`` seconds."""
+
+    def __init__(self, stream=None, every_s: float = 5.0):
+        self.stream = stream or sys.stderr
+        self.tty = self.stream.isatty()
+        self.every_s = 1.0 if self.tty else every_s
+        self._last = -np.inf
+        self._width = 0
+
+    def due(self, now: float) -> bool:
+        return now - self._last >= self.every_s
+
+    def show(self, text: str, now: float) -> None:
+        self._last = now
+        if self.tty:
+            pad = max(self._width - len(text), 0)
+            self.stream.write("\r" + text + " " * pad)
+            self._width = len(text)
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def message(self, text: str) -> None:
+        """A line of its own, above the status line."""
+        if self.tty and self._width:
+            self.stream.write("\r" + " " * self._width + "\r")
+            self._width = 0
+        self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def end(self) -> None:
+        if self.tty and self._width:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._width = 0

@@ -1,0 +1,330 @@
+"""A live session: link in, estimates out, everything recorded. ``mavattitude live`` runs this.
+
+One loop on one thread: drain the link (every packet is recorded, counted, and, when it comes
+from the vehicle, decoded), step the estimators over what arrived, and a few times a second
+flush the recording, stream to Rerun, tick the rate requests, watch for a lost link; once a
+second redraw the status line. The loop ends on Ctrl-C or SIGTERM (handled: the loop
+finishes its turn, so the recording is complete up to the last packet), after ``duration``
+seconds, or when ``stop()`` says so; then the final metrics are printed.
+"""
+from __future__ import annotations
+
+import math
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+
+from ..errors import InputError
+from ..pipeline import LOW_IMU_RATE_HZ, Event
+from .estimation import LiveEstimation
+from ..readers import identify_vehicle
+from .link import (LinkMonitor, RateRequester, _enum, mavlink2, open_link, request_identity,
+                   wait_readable)
+from .recorder import TlogRecorder
+
+TICK_S = 0.2  # s of wall time between the periodic jobs
+RATES_REPORT_AFTER_S = 4.0  # s after the requests: report the rates that actually arrive
+WAIT_NOTE_EVERY_S = 10.0
+MAX_BATCH = 500  # packets decoded before the estimators step, at most
+IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
+
+
+def default_record_path() -> str:
+    return f"live-{datetime.now(timezone.utc).strftime('%Y%m%d-%H%M%S')}.tlog"
+
+
+@dataclass
+class LiveOptions:
+    url: str = "udpin:0.0.0.0:14550"
+    baud: int = 115200
+    sysid: int | None = None  # the vehicle: default the first autopilot heard
+    names: list[str] = field(default_factory=lambda: ["mahony"])
+    params: dict | None = None
+    imu_rate: float = 50.0  # Hz asked of the vehicle for its IMU message (ATTITUDE: up to 50 Hz)
+    request: bool = True  # ask for rates (False: listen only)
+    imu_source: str | None = None  # e.g. RAW_IMU, SCALED_IMU2 (default: the best that arrives)
+    window: float = 10.0  # s of the rolling metrics
+    timeout: float = 5.0  # s without packets: link lost
+    record: str | None = None  # .tlog path (None: no recording)
+    warmup: float = 10.0
+    declination: float | None = None  # degrees
+    reference: str = "autopilot"
+    use_mag: bool = True
+    duration: float | None = None  # s of wall time, then stop
+    sink: dict | None = None  # one of {"rrd": path}, {"spawn": True}, {"connect": url}, {"web": True}
+    record_latency: bool = False
+
+
+@dataclass
+class LiveResult:
+    estimation: LiveEstimation
+    monitor: LinkMonitor
+    comparisons: dict
+    reference: str | None  # the reference's source name, if any
+    vehicle: tuple[int, int] | None
+    firmware: str | None
+    recorded: int  # packets written to the .tlog
+    seconds: float
+    ended_by: str  # "signal", "duration", "stop"
+    segment: int | None = None  # the clock segment the comparisons score (reboots start new ones)
+
+
+def _wanted_rates(opts: LiveOptions) -> dict[str, float]:
+    imu = opts.imu_source if opts.imu_source in IMU_MESSAGES else "RAW_IMU"
+    return {imu: opts.imu_rate, "ATTITUDE": min(opts.imu_rate, 50.0), "GPS_RAW_INT": 5.0,
+            "SCALED_PRESSURE": min(opts.imu_rate, 10.0)}
+
+
+def run_live(opts: LiveOptions, stop=lambda: False, status=None, say=None) -> LiveResult:
+    """Run a session until a signal, ``opts.duration`` or ``stop()``. ``status``: a
+    ``display.StatusLine`` (default one on stderr); ``say``: where lines go (default status)."""
+    from .display import StatusLine
+
+    status = status or StatusLine()
+    session = _Session(opts, status, say or status.message)
+    signalled = []
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda signum, frame: signalled.append(signum))
+    ended_by = "stop"
+    try:
+        session.say(f"listening on {opts.url}" + (f", recording to {opts.record}" if opts.record else "")
+                    + "; waiting for a vehicle's HEARTBEAT (Ctrl-C to stop)")
+        while True:
+            if signalled:
+                ended_by = "signal"
+                break
+            if opts.duration is not None and time.monotonic() - session.start >= opts.duration:
+                ended_by = "duration"
+                break
+            if stop():
+                break
+            got = session.receive(MAX_BATCH)
+            session.periodic(time.monotonic())
+            if got == 0:
+                wait_readable(session.conn, 0.005)
+        while session.receive(MAX_BATCH) == MAX_BATCH:  # what is still in the socket: record it too
+            pass
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        session.close()
+    return session.finish(ended_by)
+
+
+class _Session:
+    """The state of one ``run_live``: the link, the recording, the estimation, the view."""
+
+    def __init__(self, opts: LiveOptions, status, say):
+        self.opts = opts
+        self.status = status
+        self.say = say
+        self.conn = open_link(opts.url, opts.baud)
+        self.recorder = TlogRecorder(opts.record) if opts.record else None
+        self.monitor = LinkMonitor(timeout_s=opts.timeout)
+        self.est = LiveEstimation(opts.names, opts.params, opts.declination, opts.use_mag, opts.imu_source,
+                                  opts.reference, opts.warmup, record_latency=opts.record_latency)
+        self.rec = self.live_view = None
+        if opts.sink:
+            from .. import view
+            from .display import LiveView
+            self.rec = view.open_sink("mavattitude", f"live {opts.url}", **opts.sink)
+            self.live_view = LiveView(self.rec, self.est, opts.window)
+        self.start = time.monotonic()
+        self.vehicle: tuple[int, int] | None = None
+        self.firmware: str | None = None
+        self.requester: RateRequester | None = None
+        self.requested_at: float | None = None
+        self.rates_reported = False
+        self.next_tick = self.start
+        self.last_wait_note = self.start
+        self.events_shown = 0
+
+    def receive(self, limit: int) -> int:
+        """Handle up to ``limit`` packets waiting on the link, then step the estimators.
+        Returns how many packets there were."""
+        got = 0
+        fresh = False
+        opts, est = self.opts, self.est
+        while got < limit:
+            try:
+                msg = self.conn.recv_msg()
+            except (ConnectionError, OSError):
+                msg = None  # a TCP peer went away: pymavlink reconnects; keep listening
+            if msg is None:
+                break
+            got += 1
+            now = time.monotonic()
+            self.monitor.count(msg, now)
+            name = msg.get_type()
+            if name == "BAD_DATA":
+                continue
+            if self.recorder is not None:
+                self.recorder.write(msg.get_msgbuf())
+            src = msg.get_srcSystem()
+            if self.vehicle is None:
+                if not (name == "HEARTBEAT" and msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID
+                        and (opts.sysid is None or src == opts.sysid)):
+                    continue
+                self._found_vehicle(msg, now)
+            if src != self.vehicle[0]:
+                continue
+            if self.requester is not None:
+                self.requester.on_message(msg, now)
+            est.add(msg, now)
+            fresh = True
+            if self.firmware is None and name in ("STATUSTEXT", "AUTOPILOT_VERSION"):
+                self.firmware = identify_vehicle(est.decoder.texts)[1]
+                if self.firmware:
+                    self.say(f"firmware: {self.firmware}")
+        if fresh:
+            chunk = est.step()
+            if chunk is not None and self.live_view is not None:
+                self.live_view.push(chunk)
+        return got
+
+    def _found_vehicle(self, heartbeat, now: float) -> None:
+        src = heartbeat.get_srcSystem()
+        self.vehicle = (src, heartbeat.get_srcComponent())
+        self.say(f"vehicle: system {src} component {self.vehicle[1]}, "
+                 f"{_enum('MAV_TYPE', heartbeat.type)} on {_enum('MAV_AUTOPILOT', heartbeat.autopilot)}")
+        request_identity(self.conn, self.vehicle)
+        if self.opts.request:
+            self.requester = RateRequester(self.conn, self.vehicle, _wanted_rates(self.opts))
+            self.requester.start(now)
+            self.requested_at = now
+
+    def periodic(self, now: float) -> None:
+        """The jobs of every TICK_S: flush, requests, link watch, messages, view, status."""
+        if now < self.next_tick:
+            return
+        self.next_tick = now + TICK_S
+        opts, est, monitor = self.opts, self.est, self.monitor
+        if self.recorder is not None:
+            self.recorder.tick(now)
+        if self.requester is not None:
+            self.requester.tick(now)
+            while self.requester.notes:
+                self.say(self.requester.notes.pop(0))
+        change = monitor.check_lost(now)
+        if change == "lost":
+            _session_event(est, "warn", f"link lost: no packets for {opts.timeout:g} s; still listening")
+        elif change == "back":
+            monitor.forget_sequences()
+            _session_event(est, "info", "link back: packets arriving again")
+        if self.vehicle is None and now - self.last_wait_note >= WAIT_NOTE_EVERY_S:
+            self.last_wait_note = now
+            heard = (f"{monitor.packets} packets, none a HEARTBEAT from an autopilot"
+                     + (f" with system id {opts.sysid}" if opts.sysid is not None else "")
+                     if monitor.packets else "nothing received yet")
+            self.say(f"still waiting for a vehicle on {opts.url} ({heard})")
+        if not self.rates_reported:
+            since = self.requested_at if opts.request else (monitor.first_at if est.started else None)
+            if since is not None and now - since >= RATES_REPORT_AFTER_S and (
+                    self.requester is None or self.requester.done):
+                self.rates_reported = True
+                _report_rates(est, monitor, self.requester.wanted if self.requester else {}, now)
+        self._show_events()
+        if self.live_view is not None:
+            self.live_view.flush()
+        if self.vehicle is not None and self.status.due(now):
+            rolling = est.rolling_mae(opts.window)
+            self.status.show(_status_text(est, monitor, rolling, now, self.vehicle, opts), now)
+            if self.live_view is not None and math.isfinite(est.seg.clock_max):
+                self.live_view.status(est.seg.clock_max, _shown_rates(est, monitor, now),
+                                      monitor.lost, monitor.bad, rolling)
+
+    def _show_events(self) -> None:
+        for event in self.est.events[self.events_shown:]:
+            self.say(f"[{event.t:8.1f} s] " + ("warning: " if event.level == "warn" else "") + event.text)
+        self.events_shown = len(self.est.events)
+
+    def close(self) -> None:
+        """Close the recording and the link (whatever happened)."""
+        if self.recorder is not None:
+            self.recorder.close()
+        self.conn.close()
+        self.status.end()
+
+    def finish(self, ended_by: str) -> LiveResult:
+        est = self.est
+        chunk = est.step()
+        if chunk is not None and self.live_view is not None:
+            self.live_view.push(chunk)
+        self._show_events()
+        if self.live_view is not None:
+            from .. import view
+            self.live_view.flush()
+            view.close_sink(self.rec)
+        comparisons, seg = est.final_comparisons()
+        ref = est.reference_series(seg) if seg is not None else None
+        return LiveResult(est, self.monitor, comparisons, ref.source if ref is not None else None,
+                          self.vehicle, self.firmware, self.recorder.packets if self.recorder else 0,
+                          time.monotonic() - self.start, ended_by, seg.index if seg is not None else None)
+
+
+def _session_event(est: LiveEstimation, level: str, text: str) -> None:
+    t = est.seg.clock_max
+    est.events.append(Event(t if math.isfinite(t) else 0.0, level, text))
+
+
+def _shown_rates(est: LiveEstimation, monitor: LinkMonitor, now: float) -> dict[str, float]:
+    rates = monitor.rates(now)
+    imu = est.seg.imu_key or next((n for n in IMU_MESSAGES if n in rates), None)
+    out = {}
+    if imu is not None:
+        out[imu.split("[")[0]] = rates.get(imu.split("[")[0], 0.0)
+    for name in ("ATTITUDE", "GPS_RAW_INT", "SCALED_PRESSURE"):
+        if name in rates:
+            out[name] = rates[name]
+    return out
+
+
+def _report_rates(est: LiveEstimation, monitor: LinkMonitor, wanted: dict[str, float], now: float) -> None:
+    rates = monitor.rates(now)
+    parts = []
+    for name in dict.fromkeys(list(wanted) + [n for n in IMU_MESSAGES if n in rates]
+                              + ["ATTITUDE", "GPS_RAW_INT", "SCALED_PRESSURE"]):
+        if name in rates or name in wanted:
+            asked = f" (asked {wanted[name]:g})" if name in wanted else ""
+            parts.append(f"{name} {rates.get(name, 0.0):.1f} Hz{asked}")
+    _session_event(est, "info", "arriving: " + ", ".join(parts))
+    imu = next((n for n in list(wanted) + list(IMU_MESSAGES) if n in IMU_MESSAGES and rates.get(n)), None)
+    if imu is None:
+        _session_event(est, "warn", "no IMU message is arriving (RAW_IMU, SCALED_IMU*, HIGHRES_IMU): "
+                                    "nothing to estimate from")
+        return
+    rate = rates[imu]
+    if imu in wanted and rate < 0.8 * wanted[imu]:
+        _session_event(est, "warn", f"the vehicle sends {imu} at {rate:.1f} Hz, not the {wanted[imu]:g} Hz asked")
+    if rate < LOW_IMU_RATE_HZ:
+        _session_event(est, "warn", f"IMU rate {rate:.1f} Hz is too low for good estimates (want ≥ "
+                                    f"{LOW_IMU_RATE_HZ:.0f} Hz; raise the stream rate, or use --imu-rate)")
+
+
+def _status_text(est: LiveEstimation, monitor: LinkMonitor, rolling: dict, now: float, vehicle, opts) -> str:
+    if vehicle is None:
+        return f"waiting for a vehicle on {opts.url} ({monitor.packets} packets)"
+    link = "LINK LOST" if monitor.lost_since is not None else "link ok"
+    t = est.seg.clock_max
+    rates = _shown_rates(est, monitor, now)
+    rate_text = ", ".join(f"{n} {r:.0f} Hz" for n, r in rates.items())
+    parts = [f"t {t:7.1f} s" if math.isfinite(t) else "t -", link, rate_text,
+             f"lost {monitor.lost} ({monitor.loss_percent:.1f} %), bad {monitor.bad}"]
+    if rolling:
+        parts.append(f"MAE {opts.window:g} s r/p/y: " + "; ".join(
+            f"{n} {r:.2f}/{p:.2f}/{y:.2f}" for n, (r, p, y) in rolling.items()))
+    elif not est.started:
+        parts.append("estimators starting" if est.seg.imu else "no IMU data yet")
+    return " | ".join(parts)
+
+
+def check_ended_with_vehicle(result: LiveResult, url: str) -> None:
+    """A session that never heard the vehicle ends as a bad input (exit 1), not a success."""
+    if result.vehicle is None:
+        raise InputError(url, f"no vehicle heard in {result.seconds:.0f} s "
+                              f"({result.monitor.packets} packets, none a HEARTBEAT from an autopilot)")
+

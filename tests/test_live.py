@@ -1,0 +1,409 @@
+"""``mavattitude live`` on loopback UDP, against two independent sources: the project's simulated
+autopilot (``sim.autopilot``, which honours rate requests) and pymavlink's own mavplayback.py
+replaying a real SITL .tlog. Also: the recording holds exactly the packets sent (also after
+SIGINT mid-stream), corrupt data between packets, a sender that stops and comes back, a
+vehicle reboot, and the link's bookkeeping on its own."""
+from __future__ import annotations
+
+import os
+import random
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from mavattitude.cli import main
+from mavattitude.growing import Growing
+from mavattitude.live import LiveOptions, run_live
+from mavattitude.live.link import LinkMonitor, RateRequester, mavlink2, open_link
+from mavattitude.live.recorder import TlogRecorder
+from mavattitude.phase import PhaseTracker
+from mavattitude.pipeline import run_replay
+from mavattitude.readers import read_log
+from mavattitude.sim import simulate
+from mavattitude.sim.autopilot import SimAutopilot
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "logs"
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Tap:
+    """A pymavlink connection that remembers every packet written, and can slip corrupt data
+    in between (``garbage_every``: a random-byte datagram and a packet with a broken CRC)."""
+
+    def __init__(self, conn, garbage_every: int = 0, seed: int = 0):
+        self.conn = conn
+        self.sent: list[bytes] = []
+        self.garbage_every = garbage_every
+        self.garbage_sent = 0
+        self.rng = random.Random(seed)
+
+    def write(self, packet: bytes) -> None:
+        self.conn.write(packet)
+        self.sent.append(bytes(packet))
+        if self.garbage_every and len(self.sent) % self.garbage_every == 0:
+            noise = bytes(self.rng.choice([b for b in range(256) if b not in (0xFD, 0xFE)])
+                          for _ in range(self.rng.randint(1, 40)))
+            broken = bytearray(packet)
+            broken[10] ^= 0x5A  # a payload byte: the CRC no longer matches
+            for data in (noise, bytes(broken)):
+                self.conn.port.sendto(data, self.conn.destination_addr)
+                self.garbage_sent += 1
+
+    def recv_msg(self):
+        return self.conn.recv_msg()
+
+    def close(self):
+        self.conn.close()
+
+
+def sender(port: int, plan, sim, garbage_every: int = 0):
+    """A thread running ``plan(autopilot, tap)`` against udpout:127.0.0.1:port; returns
+    (thread, tap, holder) where holder["done"] is set at the end."""
+    tap = Tap(open_link(f"udpout:127.0.0.1:{port}"), garbage_every)
+    holder = {"done": False, "error": None}
+
+    def run():
+        try:
+            time.sleep(0.3)  # the listener is bound before this starts; let it settle
+            plan(SimAutopilot(sim, tap), tap)
+        except Exception as exc:  # reported by the test
+            holder["error"] = exc
+        finally:
+            holder["done"] = True
+            holder["done_at"] = time.monotonic()
+
+    thread = threading.Thread(target=run, daemon=True)
+    return thread, tap, holder
+
+
+def listen(port: int, thread, holder, tmp_path, **options):
+    """Run a live session until the sender is done (and a moment more); returns the result."""
+    opts = LiveOptions(url=f"udpin:127.0.0.1:{port}", record=str(tmp_path / "live.tlog"), timeout=1.0,
+                       **{"names": ["mahony"], **options})
+    lines = []
+
+    def say(line):  # the first line comes once the port is bound: start sending then
+        if not lines:
+            thread.start()
+        lines.append(line)
+    result = run_live(opts, stop=lambda: holder["done"] and time.monotonic() - holder["done_at"] > 0.5,
+                      say=say)
+    thread.join(5)
+    assert holder["error"] is None, holder["error"]
+    result.lines = lines
+    return result
+
+
+def recorded_packets(path) -> list[bytes]:
+    """The raw packets of a .tlog, as pymavlink reads them back."""
+    log = mavutil.mavlink_connection(str(path), robust_parsing=True)
+    out = []
+    while True:
+        msg = log.recv_msg()
+        if msg is None:
+            return out
+        if msg.get_type() != "BAD_DATA":
+            out.append(bytes(msg.get_msgbuf()))
+
+
+@pytest.fixture(scope="module")
+def flight():
+    return simulate("figure8", 40.0, seed=7, imu_rate=100.0)
+
+
+# ---------------------------------------------------------------- against the simulator
+
+
+def test_live_against_the_simulator_matches_replay_of_the_same_data(tmp_path, flight):
+    port = free_udp_port()
+    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=4.0), flight)
+    result = listen(port, thread, holder, tmp_path, names=["mahony", "cpf-ekf"], reference="truth")
+    est = result.estimation
+    assert result.vehicle == (1, 1) and result.ended_by == "stop"
+    assert est.samples > 1800 and result.comparisons["mahony"].axes["roll"].n > 1000
+    # the requests were honoured: 50 Hz IMU and ATTITUDE (SIMSTATE with it), 5 Hz GPS, on the
+    # autopilot's clock, from a 10 Hz default
+    seg = est.seg
+    late = seg.imu["RAW_IMU"].column(0) > 10.0
+    assert np.median(np.diff(seg.imu["RAW_IMU"].column(0)[late])) == pytest.approx(0.02, abs=1e-6)
+    assert np.median(np.diff(seg.att["autopilot"].column(0)[-100:])) == pytest.approx(0.02, abs=1e-6)
+    assert np.median(np.diff(seg.gps.column(0)[-20:])) == pytest.approx(0.2, abs=1e-6)
+    assert any("acknowledged" in line for line in result.lines)
+    # every packet sent is in the recording, byte for byte, in order
+    assert recorded_packets(tmp_path / "live.tlog") == tap.sent
+    # replaying that recording gives the same numbers (the replay sees the first IMU samples,
+    # sent before the vehicle's first heartbeat, and a longer still period: close, not equal)
+    replay = run_replay(read_log(str(tmp_path / "live.tlog")), ["mahony", "cpf-ekf"], reference="truth")
+    for name, tol in (("mahony", 0.05), ("cpf-ekf", 0.1)):
+        for axis in ("roll", "pitch", "yaw"):
+            live_mae = result.comparisons[name].axes[axis].mae
+            replay_mae = replay.comparisons[name].axes[axis].mae
+            assert live_mae == pytest.approx(replay_mae, abs=tol), (name, axis)
+    assert result.comparisons["cpf-ekf"].axes["roll"].mae < 0.3
+
+
+def test_corrupt_data_between_packets_is_counted_and_never_recorded(tmp_path, flight):
+    port = free_udp_port()
+    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=4.0, t_to=20.0), flight, garbage_every=25)
+    result = listen(port, thread, holder, tmp_path)
+    assert tap.garbage_sent > 100
+    assert result.monitor.bad >= tap.garbage_sent // 2  # every broken packet, the noise in runs
+    assert recorded_packets(tmp_path / "live.tlog") == tap.sent
+    assert result.monitor.lost == 0
+    assert result.comparisons["mahony"].axes["roll"].mae < 2.0
+
+
+def test_a_sender_that_stops_and_comes_back(tmp_path, flight):
+    """The vehicle goes silent for 2 s of wall time, and 3 s of its clock pass meanwhile: the
+    link is reported lost and back, and the estimators start again after the gap."""
+    def plan(ap, tap):
+        ap.serve(speed=4.0, t_to=15.0)
+        time.sleep(2.0)
+        ap.serve(speed=4.0, t_from=18.0, t_to=30.0)
+    port = free_udp_port()
+    thread, tap, holder = sender(port, plan, flight)
+    result = listen(port, thread, holder, tmp_path)
+    texts = [e.text for e in result.estimation.events]
+    assert any(t.startswith("link lost") for t in texts) and any(t.startswith("link back") for t in texts)
+    assert any(t.startswith("IMU gap of 3.0 s") for t in texts)
+    seg = result.estimation.seg
+    assert seg.restarts and 17.9 < seg.restarts[0] < 18.1
+    q = result.estimation.estimate_series("mahony").q
+    assert np.isfinite(q).all() and result.estimation.estimate_series("mahony").t[-1] > 29.0
+    assert recorded_packets(tmp_path / "live.tlog") == tap.sent
+
+
+def test_a_vehicle_reboot_starts_a_new_clock_segment(tmp_path, flight):
+    """The autopilot reboots: its clock starts again near zero and its sequence numbers too."""
+    def plan(ap, tap):
+        ap.serve(speed=4.0, t_to=16.0)
+        SimAutopilot(flight, tap).serve(speed=4.0, t_to=12.0)  # the same vehicle, booted again
+    port = free_udp_port()
+    thread, tap, holder = sender(port, plan, flight)
+    result = listen(port, thread, holder, tmp_path)
+    est = result.estimation
+    assert any("clock went back" in e.text for e in est.events)
+    assert len(est.segments) == 2 and all(s.est for s in est.segments)
+    assert result.segment == 0  # the longer one is scored
+    assert est.segments[1].est["mahony"].column(0)[-1] < 12.5
+    assert result.monitor.lost == 0  # a restarted sequence is not a loss
+    assert recorded_packets(tmp_path / "live.tlog") == tap.sent
+
+
+def test_sigint_mid_stream_ends_cleanly_with_a_complete_recording(tmp_path, flight):
+    """``mavattitude live`` in its own process, interrupted while packets flow: exit 0, final
+    metrics printed, and the .tlog holds every packet it received, in order, up to the last."""
+    port = free_udp_port()
+    record = tmp_path / "sigint.tlog"
+    proc = subprocess.Popen([sys.executable, "-m", "mavattitude", "live", f"udpin:127.0.0.1:{port}",
+                             "--record", str(record), "--timeout", "1"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 120
+        while not record.exists():  # bound and recording (after the first-run compile)
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.1)
+        sent_at_signal = {}
+
+        def plan(ap, tap):
+            def stop():
+                if len(tap.sent) > 1500 and not sent_at_signal:
+                    sent_at_signal["n"] = len(tap.sent)
+                    proc.send_signal(signal.SIGINT)
+                return proc.poll() is not None
+            ap.serve(speed=4.0, stop=stop)
+        thread, tap, holder = sender(port, plan, flight)
+        thread.start()
+        out, err = proc.communicate(timeout=60)
+        thread.join(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert "final metrics" in out and "mahony" in out and "Traceback" not in err
+    packets = recorded_packets(record)
+    assert len(packets) >= sent_at_signal["n"]  # nothing sent before the signal is missing
+    assert packets == tap.sent[:len(packets)]
+    assert f"{len(packets)} packets recorded" in out
+
+
+# ---------------------------------------------------------------- against pymavlink's mavplayback.py
+
+
+def test_live_against_mavplayback_of_a_shared_sitl_log(tmp_path):
+    log = SHARED / "sitl-quadplane-vtol.tlog"
+    if not log.exists():
+        pytest.skip(f"real log {log.name} not found in {SHARED} (it lives beside the project, not in it)")
+    port = free_udp_port()
+    script = Path(mavutil.__file__).parent / "tools" / "mavplayback.py"
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "tests" / "tkstub"), "MAVPLAYBACK_SPEED": "4",
+           "MAVPLAYBACK_SECONDS": "14"}
+    holder = {"done": False}
+
+    def play():
+        # mavplayback is a Tk program: tests/tkstub stands in for tkinter (headless)
+        subprocess.run([sys.executable, str(script), "--out", f"127.0.0.1:{port}", str(log)], env=env,
+                       cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=60)
+        holder["done"] = True
+        holder["done_at"] = time.monotonic()
+        holder["error"] = None
+    result = listen(port, threading.Thread(target=play, daemon=True), holder, tmp_path)
+    est = result.estimation
+    assert result.vehicle == (1, 1) and result.firmware
+    assert est.samples > 100 and "RAW_IMU" in est.seg.imu
+    assert any("falling back to REQUEST_DATA_STREAM" in line for line in result.lines)  # it cannot answer
+    assert any("IMU rate" in e.text and "too low" in e.text for e in est.events)
+    c = result.comparisons["mahony"]
+    assert c.axes["roll"].n > 50 and c.axes["roll"].mae < 10.0
+    assert len(recorded_packets(tmp_path / "live.tlog")) == result.recorded > 1000
+
+
+# ---------------------------------------------------------------- the command's errors
+
+
+def test_port_in_use_is_a_one_line_error(capsys):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+        rc = main(["live", f"udpin:127.0.0.1:{port}", "--no-record", "--duration", "1"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and err[-1] == f"mavattitude: error: udpin:127.0.0.1:{port}: port already in use " \
+                                  "(another program is listening there)"
+
+
+def test_no_vehicle_heard_is_an_error(capsys, tmp_path):
+    rc = main(["live", f"udpin:127.0.0.1:{free_udp_port()}", "--no-record", "--duration", "0.5"])
+    assert rc == 1 and "no vehicle heard" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args, text", [
+    (["--imu-rate", "0"], "--imu-rate must be positive"),
+    (["--estimators", "nope"], "unknown estimator"),
+    (["notaurl:x:y:z"], "not a MAVLink connection string"),
+])
+def test_usage_errors(capsys, args, text):
+    rc = main(["live", "--no-record", "--duration", "0.2"] + args)
+    err = capsys.readouterr().err
+    assert rc in (1, 2) and text in err and "Traceback" not in err
+
+
+def test_simulate_live_needs_a_url_or_a_file(capsys):
+    assert main(["simulate", "--duration", "1"]) == 2
+    assert "--live URL" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- the pieces
+
+
+class _Msg:
+    def __init__(self, name, seq, src=(1, 1)):
+        self.name, self.seq, self.src = name, seq, src
+
+    def get_type(self):
+        return self.name
+
+    def get_seq(self):
+        return self.seq
+
+    def get_srcSystem(self):
+        return self.src[0]
+
+    def get_srcComponent(self):
+        return self.src[1]
+
+
+def test_link_monitor_counts_losses_per_sender_and_link_loss():
+    m = LinkMonitor(timeout_s=1.0)
+    for i, seq in enumerate([250, 251, 253, 254, 0, 1]):  # 252 and 255 missing, wrapping
+        m.count(_Msg("RAW_IMU", seq), 10.0 + 0.01 * i)
+    m.count(_Msg("HEARTBEAT", 7, src=(255, 190)), 10.1)  # another sender: its own count
+    m.count(_Msg("BAD_DATA", 0), 10.1)
+    assert (m.lost, m.packets, m.bad) == (2, 7, 1)
+    m.count(_Msg("RAW_IMU", 90), 10.2)  # a jump of 88: a loss; 2 -> 200 would be a restart
+    m.count(_Msg("RAW_IMU", 250), 10.3)
+    assert m.lost == 2 + 88
+    assert m.check_lost(11.0) is None and m.check_lost(11.4) == "lost" and m.check_lost(11.5) is None
+    m.count(_Msg("RAW_IMU", 251), 12.0)
+    assert m.check_lost(12.0) == "back"
+
+
+class _FakeMav:
+    def __init__(self):
+        self.calls = []
+
+    def command_long_send(self, *args):
+        self.calls.append(("command_long", args))
+
+    def request_data_stream_send(self, *args):
+        self.calls.append(("request_data_stream", args))
+
+
+class _Ack:
+    def __init__(self, result):
+        self.command, self.result = mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, result
+
+    def get_type(self):
+        return "COMMAND_ACK"
+
+
+def test_rate_requester_asks_one_at_a_time_and_falls_back():
+    conn = type("Conn", (), {"mav": _FakeMav()})()
+    r = RateRequester(conn, (1, 1), {"RAW_IMU": 50.0, "ATTITUDE": 50.0, "GPS_RAW_INT": 5.0})
+    r.start(0.0)
+    assert len(conn.mav.calls) == 1 and conn.mav.calls[0][1][4] == mavlink2.MAVLINK_MSG_ID_RAW_IMU
+    assert conn.mav.calls[0][1][5] == pytest.approx(20000.0)  # µs
+    r.on_message(_Ack(mavlink2.MAV_RESULT_ACCEPTED), 0.1)
+    r.on_message(_Ack(mavlink2.MAV_RESULT_DENIED), 0.2)  # ATTITUDE refused
+    r.tick(1.0)  # GPS_RAW_INT unanswered for 0.8 s: not yet
+    r.tick(1.3)  # resent
+    r.tick(2.4)  # given up
+    assert r.done
+    fallback = [c[1] for c in conn.mav.calls if c[0] == "request_data_stream"]
+    assert sorted(f[2] for f in fallback) == sorted([mavlink2.MAV_DATA_STREAM_EXTRA1,
+                                                     mavlink2.MAV_DATA_STREAM_EXTENDED_STATUS])
+    assert any("DENIED" in n for n in r.notes) and any("no answer" in n for n in r.notes)
+
+
+def test_recorder_flushes_within_a_second(tmp_path):
+    rec = TlogRecorder(tmp_path / "r.tlog")
+    rec.write(b"\xfd" + bytes(20), unix_time=1.5)
+    rec.tick(time.monotonic() + 1.0)
+    assert (tmp_path / "r.tlog").stat().st_size == 29
+    assert (tmp_path / "r.tlog").read_bytes()[:8] == (1_500_000).to_bytes(8, "big")
+    rec.close()
+
+
+def test_phase_tracker_follows_a_take_off_and_landing_causally():
+    t = np.arange(0.0, 60.0, 0.1)
+    h = np.interp(t, [0, 10, 15, 40, 45, 60], [0, 0, 10, 10, 0, 0])
+    h = h + np.random.default_rng(0).normal(0, 0.3, len(t)) + 480.0
+    p = PhaseTracker("baro height")
+    for chunk in np.array_split(np.arange(len(t)), 37):
+        p.add(t[chunk], h[chunk])
+    air = p.on_clock(np.array([5.0, 11.0, 14.0, 30.0, 44.0, 50.0, 80.0]))
+    np.testing.assert_array_equal(air[:-1], [0.0, 0.0, 1.0, 1.0, 1.0, 0.0])
+    assert np.isnan(air[-1])  # stale
+
+
+def test_growing_views_survive_growth():
+    g = Growing(2, capacity=2)
+    g.append((1.0, 2.0))
+    first = g.view()
+    for i in range(10):
+        g.append((float(i), 0.0))
+    g.extend(np.ones((5, 2)))
+    assert len(g) == 16 and first.tolist() == [[1.0, 2.0]] and g.last.tolist() == [1.0, 1.0]
