@@ -326,8 +326,10 @@ def format_table(result: dict) -> str:
 
 
 def run(names: list[str], scenario: str, duration: float, imu_rate: float, seed: int,
-        repeat: int, imufusion_samples: int, json_path: str | None) -> int:
-    """The ``bench`` command: checks its options, runs, prints the table, writes the JSON."""
+        repeat: int, imufusion_samples: int, json_path: str | None,
+        live_seconds: float | None = None) -> int:
+    """The ``bench`` command: checks its options, runs, prints the table, writes the JSON.
+    ``live_seconds``: also the live figure (``bench_live``), streaming that long."""
     from .sim import SCENARIOS
 
     if scenario not in SCENARIOS:
@@ -336,9 +338,16 @@ def run(names: list[str], scenario: str, duration: float, imu_rate: float, seed:
         raise UsageError("--duration and --imu-rate must be positive")
     if repeat < 1 or imufusion_samples < 1:
         raise UsageError("--repeat and --imufusion-samples must be at least 1")
+    if live_seconds is not None and not live_seconds > 0:
+        raise UsageError("--live-seconds must be positive")
     result = run_bench(names, scenario, duration, imu_rate, seed, repeat, imufusion_samples)
     print(format_table(result), end="")
+    if live_seconds is not None:
+        from .bench_live import format_live, run_live_bench
+        result["live"] = run_live_bench(names, live_seconds, say=_say)
+        print(format_live(result["live"]), end="")
     if json_path:
         Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
         print(f"results written to {json_path}")
-    return 1 if any("error" in row for row in result["results"]) else 0
+    failed = any("error" in row for row in result["results"])
+    return 1 if failed or (live_seconds is not None and not result["live"]["target_met"]) else 0

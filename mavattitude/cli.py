@@ -313,6 +313,9 @@ def cmd_live(args) -> int:
                  if n_segments > 1 else "")
         print(f"final metrics against {result.reference} after a {args.warmup:g} s warm-up{where}:")
         print(format_table(result.comparisons, result.reference))
+        if not any(a is not None for c in result.comparisons.values() for a in c.axes.values()):
+            print(f"nothing scored: the estimates span less than the {args.warmup:g} s warm-up "
+                  "(a longer session, or a shorter --warmup)")
     else:
         print("nothing scored: " + ("no IMU samples were estimated" if not result.estimation.samples
                                     else "no reference attitude (ATTITUDE / SIMSTATE) arrived"))
@@ -331,7 +334,8 @@ def cmd_bench(args) -> int:
     from .bench import run
 
     return run(_estimator_names(args.estimators), args.scenario, args.duration, args.imu_rate,
-               args.seed, args.repeat, args.imufusion_samples, args.json)
+               args.seed, args.repeat, args.imufusion_samples, args.json,
+               live_seconds=args.live_seconds if args.live else None)
 
 
 # ---------------------------------------------------------------- parser
@@ -505,6 +509,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--imufusion-samples", type=int, default=200_000, metavar="N",
                    help="samples imufusion's Python loop is timed on (default 200000)")
     p.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    p.add_argument("--live", action="store_true",
+                   help="also the live figure: a simulated autopilot streams RAW_IMU at 1 kHz and ATTITUDE "
+                        "at 50 Hz over loopback UDP to a live session running the estimators; reports "
+                        "packets dropped and packet-to-estimate latency (targets: 0, p99 <= 10 ms)")
+    p.add_argument("--live-seconds", type=float, default=60.0, metavar="S",
+                   help="how long the live figure streams (default 60)")
     p.set_defaults(func=cmd_bench)
     return parser
 

@@ -169,3 +169,19 @@ def test_mahony_kernel_matches_the_vector_formulation(use_mag):
     q = f.update(t, gyro, accel, mag)
     ref = _mahony_reference(t, gyro, accel, mag, q0, bias, params, 0.2)
     np.testing.assert_allclose(q, ref, rtol=0, atol=1e-12)
+
+
+def test_live_figure_runs_and_reports(capsys):
+    """``bench --live`` end to end on a short stream (the figures are not judged here: speed
+    targets live in the benchmark, not in tests)."""
+    from mavattitude.bench_live import format_live, run_live_bench
+
+    figures = run_live_bench(["mahony"], seconds=2.0, say=lambda line: None)
+    assert figures["packets_sent"] > 2000 and figures["packets_received"] > 0
+    assert figures["imu_samples_measured"] > 1000
+    assert any("SET_MESSAGE_INTERVAL RAW_IMU 1000 us" in r for r in figures["requests"])
+    lat = figures["latency_ms"]
+    assert 0 < lat["p50"] <= lat["p99"] <= lat["max"]
+    assert figures["target_met"] in (True, False)
+    text = format_live(figures)
+    assert "packet-to-estimate latency" in text and "dropped" in text

@@ -333,8 +333,12 @@ def test_link_monitor_counts_losses_per_sender_and_link_loss():
     m.count(_Msg("HEARTBEAT", 7, src=(255, 190)), 10.1)  # another sender: its own count
     m.count(_Msg("BAD_DATA", 0), 10.1)
     assert (m.lost, m.packets, m.bad) == (2, 7, 1)
-    m.count(_Msg("RAW_IMU", 90), 10.2)  # a jump of 88: a loss; 2 -> 200 would be a restart
-    m.count(_Msg("RAW_IMU", 250), 10.3)
+    m.count(_Msg("RAW_IMU", 90), 10.2)  # a jump of 88: a loss
+    m.count(_Msg("RAW_IMU", 0), 10.3)  # a sender that restarted: counted until told
+    assert m.lost == 2 + 88 + 165
+    m.forget_sequences(since=10.25)
+    assert m.lost == 2 + 88
+    m.count(_Msg("RAW_IMU", 250), 10.35)  # after forgetting: no count against the old sequence
     assert m.lost == 2 + 88
     assert m.check_lost(11.0) is None and m.check_lost(11.4) == "lost" and m.check_lost(11.5) is None
     m.count(_Msg("RAW_IMU", 251), 12.0)

@@ -19,15 +19,30 @@ from .. import view
 from ..metrics import AXES
 from .estimation import Chunk, LiveEstimation
 
-FLUSH_PERIOD_S = 0.2  # s of wall time between sends to the viewer
+# s of wall time between sends: a viewer watching gets a smooth picture, a file fewer, larger
+# chunks (each send is a chunk with its own schema: many small ones make a large file)
+FLUSH_PERIOD_S = 0.25
+FILE_FLUSH_PERIOD_S = 2.0
+# What the viewer gets of a live session (the metrics always use every sample): plots and
+# diagnostics at most this often, the 3D boxes at most SCALAR_HZ / 2.
+SCALAR_HZ = 100.0
+TRANSFORM_HZ = 25.0
+DIAGNOSTIC_HZ = 20.0
+# Diagnostics (a tab of their own, many series per filter) go out less often: every send is a
+# chunk in the recording, and small chunks cost more than their samples.
+DIAGNOSTIC_PERIOD_S = 2.0
+STATUS_PERIOD_S = 1.0  # rolling metrics and link figures
 RATE_NAMES = ("imu", "ATTITUDE", "GPS_RAW_INT", "SCALED_PRESSURE")
 
 
 class LiveView:
     """Streams a ``LiveEstimation`` to ``rec`` (a Rerun recording stream)."""
 
-    def __init__(self, rec: rr.RecordingStream, estimation: LiveEstimation, window_s: float):
+    def __init__(self, rec: rr.RecordingStream, estimation: LiveEstimation, window_s: float,
+                 to_file: bool = False):
         self.rec = rec
+        self.flush_period = FILE_FLUSH_PERIOD_S if to_file else FLUSH_PERIOD_S
+        self._flushed_at = -np.inf
         self.est = estimation
         self.window_s = window_s
         names = estimation.names
@@ -44,12 +59,15 @@ class LiveView:
             label = labels.get(key, key) + (" = reference" if key == ref_key else "")
             view.setup_series(rec, key, color=self.colors[key], label=label, slot=slot,
                               ghost=key != ref_key, errors=key in names)
-        for k, axis in enumerate(AXES):
+        for axis, shade in zip(AXES, (1.0, 0.7, 0.45)):  # one colour per filter, an axis a shade
             for name in names:
                 rec.log(f"rolling/{axis}/{view._part(name)}",
-                        rr.SeriesLines(colors=[self.colors[name]], names=[f"{name} {axis}"],
-                                       widths=[1.5 if k == 0 else 1.0]), static=True)
+                        rr.SeriesLines(colors=[tuple(int(c * shade) for c in self.colors[name])],
+                                       names=[f"{name} {axis}"], widths=[1.5]), static=True)
         self._pending: list[Chunk] = []
+        self._diag_pending: list[Chunk] = []
+        self._diag_sent_at = -np.inf
+        self._status_at = -np.inf
         self._ref_sent = {"autopilot": -np.inf, "truth": -np.inf}
         self._err_sent = {name: -np.inf for name in self.series}
         self._gps_sent = 0
@@ -63,8 +81,18 @@ class LiveView:
     def push(self, chunk: Chunk) -> None:
         self._pending.append(chunk)
 
-    def flush(self) -> None:
-        """Send what arrived since the last flush."""
+    def status_due(self, now: float) -> bool:
+        if now - self._status_at >= STATUS_PERIOD_S:
+            self._status_at = now
+            return True
+        return False
+
+    def flush(self, now: float | None = None) -> None:
+        """Send what arrived since the last flush, if the flush period has passed since then
+        (``now``: monotonic s; None: now, whatever the period)."""
+        if now is not None and now - self._flushed_at < self.flush_period:
+            return
+        self._flushed_at = now if now is not None else self._flushed_at
         rec, est = self.rec, self.est
         seg = est.seg
         if seg.index != self._segment:  # a reboot: the clock starts again
@@ -73,18 +101,16 @@ class LiveView:
             self._err_sent = {k: -np.inf for k in self._err_sent}
             self._gps_sent = 0
         chunks, self._pending = self._pending, []
-        new_keys = [k for c in chunks for d in c.diagnostics.values() for k in d if k not in self.diagnostic_keys]
-        if new_keys:
-            self.diagnostic_keys += list(dict.fromkeys(new_keys))
+        self._diag_pending += chunks
+        if chunks:  # one send per entity for all the chunks since the last flush
+            t = np.concatenate([c.t for c in chunks])
             for name in est.names:
-                keys = [k for c in chunks for k in c.diagnostics.get(name, {})]
-                if keys:
-                    view.setup_diagnostics(rec, name, dict.fromkeys(keys), color=self.colors[name])
-            self._send_blueprint()
-        for c in chunks:
-            for name, q in c.q.items():
-                view.log_attitude_columns(rec, name, c.t, q)
-                view.log_diagnostic_columns(rec, name, c.t, c.diagnostics.get(name, {}))
+                q = np.vstack([c.q[name] for c in chunks])
+                view.log_attitude_columns(rec, name, t, q, scalar_max_hz=SCALAR_HZ,
+                                          transform_max_hz=TRANSFORM_HZ)
+        if now is None or now - self._diag_sent_at >= DIAGNOSTIC_PERIOD_S:
+            self._diag_sent_at = now if now is not None else self._diag_sent_at
+            self._flush_diagnostics()
         for key, series in (("truth", est.reference_series() if self.ref_key == "truth" else None),
                             ("autopilot", est.autopilot_series())):
             if series is None:
@@ -92,16 +118,36 @@ class LiveView:
             new = series.t > self._ref_sent[key]
             if new.any():
                 ghosts = [k for k in self.series if k != self.ref_key] if key == self.ref_key else ()
-                view.log_attitude_columns(rec, key, series.t[new], series.q[new], ghost_in=ghosts)
+                view.log_attitude_columns(rec, key, series.t[new], series.q[new], ghost_in=ghosts,
+                                          scalar_max_hz=SCALAR_HZ, transform_max_hz=TRANSFORM_HZ)
                 self._ref_sent[key] = float(series.t[-1])
         for name in est.names:
             got = est.errors(name, self._err_sent[name])
             if got is not None:
                 t, err, scored = got
-                view.log_error_columns(rec, name, t, err, scored)
+                view.log_error_columns(rec, name, t, err, scored, max_hz=SCALAR_HZ)
                 self._err_sent[name] = float(t[-1])
         self._flush_gps()
         self._flush_events()
+
+    def _flush_diagnostics(self) -> None:
+        chunks, self._diag_pending = self._diag_pending, []
+        if not chunks:
+            return
+        rec, names = self.rec, self.est.names
+        new_keys = [k for c in chunks for d in c.diagnostics.values() for k in d if k not in self.diagnostic_keys]
+        if new_keys:
+            self.diagnostic_keys += list(dict.fromkeys(new_keys))
+            for name in names:
+                keys = [k for c in chunks for k in c.diagnostics.get(name, {})]
+                if keys:
+                    view.setup_diagnostics(rec, name, dict.fromkeys(keys), color=self.colors[name])
+            self._send_blueprint()
+        t = np.concatenate([c.t for c in chunks])
+        for name in names:
+            keys = chunks[-1].diagnostics.get(name, {})
+            diagnostics = {k: np.concatenate([c.diagnostics[name][k] for c in chunks]) for k in keys}
+            view.log_diagnostic_columns(rec, name, t, diagnostics, max_hz=DIAGNOSTIC_HZ)
 
     def _flush_gps(self) -> None:
         g = self.est.seg.gps

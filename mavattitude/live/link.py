@@ -27,6 +27,10 @@ from ..errors import InputError, UsageError  # noqa: E402
 
 GCS_SYSID, GCS_COMPID = 255, mavlink2.MAV_COMP_ID_MISSIONPLANNER  # who we are on the link
 RATE_WINDOW_S = 3.0  # s: arrival rates are counted over this trailing window
+# Receive buffer asked of the OS for a UDP link: a second of 1 kHz IMU and more, so a pause of
+# the session (a viewer that stalls, a slow disk) does not overflow it. Linux caps the request
+# at net.core.rmem_max unless the process may force it.
+UDP_RECEIVE_BUFFER = 8 << 20
 ACK_TIMEOUT_S = 1.0  # s: a command without an answer is sent once more, then given up
 REQUEST_STREAMS = {  # REQUEST_DATA_STREAM group of each message (ArduPilot's grouping)
     "RAW_IMU": mavlink2.MAV_DATA_STREAM_RAW_SENSORS,
@@ -63,7 +67,22 @@ def open_link(url: str, baud: int = 115200):
                          "udpout:192.168.1.10:14550, tcp:127.0.0.1:5760, /dev/ttyUSB0") from None
     except Exception as exc:  # pyserial's SerialException and the like
         raise InputError(url, str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+    _enlarge_receive_buffer(conn)
     return conn
+
+
+def _enlarge_receive_buffer(conn) -> None:
+    port = getattr(conn, "port", None)
+    if not isinstance(port, socket.socket) or port.type != socket.SOCK_DGRAM:
+        return
+    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if option is None:
+            continue
+        try:
+            port.setsockopt(socket.SOL_SOCKET, option, UDP_RECEIVE_BUFFER)
+            return
+        except OSError:
+            continue
 
 
 def _check_udp_port_free(url: str) -> None:
@@ -102,6 +121,7 @@ class LinkMonitor:
     last_at: float | None = None
     lost_since: float | None = None  # when the link was declared lost (None: alive)
     _seq: dict = field(default_factory=dict)  # (sysid, compid) -> last sequence number
+    _gaps: deque = field(default_factory=deque)  # (time, packets missing) of the last second
     _arrivals: dict = field(default_factory=dict)  # message name -> deque of arrival times
 
     def count(self, msg, now: float) -> None:
@@ -116,18 +136,29 @@ class LinkMonitor:
         seq = msg.get_seq()
         last = self._seq.get(key)
         if last is not None:
+            # packets missing since the last one (modulo 256: a burst of 300 counts as 44;
+            # the session forgets the count after a silence or a reboot, where the sender may
+            # have restarted its sequence)
             gap = (seq - last - 1) & 0xFF
-            if gap < 128:  # a larger jump is a sender that restarted, not 128+ losses
+            if gap:
                 self.lost += gap
+                self._gaps.append((now, gap))
+                while self._gaps and self._gaps[0][0] < now - 1.0:
+                    self._gaps.popleft()
         self._seq[key] = seq
         arrivals = self._arrivals.get(msg.get_type())
         if arrivals is None:
             arrivals = self._arrivals[msg.get_type()] = deque()
         arrivals.append(now)
 
-    def forget_sequences(self) -> None:
-        """After a silence or a reboot: the next sequence number starts a new count."""
+    def forget_sequences(self, since: float | None = None) -> None:
+        """After a silence or a reboot: the next sequence number starts a new count. ``since``
+        (monotonic s): the gaps counted from then on were the sender restarting its sequence,
+        not losses (a reboot is noticed a packet or two after it happened)."""
         self._seq.clear()
+        if since is not None:
+            self.lost -= sum(gap for t, gap in self._gaps if t >= since)
+            self._gaps.clear()
 
     def rate(self, name: str, now: float) -> float:
         """Arrivals per second of message ``name`` over the last RATE_WINDOW_S."""

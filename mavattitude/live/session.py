@@ -132,7 +132,7 @@ class _Session:
             from .. import view
             from .display import LiveView
             self.rec = view.open_sink("mavattitude", f"live {opts.url}", **opts.sink)
-            self.live_view = LiveView(self.rec, self.est, opts.window)
+            self.live_view = LiveView(self.rec, self.est, opts.window, to_file="rrd" in opts.sink)
         self.start = time.monotonic()
         self.vehicle: tuple[int, int] | None = None
         self.firmware: str | None = None
@@ -174,7 +174,10 @@ class _Session:
                 continue
             if self.requester is not None:
                 self.requester.on_message(msg, now)
+            segments = len(est.segments)
             est.add(msg, now)
+            if len(est.segments) != segments:  # a reboot: its sequence numbers start again
+                self.monitor.forget_sequences(since=now - 0.5)
             fresh = True
             if self.firmware is None and name in ("STATUSTEXT", "AUTOPILOT_VERSION"):
                 self.firmware = identify_vehicle(est.decoder.texts)[1]
@@ -229,11 +232,15 @@ class _Session:
                 _report_rates(est, monitor, self.requester.wanted if self.requester else {}, now)
         self._show_events()
         if self.live_view is not None:
-            self.live_view.flush()
-        if self.vehicle is not None and self.status.due(now):
+            self.live_view.flush(now)
+        show = self.vehicle is not None and self.status.due(now)
+        to_view = (self.live_view is not None and math.isfinite(est.seg.clock_max)
+                   and self.live_view.status_due(now))
+        if show or to_view:
             rolling = est.rolling_mae(opts.window)
-            self.status.show(_status_text(est, monitor, rolling, now, self.vehicle, opts), now)
-            if self.live_view is not None and math.isfinite(est.seg.clock_max):
+            if show:
+                self.status.show(_status_text(est, monitor, rolling, now, self.vehicle, opts), now)
+            if to_view:
                 self.live_view.status(est.seg.clock_max, _shown_rates(est, monitor, now),
                                       monitor.lost, monitor.bad, rolling)
 

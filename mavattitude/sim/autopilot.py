@@ -93,6 +93,7 @@ class SimAutopilot:
 
     def _send(self, name: str, packet: bytes) -> None:
         self.conn.write(packet)
+        self.mav.seq = (self.mav.seq + 1) % 256  # pack() does not count; MAVLink.send() would
         self.stats.sent[name] = self.stats.sent.get(name, 0) + 1
 
     def _due(self, name: str, t: float) -> bool:

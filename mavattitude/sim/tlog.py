@@ -70,11 +70,12 @@ def write_tlog(sim, path) -> None:
             for packet in emit[kind](i):
                 write(_STAMP.pack(stamp))
                 write(packet)
+                mav.seq = (mav.seq + 1) % 256  # pack() does not count; MAVLink.send() would
 
 
 def _heartbeat_packets(sim, t_heartbeat, mav, epoch_us):
     per = heartbeat_packers(sim, t_heartbeat, mav, epoch_us)
-    return lambda i: tuple(pack(i) for pack in per.values())
+    return lambda i: (pack(i) for pack in per.values())  # lazily: each packs with the next seq
 
 
 def heartbeat_packers(sim, t_heartbeat, mav, epoch_us) -> dict:
@@ -98,18 +99,17 @@ def _start_packets(sim, mav):
     params = sim.log_params
 
     def packets(_):
-        out = [mavlink2.MAVLink_statustext_message(
-            mavlink2.MAV_SEVERITY_INFO, sim.firmware[:STATUSTEXT_MAX].encode()).pack(mav)]
+        yield mavlink2.MAVLink_statustext_message(
+            mavlink2.MAV_SEVERITY_INFO, sim.firmware[:STATUSTEXT_MAX].encode()).pack(mav)
         for i, (name, value) in enumerate(params.items()):
-            out.append(mavlink2.MAVLink_param_value_message(
-                name.encode(), value, mavlink2.MAV_PARAM_TYPE_REAL32, len(params), i).pack(mav))
-        return out
+            yield mavlink2.MAVLink_param_value_message(
+                name.encode(), value, mavlink2.MAV_PARAM_TYPE_REAL32, len(params), i).pack(mav)
     return packets
 
 
 def _imu_packets(sim, mav):
     per = imu_packers(sim, mav)
-    return lambda i: tuple(pack(i) for pack in per.values())
+    return lambda i: (pack(i) for pack in per.values())  # lazily: each packs with the next seq
 
 
 def imu_packers(sim, mav) -> dict:

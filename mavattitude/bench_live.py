@@ -1,0 +1,154 @@
+"""The live figure of ``mavattitude bench --live``: can a live session keep up with a fast link?
+
+A simulated autopilot (``sim.autopilot``) runs in a child process and streams a flight over
+loopback UDP in real time; a live session (``live.run_live``, the code ``mavattitude live``
+runs, recording included) listens in this process and asks it for RAW_IMU at ``LIVE_IMU_HZ``
+and ATTITUDE at 50 Hz. Measured:
+
+- packets dropped: sent by the child minus received here (and, separately, the losses the
+  session counts from sequence numbers);
+- packet-to-estimate latency per IMU sample: from the moment the child handed the packet to
+  the socket to the moment every estimator had produced its attitude for that sample. Both
+  are ``time.monotonic()`` (CLOCK_MONOTONIC, one clock for all processes of the machine), so
+  the difference includes the network stack, the wait in the socket buffer, decoding and
+  estimation. Only samples sent after the requested rates took effect count.
+
+Targets: no packet dropped, 99th percentile latency at most ``TARGET_P99_MS``.
+"""
+from __future__ import annotations
+
+import io
+import json
+import multiprocessing
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+LIVE_IMU_HZ = 1000.0
+LIVE_ATT_HZ = 50.0
+TARGET_P99_MS = 10.0
+TARGET_DROPPED = 0
+SETTLE_S = 3.0  # s of the stream before the measured span: the rate requests take effect
+
+
+def _sender(port: int, seconds: float, out_dir: str) -> None:
+    """The child process: simulate, stream, write what was sent when."""
+    from .live.link import open_link
+    from .sim import simulate
+    from .sim.autopilot import SimAutopilot
+
+    sim = simulate("figure8", seconds + SETTLE_S, seed=0, imu_rate=LIVE_IMU_HZ)
+    conn = open_link(f"udpout:127.0.0.1:{port}")
+    autopilot = SimAutopilot(sim, conn, record_imu_times=True)
+    stats = autopilot.serve(speed=1.0)
+    conn.close()
+    np.save(Path(out_dir) / "imu_sent_at.npy", np.array(stats.imu_sent_at, dtype=float).reshape(-1, 2))
+    (Path(out_dir) / "sent.json").write_text(json.dumps({"sent": stats.sent, "requests": stats.requests}))
+
+
+def run_live_bench(names: list[str], seconds: float = 60.0, say=print) -> dict:
+    """Stream ``seconds`` of 1 kHz IMU to a live session running ``names``; the figures as a dict."""
+    from .estimators import warm_up
+    from .live import LiveOptions, run_live
+    from .live.display import StatusLine
+
+    warm_up(names)
+    with tempfile.TemporaryDirectory() as tmp:
+        port = _free_port()
+        child = multiprocessing.get_context("spawn").Process(target=_sender, args=(port, seconds, tmp),
+                                                              daemon=True)
+        started = []
+
+        def on_line(line: str) -> None:  # the first line comes once the port is bound
+            if not started:
+                child.start()
+                started.append(time.monotonic())
+
+        def child_done() -> bool:
+            return bool(started) and child.exitcode is not None
+
+        say(f"live: streaming {seconds:g} s of RAW_IMU at {LIVE_IMU_HZ:g} Hz and ATTITUDE at "
+            f"{LIVE_ATT_HZ:g} Hz over loopback UDP to a live session ({', '.join(names)}) ...")
+        quiet = StatusLine(io.StringIO())
+        result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ,
+                                      record=str(Path(tmp) / "bench.tlog"), record_latency=True,
+                                      duration=seconds + SETTLE_S + 60.0),
+                          stop=child_done, status=quiet, say=on_line)
+        child.join(10)
+        if child.exitcode != 0:
+            raise RuntimeError(f"the simulated autopilot failed (exit {child.exitcode})")
+        sent_at = np.load(Path(tmp) / "imu_sent_at.npy")
+        sent = json.loads((Path(tmp) / "sent.json").read_text())
+    return _figures(names, seconds, result, sent_at, sent)
+
+
+def _figures(names, seconds, result, sent_at: np.ndarray, sent: dict) -> dict:
+    est = result.estimation
+    done = {int(round(t * 1e6)): (arrival, estimated) for t, arrival, estimated in est.latency}
+    usec = sent_at[:, 0].astype(np.int64)
+    # the measured span: after the rates took effect (the IMU at full rate)
+    fast = np.flatnonzero(np.diff(usec) <= 1.5e6 / LIVE_IMU_HZ)
+    first = usec[fast[0]] + SETTLE_S * 1e6 if len(fast) else usec[-1] + 1
+    measured = usec >= first
+    latency, in_process = [], []
+    missing = 0
+    for u, t_send in zip(usec[measured].tolist(), sent_at[measured, 1].tolist()):
+        got = done.get(u)
+        if got is None:
+            missing += 1
+            continue
+        latency.append(got[1] - t_send)
+        in_process.append(got[1] - got[0])
+    latency_ms = np.array(latency) * 1e3
+    total_sent = int(sum(sent["sent"].values()))
+    dropped = total_sent - result.monitor.packets
+    p99 = float(np.percentile(latency_ms, 99)) if len(latency_ms) else float("nan")
+    return {
+        "imu_rate_hz": LIVE_IMU_HZ, "attitude_rate_hz": LIVE_ATT_HZ, "seconds": seconds,
+        "estimators": names,
+        "packets_sent": total_sent, "packets_received": result.monitor.packets,
+        "packets_dropped": dropped, "lost_by_sequence": result.monitor.lost,
+        "imu_samples_measured": int(np.count_nonzero(measured)), "imu_samples_not_estimated": missing,
+        "requests": sent["requests"],
+        "latency_ms": _stats(latency_ms),
+        "in_process_ms": _stats(np.array(in_process) * 1e3),
+        "targets": {"packets_dropped": TARGET_DROPPED, "p99_latency_ms": TARGET_P99_MS},
+        "target_met": dropped <= TARGET_DROPPED and missing == 0 and p99 <= TARGET_P99_MS,
+    }
+
+
+def _stats(ms: np.ndarray) -> dict:
+    if not len(ms):
+        return {"p50": None, "p99": None, "max": None}
+    return {"p50": float(np.percentile(ms, 50)), "p99": float(np.percentile(ms, 99)), "max": float(ms.max())}
+
+
+def format_live(figures: dict) -> str:
+    lat, inproc = figures["latency_ms"], figures["in_process_ms"]
+    met = "yes" if figures["target_met"] else "NO"
+    lines = [
+        f"live: {figures['seconds']:g} s of RAW_IMU at {figures['imu_rate_hz']:g} Hz + ATTITUDE at "
+        f"{figures['attitude_rate_hz']:g} Hz over loopback UDP; estimators {', '.join(figures['estimators'])}",
+        f"  packets sent {figures['packets_sent']:,}, received {figures['packets_received']:,}, "
+        f"dropped {figures['packets_dropped']:,} (lost by sequence number {figures['lost_by_sequence']:,})",
+        f"  packet-to-estimate latency over {figures['imu_samples_measured']:,} IMU samples: "
+        f"p50 {_ms(lat['p50'])}, p99 {_ms(lat['p99'])}, max {_ms(lat['max'])} "
+        f"(of which in this process: p50 {_ms(inproc['p50'])}, p99 {_ms(inproc['p99'])})",
+        f"  targets: 0 dropped, p99 ≤ {TARGET_P99_MS:g} ms: {met}"
+        + (f" ({figures['imu_samples_not_estimated']} samples never estimated)"
+           if figures["imu_samples_not_estimated"] else ""),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _ms(x) -> str:
+    return "–" if x is None else f"{x:.2f} ms"
+
+
+def _free_port() -> int:
+    import socket
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
