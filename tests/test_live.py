@@ -204,9 +204,11 @@ def test_a_vehicle_reboot_starts_a_new_clock_segment(tmp_path, flight):
     assert recorded_packets(tmp_path / "live.tlog") == tap.sent
 
 
-def test_sigint_mid_stream_ends_cleanly_with_a_complete_recording(tmp_path, flight):
-    """``mavattitude live`` in its own process, interrupted while packets flow: exit 0, final
-    metrics printed, and the .tlog holds every packet it received, in order, up to the last."""
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_mid_stream_ends_cleanly_with_a_complete_recording(tmp_path, flight, signum):
+    """``mavattitude live`` in its own process, interrupted (Ctrl-C, or a service manager's
+    SIGTERM) while packets flow: exit 0, final metrics printed, and the .tlog holds every
+    packet it received, in order, up to the last."""
     port = free_udp_port()
     record = tmp_path / "sigint.tlog"
     proc = subprocess.Popen([sys.executable, "-m", "mavattitude", "live", f"udpin:127.0.0.1:{port}",
@@ -223,7 +225,7 @@ def test_sigint_mid_stream_ends_cleanly_with_a_complete_recording(tmp_path, flig
             def stop():
                 if len(tap.sent) > 1500 and not sent_at_signal:
                     sent_at_signal["n"] = len(tap.sent)
-                    proc.send_signal(signal.SIGINT)
+                    proc.send_signal(signum)
                 return proc.poll() is not None
             ap.serve(speed=4.0, stop=stop)
         thread, tap, holder = sender(port, plan, flight)
