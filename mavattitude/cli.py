@@ -288,15 +288,16 @@ def cmd_live(args) -> int:
                    source=args.params or "--params")
     chosen = [x for x in ("rrd", "spawn", "connect", "web") if getattr(args, x)]
     sink = {chosen[0]: getattr(args, chosen[0])} if chosen else None
+    if args.record and args.no_record:
+        raise UsageError("choose --record FILE or --no-record, not both")
+    if args.record and Path(args.record).exists():
+        raise UsageError(f"{args.record} exists: a recording never overwrites a file; choose another name")
     record = None if args.no_record else (args.record or default_record_path())
     pending = needs_compile(names)
     if pending:
         print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
               file=sys.stderr, flush=True)
     warm_up(names, params)
-    if sink is None:
-        print("no Rerun viewer: add --spawn, --connect URL or --web to watch, or --rrd FILE to keep a "
-              "recording", file=sys.stderr)
     result = run_live(LiveOptions(
         url=args.url, baud=args.baud, sysid=args.sysid, names=names, params=params,
         imu_rate=args.imu_rate, request=not args.no_request, imu_source=args.imu, window=args.window,

@@ -7,9 +7,18 @@ the ground/air phase, GPS and baro aiding. Knows nothing of sockets; the session
 
 On the autopilot's clock, per clock segment (a reboot starts a new one):
 - samples of a series not newer than its last one (repeats, reordering) are dropped, as
-  corrupt ones are (readers' plausibility limits);
-- the estimators start once ``ALIGN_S`` of IMU data is in: the alignment (initial attitude,
-  gyro bias over a still period) sees that much, then the estimators catch up over it;
+  corrupt ones are (readers' plausibility limits), and so is a GPS or baro sample older than
+  the clock by more than ``REBOOT_JUMP_S`` (a GPS that lost its fix repeats the time of its
+  last one);
+- the clock is the IMU's and the attitude's: a reboot is the clock going back by more than
+  ``REBOOT_JUMP_S`` on two samples in a row (one such sample is a corrupt record, dropped),
+  and one sample ``FORWARD_JUMP_S`` ahead of the clock counts only once the next confirms it;
+- a compass whose unit is off by a power of 1000 (ArduPilot 4.7's HIGHRES_IMU) is rescaled,
+  judged on its first ``MAG_SCALE_SAMPLES``, as the reader does;
+- the estimators start once ``ALIGN_S`` of IMU data is in (and, when a compass is there and
+  the session asked for COMPASS_DEC, once it has arrived, or ``DECLINATION_WAIT_S`` more have
+  passed): the alignment (initial attitude, gyro bias over a still period) sees that much,
+  then the estimators catch up over it;
 - an IMU gap longer than ``pipeline.REINIT_GAP_S`` re-initialises them, as in replay, and so
   does a reboot (the clock going back more than ``REBOOT_JUMP_S``): events say so.
 
@@ -35,12 +44,15 @@ from ..growing import Growing
 from ..metrics import AXES, Comparison, compare
 from ..phase import PhaseTracker, pressure_height
 from ..pipeline import LOW_IMU_RATE_HZ, REINIT_GAP_S, Event, mag_on_imu_clock
-from ..readers import IMU_LIMITS, MAG_LIMITS, pick_imu, pick_mag
-from ..readers.collect import REBOOT_JUMP_S
+from ..readers import IMU_LIMITS, MAG_LIMITS, earth_field_power, pick_imu, pick_mag
+from ..readers.collect import FORWARD_JUMP_S, REBOOT_JUMP_S
 from ..readers.tlog import MessageDecoder
 
 ALIGN_S = 3.0  # s of IMU data before the estimators start
 ALIGN_MIN_SAMPLES = 10
+DECLINATION_WAIT_S = 2.0  # s more of IMU data to wait for a COMPASS_DEC that was asked for
+MAG_SCALE_SAMPLES = 5  # compass samples that decide its unit
+CLOCK_KINDS = ("imu", "att_euler", "att_quat", "truth_euler")  # the messages that carry the clock
 REFERENCE_KINDS = {"att_euler": "autopilot", "att_quat": "autopilot_q", "truth_euler": "truth"}
 
 
@@ -59,6 +71,8 @@ class _Segment:
     def __init__(self, index: int):
         self.index = index
         self.clock_max = -math.inf
+        self.mag_scale: dict[str, float] = {}  # source -> factor its samples are multiplied by
+        self.mag_pending: dict[str, list] = {}  # source -> first samples, until the unit is judged
         self.imu: dict[str, Growing] = {}  # source -> rows t, gyro (3), accel (3), arrival (monotonic s)
         self.mag: dict[str, Growing] = {}  # source -> rows t, field (3) T
         self.gps = Growing(10)  # t, lat, lon, alt, vn, ve, vd, fix, sats, h_acc
@@ -89,7 +103,7 @@ class LiveEstimation:
 
     def __init__(self, names: list[str], params: dict | None = None, declination_deg: float | None = None,
                  use_mag: bool = True, imu_source: str | None = None, reference: str = "autopilot",
-                 warmup_s: float = 10.0, record_latency: bool = False):
+                 warmup_s: float = 10.0, record_latency: bool = False, expect_declination: bool = False):
         self.names = list(names)
         self.params = params or {}
         self.declination_deg = declination_deg
@@ -107,7 +121,11 @@ class LiveEstimation:
         self.samples = 0  # IMU samples estimated
         self.record_latency = record_latency
         self.latency: list[tuple[float, float, float]] = []  # (t autopilot s, arrival, estimated) monotonic s
+        self.expect_declination = expect_declination  # COMPASS_DEC was asked for: wait a little for it
         self._now = 0.0
+        self._back: tuple[float, tuple] | None = None  # a clock sample far behind, until confirmed
+        self._ahead: tuple | None = None  # a clock sample far ahead, until confirmed
+        self._warned_imu = False
 
     # ------------------------------------------------------------ input
 
@@ -121,22 +139,58 @@ class LiveEstimation:
         self.decoder.decode(msg, self._add)
 
     def _add(self, kind: str, key: str, t: float, row: tuple) -> None:
+        if not math.isfinite(t):
+            return
         seg = self.seg
-        if t < seg.clock_max - REBOOT_JUMP_S:
+        if kind not in CLOCK_KINDS:
+            if t < seg.clock_max - REBOOT_JUMP_S:  # stale (a GPS without a fix repeats its last time)
+                self.dropped += 1
+                return
+        elif t < seg.clock_max - REBOOT_JUMP_S:
+            back, self._back = self._back, (t, (kind, key, t, row))
+            if back is None or abs(t - back[0]) > REBOOT_JUMP_S:
+                return  # one sample far back: a corrupt record, unless the next agrees
+            self._back = None
             self._event(t, "warn", f"the autopilot clock went back from {seg.clock_max:.1f} s to {t:.1f} s "
                                    "(a reboot): estimators re-initialised")
             self.segments.append(_Segment(len(self.segments)))
             seg = self.seg
-        seg.clock_max = max(seg.clock_max, t)
+            seg.clock_max = back[0]
+            self._add(*back[1])
+        elif math.isfinite(seg.clock_max) and t > seg.clock_max + FORWARD_JUMP_S:
+            ahead, self._ahead = self._ahead, (kind, key, t, row)
+            if ahead is None or abs(t - ahead[2]) > FORWARD_JUMP_S:
+                return  # one sample far ahead: held until the next says whether the clock jumped
+            self._ahead = None
+            seg.clock_max = ahead[2]
+            self._add(*ahead)
+        else:
+            self._back = self._ahead = None
+        if kind in CLOCK_KINDS:
+            seg.clock_max = max(seg.clock_max, t)
         if kind == "imu":
             if not any(row) or not _within(row, IMU_LIMITS):
                 self.dropped += 1
                 return
             self._append(seg.imu, key, 8, t, (*row, self._now))
         elif kind == "mag":
-            if not any(row) or not _within(row, MAG_LIMITS):
+            if not any(row) or not all(math.isfinite(v) for v in row):
                 return
-            self._append(seg.mag, key, 4, t, row)
+            scale = seg.mag_scale.get(key)
+            if scale is None:  # judge the unit on the first few samples, then let them in
+                pending = seg.mag_pending.setdefault(key, [])
+                pending.append((t, row))
+                if len(pending) < MAG_SCALE_SAMPLES:
+                    return
+                power, strength = earth_field_power(np.array([r for _, r in pending]))
+                scale = seg.mag_scale[key] = 10.0 ** (-3 * power)
+                if power:
+                    self._event(t, "info", f"{key}: magnetometer strength {strength * 1e4:.4g} G is implausible; "
+                                           f"rescaled by 1e{-3 * power}")
+                del seg.mag_pending[key]
+                for tp, rp in pending[:-1]:
+                    self._add_mag(seg, key, tp, rp, scale)
+            self._add_mag(seg, key, t, row, scale)
         elif kind == "gps":
             self._append_one(seg.gps, t, row)
         elif kind == "baro":
@@ -152,6 +206,11 @@ class LiveEstimation:
                     return
                 q = q / np.linalg.norm(q)
             self._append(seg.att, REFERENCE_KINDS[kind], 5, t, tuple(np.ravel(q)))
+
+    def _add_mag(self, seg: _Segment, key: str, t: float, row: tuple, scale: float) -> None:
+        row = tuple(v * scale for v in row)
+        if _within(row, MAG_LIMITS):
+            self._append(seg.mag, key, 4, t, row)
 
     def _append(self, stores: dict, key: str, width: int, t: float, row) -> None:
         store = stores.get(key)
@@ -202,14 +261,22 @@ class LiveEstimation:
     def _choose_sources(self, seg: _Segment) -> bool:
         if not seg.imu:
             return False
+        first = min(s.column(0)[0] for s in seg.imu.values())
+        span = max(s.column(0)[-1] for s in seg.imu.values()) - first
+        if span < ALIGN_S:
+            return False  # let every source (and the compass, and COMPASS_DEC) show up first
+        if (self.expect_declination and self.declination_deg is None and seg.mag and self.use_mag
+                and "COMPASS_DEC" not in self.decoder.params and span < ALIGN_S + DECLINATION_WAIT_S):
+            return False
         if self.imu_choice is not None:
             if self.imu_choice not in seg.imu:
+                if not self._warned_imu:
+                    self._warned_imu = True
+                    self._event(first + span, "warn", f"no {self.imu_choice} samples arrive; the link carries "
+                                                      f"{', '.join(sorted(seg.imu))} (--imu)")
                 return False
             key = self.imu_choice
         else:
-            first = min(s.column(0)[0] for s in seg.imu.values())
-            if max(s.column(0)[-1] for s in seg.imu.values()) - first < ALIGN_S:
-                return False  # let every source show up before choosing
             key = pick_imu({k: s.n for k, s in seg.imu.items()})
         seg.imu_key = key
         seg.mag_key = pick_mag(list(seg.mag), key) if self.use_mag else None

@@ -51,24 +51,95 @@ def open_link(url: str, baud: int = 115200):
     refused TCP connection; UsageError for a string pymavlink does not understand."""
     _check_udp_port_free(url)
     try:
+        # one connection attempt (retries=0): pymavlink's own retries sleep and print;
+        # reconnecting a TCP link is the session's job (``TcpReconnect``)
         conn = mavutil.mavlink_connection(url, baud=baud, source_system=GCS_SYSID,
                                           source_component=GCS_COMPID, robust_parsing=True,
-                                          autoreconnect=True)
+                                          autoreconnect=False, retries=0)
     except OSError as exc:
         if exc.errno == errno.EADDRINUSE:
             raise InputError(url, "port already in use (another program is listening there)") from None
         if exc.errno in (errno.ENOENT, errno.ENODEV, errno.ENXIO):
-            raise InputError(url, "no such serial device") from None
+            raise InputError(url, "no such serial device (nor a MAVLink connection string: "
+                                  "udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT)") from None
         if exc.errno == errno.ECONNREFUSED:
             raise InputError(url, "connection refused (nothing listening there)") from None
         raise InputError(url, exc.strerror or str(exc)) from None
     except ValueError as exc:
         raise UsageError(f"{url}: not a MAVLink connection string ({exc}); e.g. udpin:0.0.0.0:14550, "
                          "udpout:192.168.1.10:14550, tcp:127.0.0.1:5760, /dev/ttyUSB0") from None
+    except ModuleNotFoundError as exc:
+        raise InputError(url, f"not a network address, and serial links need the {exc.name} module "
+                              "(pip install pyserial)") from None
     except Exception as exc:  # pyserial's SerialException and the like
-        raise InputError(url, str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "No such file" in text or "could not open port" in text:
+            text = "no such serial device (or not a MAVLink connection string: udpin:HOST:PORT, tcp:HOST:PORT)"
+        raise InputError(url, text) from None
     _enlarge_receive_buffer(conn)
+    if isinstance(conn, mavutil.mavtcp):
+        TcpReconnect.attach(conn)
     return conn
+
+
+class TcpReconnect:
+    """A TCP link whose peer went away (SITL restarted, a bridge closed): pymavlink would block
+    for seconds retrying and print about it. Instead the link goes quiet (``gone``) and
+    ``tick`` tries one quick connect a second; the session reports "link lost" meanwhile."""
+
+    def __init__(self, conn):
+        self.conn = conn
+        self.gone = False
+        self.tried_at = 0.0
+
+    @classmethod
+    def attach(cls, conn) -> None:
+        keeper = cls(conn)
+        conn.reconnector = keeper
+        conn.handle_eof = keeper.lost
+        conn.handle_disconnect = keeper.lost
+        recv = conn.recv
+
+        def quiet_recv(n=None):
+            if keeper.gone or conn.port is None:
+                return b""
+            return recv(n)
+        conn.recv = quiet_recv
+
+    def lost(self) -> None:
+        self.gone = True
+        if self.conn.port is not None:
+            self.conn.port.close()
+            self.conn.port = None
+
+    def tick(self, now: float) -> bool:
+        """Try to reconnect (once a second); True when the link just came back."""
+        if not self.gone or now - self.tried_at < 1.0:
+            return False
+        self.tried_at = now
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.settimeout(0.2)
+        try:
+            sock.connect(self.conn.destination_addr)
+        except OSError:
+            sock.close()
+            return False
+        sock.setblocking(False)
+        sock.setsockopt(socket.SOL_TCP, socket.TCP_NODELAY, 1)
+        self.conn.port = sock
+        self.conn.fd = sock.fileno()
+        self.gone = False
+        return True
+
+
+def close_link(conn) -> None:
+    """Close a link whatever state it is in."""
+    port = getattr(conn, "port", None)
+    try:
+        if port is not None or not hasattr(conn, "port"):
+            conn.close()
+    except (OSError, AttributeError):
+        pass
 
 
 def _enlarge_receive_buffer(conn) -> None:
@@ -112,15 +183,24 @@ def _check_udp_port_free(url: str) -> None:
 
 @dataclass
 class LinkMonitor:
-    """Counts of what arrived, and whether the link is alive. Times are wall-clock monotonic s."""
+    """What arrived and whether the link is alive. Times are wall-clock monotonic s.
+
+    ``count`` takes every packet: totals, corrupt data, and losses by sequence number per
+    sender (a gap of 1-127 is that many lost; a jump back is a repeated or reordered packet,
+    not 129+ losses, unless the next packet confirms a new sequence: a sender that
+    restarted; a sender heard again after ``timeout_s`` of silence starts a new count).
+    ``heard`` takes the vehicle's packets only: arrival rates and the link-lost watch are
+    about the vehicle, not about whatever else shares the link (a second vehicle, a radio's
+    RADIO_STATUS, another ground station)."""
     timeout_s: float = 5.0
-    packets: int = 0  # valid MAVLink packets
+    packets: int = 0  # valid MAVLink packets, every sender
     bad: int = 0  # corrupt data: garbage bytes, bad CRC, unknown messages (pymavlink's BAD_DATA)
     lost: int = 0  # packets missing by sequence number
-    first_at: float | None = None
+    first_at: float | None = None  # the vehicle's first and last packet
     last_at: float | None = None
     lost_since: float | None = None  # when the link was declared lost (None: alive)
-    _seq: dict = field(default_factory=dict)  # (sysid, compid) -> last sequence number
+    _seq: dict = field(default_factory=dict)  # (sysid, compid) -> (last sequence number, time)
+    _jump: dict = field(default_factory=dict)  # (sysid, compid) -> sequence number of a jump back
     _gaps: deque = field(default_factory=deque)  # (time, packets missing) of the last second
     _arrivals: dict = field(default_factory=dict)  # message name -> deque of arrival times
 
@@ -129,39 +209,51 @@ class LinkMonitor:
             self.bad += 1
             return
         self.packets += 1
-        if self.first_at is None:
-            self.first_at = now
-        self.last_at = now
         key = (msg.get_srcSystem(), msg.get_srcComponent())
         seq = msg.get_seq()
         last = self._seq.get(key)
-        if last is not None:
-            # packets missing since the last one (modulo 256: a burst of 300 counts as 44;
-            # the session forgets the count after a silence or a reboot, where the sender may
-            # have restarted its sequence)
-            gap = (seq - last - 1) & 0xFF
-            if gap:
-                self.lost += gap
-                self._gaps.append((now, gap))
-                while self._gaps and self._gaps[0][0] < now - 1.0:
-                    self._gaps.popleft()
-        self._seq[key] = seq
+        if last is None or now - last[1] > self.timeout_s:
+            self._seq[key] = (seq, now)
+            return
+        gap = (seq - last[0] - 1) & 0xFF
+        if gap >= 128:  # a jump back: repeated or reordered, or a new sequence if confirmed
+            confirmed = self._jump.get(key) == (seq - 1) & 0xFF
+            self._jump[key] = seq
+            if confirmed:
+                self._seq[key] = (seq, now)
+            return
+        self._jump.pop(key, None)
+        if gap:
+            self.lost += gap
+            self._gaps.append((now, gap))
+            while self._gaps and self._gaps[0][0] < now - 1.0:
+                self._gaps.popleft()
+        self._seq[key] = (seq, now)
+
+    def heard(self, msg, now: float) -> None:
+        """A packet from the vehicle."""
+        if self.first_at is None:
+            self.first_at = now
+        self.last_at = now
         arrivals = self._arrivals.get(msg.get_type())
         if arrivals is None:
             arrivals = self._arrivals[msg.get_type()] = deque()
         arrivals.append(now)
+        while arrivals[0] < now - RATE_WINDOW_S:
+            arrivals.popleft()
 
     def forget_sequences(self, since: float | None = None) -> None:
-        """After a silence or a reboot: the next sequence number starts a new count. ``since``
-        (monotonic s): the gaps counted from then on were the sender restarting its sequence,
-        not losses (a reboot is noticed a packet or two after it happened)."""
+        """After a reboot: the next sequence number starts a new count. ``since`` (monotonic
+        s): the gaps counted from then on were the sender restarting its sequence, not losses
+        (a reboot is noticed a packet or two after it happened)."""
         self._seq.clear()
+        self._jump.clear()
         if since is not None:
             self.lost -= sum(gap for t, gap in self._gaps if t >= since)
             self._gaps.clear()
 
     def rate(self, name: str, now: float) -> float:
-        """Arrivals per second of message ``name`` over the last RATE_WINDOW_S."""
+        """The vehicle's arrivals per second of message ``name`` over the last RATE_WINDOW_S."""
         arrivals = self._arrivals.get(name)
         if not arrivals:
             return 0.0
@@ -174,8 +266,8 @@ class LinkMonitor:
         return {name: self.rate(name, now) for name in list(self._arrivals)}
 
     def check_lost(self, now: float) -> str | None:
-        """'lost' when the link just went silent for timeout_s, 'back' when packets just
-        returned after that, else None."""
+        """'lost' when the vehicle just went silent for timeout_s, 'back' when its packets
+        just returned after that, else None."""
         if self.last_at is None:
             return None
         if self.lost_since is None and now - self.last_at > self.timeout_s:
@@ -291,7 +383,8 @@ def request_identity(conn, target: tuple[int, int]) -> None:
 def wait_readable(conn, timeout: float) -> None:
     """Sleep until the link has data or ``timeout`` s pass (select on its descriptor)."""
     fd = getattr(conn, "fd", None)
-    if fd is None:
+    keeper = getattr(conn, "reconnector", None)
+    if fd is None or (keeper is not None and keeper.gone):
         time.sleep(timeout)
         return
     import select

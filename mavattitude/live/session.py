@@ -3,13 +3,14 @@
 One loop on one thread: drain the link (every packet is recorded, counted, and, when it comes
 from the vehicle, decoded), step the estimators over what arrived, and a few times a second
 flush the recording, stream to Rerun, tick the rate requests, watch for a lost link; once a
-second redraw the status line. The loop ends on Ctrl-C or SIGTERM (handled: the loop
+second redraw the status line. The loop ends on Ctrl-C, SIGTERM or SIGHUP (handled: the loop
 finishes its turn, so the recording is complete up to the last packet), after ``duration``
 seconds, or when ``stop()`` says so; then the final metrics are printed.
 """
 from __future__ import annotations
 
 import math
+import os
 import signal
 import threading
 import time
@@ -20,19 +21,32 @@ from ..errors import InputError
 from ..pipeline import LOW_IMU_RATE_HZ, Event
 from .estimation import LiveEstimation
 from ..readers import identify_vehicle
-from .link import (LinkMonitor, RateRequester, _enum, mavlink2, open_link, request_identity,
-                   wait_readable)
+from .link import (LinkMonitor, RateRequester, _enum, close_link, mavlink2, open_link,
+                   request_identity, wait_readable)
 from .recorder import TlogRecorder
 
 TICK_S = 0.2  # s of wall time between the periodic jobs
 RATES_REPORT_AFTER_S = 4.0  # s after the requests: report the rates that actually arrive
 WAIT_NOTE_EVERY_S = 10.0
 MAX_BATCH = 500  # packets decoded before the estimators step, at most
+DRAIN_S = 2.0  # s at most spent, after a stop, on the packets still in the socket
+GCS_HEARTBEAT_S = 1.0  # a ground station says it is there once a second
+# Heartbeats from these are not the vehicle, whatever autopilot field they carry.
+NOT_VEHICLES = {getattr(mavlink2, f"MAV_TYPE_{n}") for n in (
+    "GCS", "ANTENNA_TRACKER", "ONBOARD_CONTROLLER", "GIMBAL", "ADSB", "CAMERA", "CHARGING_STATION",
+    "FLARM", "SERVO", "ODID", "BATTERY", "PARACHUTE", "LOG", "OSD", "IMU", "GPS", "WINCH")
+    if hasattr(mavlink2, f"MAV_TYPE_{n}")}
 IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
 
 
 def default_record_path() -> str:
-    return f"live-{datetime.now(timezone.utc).strftime('%Y%m%d-%H%M%S')}.tlog"
+    """live-<UTC time>.tlog in the current folder (-2, -3, ... if that exists)."""
+    stem = f"live-{datetime.now(timezone.utc).strftime('%Y%m%d-%H%M%S')}"
+    path, n = f"{stem}.tlog", 1
+    while os.path.exists(path):
+        n += 1
+        path = f"{stem}-{n}.tlog"
+    return path
 
 
 @dataclass
@@ -87,12 +101,14 @@ def run_live(opts: LiveOptions, stop=lambda: False, status=None, say=None) -> Li
     signalled = []
     previous = {}
     if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             previous[sig] = signal.signal(sig, lambda signum, frame: signalled.append(signum))
     ended_by = "stop"
     try:
         session.say(f"listening on {opts.url}" + (f", recording to {opts.record}" if opts.record else "")
                     + "; waiting for a vehicle's HEARTBEAT (Ctrl-C to stop)")
+        if not opts.sink:
+            session.say("no Rerun viewer: add --spawn, --connect URL or --web to watch, or --rrd FILE")
         while True:
             if signalled:
                 ended_by = "signal"
@@ -106,8 +122,9 @@ def run_live(opts: LiveOptions, stop=lambda: False, status=None, say=None) -> Li
             session.periodic(time.monotonic())
             if got == 0:
                 wait_readable(session.conn, 0.005)
-        while session.receive(MAX_BATCH) == MAX_BATCH:  # what is still in the socket: record it too
-            pass
+        drain_until = time.monotonic() + DRAIN_S
+        while session.receive(MAX_BATCH) == MAX_BATCH and time.monotonic() < drain_until:
+            pass  # what is still in the socket: record it too
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -126,7 +143,8 @@ class _Session:
         self.recorder = TlogRecorder(opts.record) if opts.record else None
         self.monitor = LinkMonitor(timeout_s=opts.timeout)
         self.est = LiveEstimation(opts.names, opts.params, opts.declination, opts.use_mag, opts.imu_source,
-                                  opts.reference, opts.warmup, record_latency=opts.record_latency)
+                                  opts.reference, opts.warmup, record_latency=opts.record_latency,
+                                  expect_declination=opts.request)
         self.rec = self.live_view = None
         if opts.sink:
             from .. import view
@@ -134,6 +152,9 @@ class _Session:
             self.rec = view.open_sink("mavattitude", f"live {opts.url}", **opts.sink)
             self.live_view = LiveView(self.rec, self.est, opts.window, to_file="rrd" in opts.sink)
         self.start = time.monotonic()
+        # a listen-only session stays silent, but an outgoing UDP link must speak to be heard
+        self.talk = opts.request or opts.url.startswith("udpout:")
+        self.heartbeat_at = -math.inf
         self.vehicle: tuple[int, int] | None = None
         self.firmware: str | None = None
         self.requester: RateRequester | None = None
@@ -153,7 +174,7 @@ class _Session:
             try:
                 msg = self.conn.recv_msg()
             except (ConnectionError, OSError):
-                msg = None  # a TCP peer went away: pymavlink reconnects; keep listening
+                msg = None  # a TCP peer went away: TcpReconnect takes over; keep listening
             if msg is None:
                 break
             got += 1
@@ -164,25 +185,28 @@ class _Session:
                 continue
             if self.recorder is not None:
                 self.recorder.write(msg.get_msgbuf())
-            src = msg.get_srcSystem()
+            src = (msg.get_srcSystem(), msg.get_srcComponent())
             if self.vehicle is None:
                 if not (name == "HEARTBEAT" and msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID
-                        and (opts.sysid is None or src == opts.sysid)):
+                        and msg.type not in NOT_VEHICLES and (opts.sysid is None or src[0] == opts.sysid)):
                     continue
                 self._found_vehicle(msg, now)
-            if src != self.vehicle[0]:
+            if src != self.vehicle:
                 continue
+            self.monitor.heard(msg, now)
             if self.requester is not None:
                 self.requester.on_message(msg, now)
             segments = len(est.segments)
             est.add(msg, now)
-            if len(est.segments) != segments:  # a reboot: its sequence numbers start again
+            if len(est.segments) != segments:  # a reboot: sequence numbers and stream rates start again
                 self.monitor.forget_sequences(since=now - 0.5)
+                self._ask(now)
             fresh = True
-            if self.firmware is None and name in ("STATUSTEXT", "AUTOPILOT_VERSION"):
-                self.firmware = identify_vehicle(est.decoder.texts)[1]
-                if self.firmware:
-                    self.say(f"firmware: {self.firmware}")
+            if name in ("STATUSTEXT", "AUTOPILOT_VERSION"):
+                firmware = identify_vehicle(est.decoder.texts)[1]
+                if firmware and firmware != self.firmware:
+                    self.firmware = firmware
+                    self.say(f"firmware: {firmware}")
         if fresh:
             chunk = est.step()
             if chunk is not None and self.live_view is not None:
@@ -194,11 +218,18 @@ class _Session:
         self.vehicle = (src, heartbeat.get_srcComponent())
         self.say(f"vehicle: system {src} component {self.vehicle[1]}, "
                  f"{_enum('MAV_TYPE', heartbeat.type)} on {_enum('MAV_AUTOPILOT', heartbeat.autopilot)}")
+        self._ask(now)
+
+    def _ask(self, now: float) -> None:
+        """Ask for the firmware, COMPASS_DEC and the stream rates (at the start, and again
+        after a reboot: rates set by SET_MESSAGE_INTERVAL do not survive one)."""
+        if not self.opts.request:
+            return
         request_identity(self.conn, self.vehicle)
-        if self.opts.request:
-            self.requester = RateRequester(self.conn, self.vehicle, _wanted_rates(self.opts))
-            self.requester.start(now)
-            self.requested_at = now
+        self.requester = RateRequester(self.conn, self.vehicle, _wanted_rates(self.opts))
+        self.requester.start(now)
+        self.requested_at = now
+        self.rates_reported = False
 
     def periodic(self, now: float) -> None:
         """The jobs of every TICK_S: flush, requests, link watch, messages, view, status."""
@@ -208,6 +239,16 @@ class _Session:
         opts, est, monitor = self.opts, self.est, self.monitor
         if self.recorder is not None:
             self.recorder.tick(now)
+        if self.talk and now - self.heartbeat_at >= GCS_HEARTBEAT_S:
+            self.heartbeat_at = now
+            try:
+                self.conn.mav.heartbeat_send(mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0,
+                                             mavlink2.MAV_STATE_ACTIVE)
+            except OSError:
+                pass  # nobody to send to yet (a UDP listener that has not heard anyone)
+        keeper = getattr(self.conn, "reconnector", None)
+        if keeper is not None and keeper.tick(now):
+            _session_event(est, "info", f"reconnected to {opts.url}")
         if self.requester is not None:
             self.requester.tick(now)
             while self.requester.notes:
@@ -253,7 +294,7 @@ class _Session:
         """Close the recording and the link (whatever happened)."""
         if self.recorder is not None:
             self.recorder.close()
-        self.conn.close()
+        close_link(self.conn)
         self.status.end()
 
     def finish(self, ended_by: str) -> LiveResult:

@@ -185,15 +185,21 @@ def _earth_field_scale(flight: Flight, key: str, field: np.ndarray) -> np.ndarra
     brings it back, and the note says so. Heading only needs the direction, but a field in
     the wrong unit must not leave the reader.
     """
-    strength = float(np.median(np.linalg.norm(field, axis=1)))
-    if strength <= 0:
-        return field
-    power = round(np.log10(strength / 50e-6) / 3)
+    power, strength = earth_field_power(field)
     if power == 0:
         return field
     flight.notes.append(f"{key}: magnetometer strength {strength * 1e4:.4g} G is implausible; "
                         f"rescaled by 1e{-3 * power} to {strength * 1e4 * 10.0 ** (-3 * power):.3g} G")
     return field * 10.0 ** (-3 * power)
+
+
+def earth_field_power(field: np.ndarray) -> tuple[int, float]:
+    """(k, median strength in tesla): the field reads 1000^k times what the Earth's can be
+    (``_earth_field_scale``); k = 0 for a plausible one."""
+    strength = float(np.median(np.linalg.norm(field, axis=1)))
+    if not strength > 0:
+        return 0, strength
+    return int(round(np.log10(strength / 50e-6) / 3)), strength
 
 
 def _attitude(col: Collector, prefix: str, segment: int, columns) -> AttitudeSeries | None:

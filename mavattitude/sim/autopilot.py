@@ -63,14 +63,16 @@ class SimAutopilot:
     """Sends ``sim`` over a pymavlink connection ``conn`` and answers its requests.
 
     ``rates`` overrides ``DEFAULT_RATES_HZ`` (0 = off). ``record_imu_times`` keeps the send time
-    of every RAW_IMU (for latency measurements). The MAVLink packer (and its sequence
+    of every RAW_IMU (for latency measurements). ``sysid``: its MAVLink system id. The MAVLink packer (and its sequence
     counter) lives as long as the object, so consecutive ``serve`` calls continue the stream.
     """
 
-    def __init__(self, sim, conn, rates: dict[str, float] | None = None, record_imu_times: bool = False):
+    def __init__(self, sim, conn, rates: dict[str, float] | None = None, record_imu_times: bool = False,
+                 sysid: int = SYSID):
         self.sim = sim
         self.conn = conn
-        self.mav = mavlink2.MAVLink(None, srcSystem=SYSID, srcComponent=COMPID)
+        self.sysid = sysid
+        self.mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=COMPID)
         self.defaults = {**DEFAULT_RATES_HZ, **(rates or {})}
         self.interval = {name: (1.0 / hz if hz > 0 else None) for name, hz in self.defaults.items()}
         self.record_imu_times = record_imu_times
@@ -129,7 +131,7 @@ class SimAutopilot:
             if msg is None:
                 return
             name = msg.get_type()
-            if name == "BAD_DATA" or getattr(msg, "target_system", SYSID) not in (0, SYSID):
+            if name == "BAD_DATA" or getattr(msg, "target_system", self.sysid) not in (0, self.sysid):
                 continue
             if not self._greeted:
                 self._greeted = True
@@ -153,17 +155,18 @@ class SimAutopilot:
     def _command(self, msg) -> None:
         result = mavlink2.MAV_RESULT_ACCEPTED
         if msg.command == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL:
-            name = NAMES_BY_ID.get(int(msg.param1))
+            name = NAMES_BY_ID.get(_int(msg.param1))
             if name is None:
                 result = mavlink2.MAV_RESULT_UNSUPPORTED
             else:
-                us = msg.param2
+                us = msg.param2 if msg.param2 == msg.param2 else 0.0  # NaN: the default
                 default = self.defaults[name]
                 self.interval[name] = (None if us < 0 else (1.0 / default if default > 0 else None) if us == 0
                                        else us * 1e-6)
                 self._next_due[name] = -np.inf
                 self.stats.requests.append(f"SET_MESSAGE_INTERVAL {name} {us:g} us")
-        elif msg.command == mavlink2.MAV_CMD_REQUEST_MESSAGE and int(msg.param1) == mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+        elif (msg.command == mavlink2.MAV_CMD_REQUEST_MESSAGE
+              and _int(msg.param1) == mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION):
             self._send("AUTOPILOT_VERSION", self._autopilot_version())
         else:
             result = mavlink2.MAV_RESULT_UNSUPPORTED
@@ -227,3 +230,8 @@ class SimAutopilot:
                 self._send("SCALED_PRESSURE", self._baro(i))
         self.stats.seconds += time.monotonic() - start
         return self.stats
+
+
+def _int(x: float) -> int:
+    """A command's float parameter as the integer it carries (-1 for NaN or inf)."""
+    return int(x) if x == x and abs(x) < 2 ** 31 else -1
