@@ -293,7 +293,7 @@ def ncs_eskf_run(t, gyro, accel, in_air, q, P, bias_est, t_prev, gyro_prev, acce
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _consistency(q, P, cons, ax, ay, az, w0, w1, w2, dt, cos_tol, sin_tol, cons_norm, cons_rate,
                  cons_time, gate_sigma):
     """The consistency test (module docstring): update f̃ and g_a, count the seconds the
