@@ -122,6 +122,7 @@ from numba import njit
 
 from ..flight import GRAVITY
 from .base import MAX_STEP_S, Estimator, as_chunk
+from .mahony import mahony_step
 
 NX = 20
 IQ, IV, IS, IB, IA, IM, IMB = 0, 4, 7, 10, 13, 14, 17  # first index of each state block
@@ -721,48 +722,11 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
         diag[i, D_RESET] = 0.0
 
         # ------------------------------------------------ complementary filter (mahony)
-        c20 = 2 * (qc[1] * qc[3] - qc[0] * qc[2])
-        c21 = 2 * (qc[2] * qc[3] + qc[0] * qc[1])
-        c22 = 1 - 2 * (qc[1] * qc[1] + qc[2] * qc[2])
-        e0 = e1 = e2 = 0.0
-        a_norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-        if a_norm > 0.0:
-            u0, u1, u2 = a0 / a_norm, a1 / a_norm, a2 / a_norm
-            e0 += -u1 * c22 + u2 * c21
-            e1 += -u2 * c20 + u0 * c22
-            e2 += -u0 * c21 + u1 * c20
         m0 = mag[i, 0]
-        if use_mag and m0 == m0:
-            m1, m2 = mag[i, 1], mag[i, 2]
-            q0, q1, q2, q3 = qc[0], qc[1], qc[2], qc[3]
-            mn0 = ((1 - 2 * (q2 * q2 + q3 * q3)) * m0 + 2 * (q1 * q2 - q0 * q3) * m1
-                   + 2 * (q1 * q3 + q0 * q2) * m2)
-            mn1 = (2 * (q1 * q2 + q0 * q3) * m0 + (1 - 2 * (q1 * q1 + q3 * q3)) * m1
-                   + 2 * (q2 * q3 - q0 * q1) * m2)
-            if mn0 * mn0 + mn1 * mn1 > 0.0:
-                gamma = math.atan2(mn0 * north_y - mn1 * north_x, mn0 * north_x + mn1 * north_y)
-                e0 += gamma * c20
-                e1 += gamma * c21
-                e2 += gamma * c22
         step_ok = 0.0 < dt <= max_step
-        if step_ok:
-            bc[0] += ki * e0 * dt
-            bc[1] += ki * e1 * dt
-            bc[2] += ki * e2 * dt
-            rx, ry, rz = w0 + kp * e0 + bc[0], w1 + kp * e1 + bc[1], w2 + kp * e2 + bc[2]
-            ang = math.sqrt(rx * rx + ry * ry + rz * rz) * dt
-            if ang < 1e-12:
-                d0, d1, d2, d3 = 1.0, 0.5 * rx * dt, 0.5 * ry * dt, 0.5 * rz * dt
-            else:
-                sn = math.sin(0.5 * ang) / (ang / dt)
-                d0, d1, d2, d3 = math.cos(0.5 * ang), rx * sn, ry * sn, rz * sn
-            q0, q1, q2, q3 = qc[0], qc[1], qc[2], qc[3]
-            r0 = q0 * d0 - q1 * d1 - q2 * d2 - q3 * d3
-            r1 = q0 * d1 + q1 * d0 + q2 * d3 - q3 * d2
-            r2 = q0 * d2 - q1 * d3 + q2 * d0 + q3 * d1
-            r3 = q0 * d3 + q1 * d2 - q2 * d1 + q3 * d0
-            nrm = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3)
-            qc[0], qc[1], qc[2], qc[3] = r0 / nrm, r1 / nrm, r2 / nrm, r3 / nrm
+        qc[0], qc[1], qc[2], qc[3], bc[0], bc[1], bc[2] = mahony_step(
+            qc[0], qc[1], qc[2], qc[3], bc[0], bc[1], bc[2], w0, w1, w2, a0, a1, a2,
+            m0, mag[i, 1], mag[i, 2], use_mag, north_x, north_y, kp, ki, dt, step_ok)
 
         # ------------------------------------------------ EKF predict (eq 4-9)
         if step_ok:

@@ -46,6 +46,47 @@ class MahonyParams:
     use_mag: bool = True  # correct heading from the magnetometer when the log has one
 
 
+@njit(cache=True, inline="always")
+def mahony_step(q0, q1, q2, q3, bc0, bc1, bc2, r0, r1, r2, a0, a1, a2, m0, m1, m2, use_mag,
+                north_x, north_y, kp, ki, dt, step):
+    """One sample of the filter on scalars (steps 1-3 of the module docstring): attitude
+    (q0..q3), integral term (bc0..bc2), gyro rate r, accelerometer a, magnetometer m (NaN: none);
+    integrates only when ``step``. Returns the new (q0, q1, q2, q3, bc0, bc1, bc2). Shared with
+    cpf-ekf, whose watchdog runs this filter alongside."""
+    # third row of C(q): k = C(q)ᵀ [0, 0, -1] = -(c20, c21, c22)
+    c20 = 2 * (q1 * q3 - q0 * q2)
+    c21 = 2 * (q2 * q3 + q0 * q1)
+    c22 = 1 - 2 * (q1 * q1 + q2 * q2)
+    e0 = e1 = e2 = 0.0
+    a_norm = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    if a_norm > 0.0:
+        u0, u1, u2 = a0 / a_norm, a1 / a_norm, a2 / a_norm
+        k0, k1, k2 = -c20, -c21, -c22
+        e0 += u1 * k2 - u2 * k1  # (a / |a|) × k
+        e1 += u2 * k0 - u0 * k2
+        e2 += u0 * k1 - u1 * k0
+    if use_mag and m0 == m0:  # not NaN
+        # horizontal part of m_n = C(q) m
+        mn0 = ((1 - 2 * (q2 * q2 + q3 * q3)) * m0 + 2 * (q1 * q2 - q0 * q3) * m1
+               + 2 * (q1 * q3 + q0 * q2) * m2)
+        mn1 = (2 * (q1 * q2 + q0 * q3) * m0 + (1 - 2 * (q1 * q1 + q3 * q3)) * m1
+               + 2 * (q2 * q3 - q0 * q1) * m2)
+        h_norm = np.sqrt(mn0 * mn0 + mn1 * mn1)
+        if h_norm > 0.0:
+            # signed angle from h to magnetic north, about the navigation z axis
+            gamma = np.arctan2(mn0 * north_y - mn1 * north_x, mn0 * north_x + mn1 * north_y)
+            e0 += gamma * c20  # C(q)ᵀ [0, 0, γ]
+            e1 += gamma * c21
+            e2 += gamma * c22
+    if step:
+        bc0 += ki * e0 * dt
+        bc1 += ki * e1 * dt
+        bc2 += ki * e2 * dt
+        q0, q1, q2, q3 = integrate_gyro_scalar(q0, q1, q2, q3, r0 + kp * e0 + bc0,
+                                               r1 + kp * e1 + bc1, r2 + kp * e2 + bc2, dt)
+    return q0, q1, q2, q3, bc0, bc1, bc2
+
+
 @njit(cache=True)
 def mahony_run(t, gyro, accel, mag, q, bias_correction, t_prev, gyro_prev, kp, ki, declination,
                use_mag, max_step, out):
@@ -69,40 +110,10 @@ def mahony_run(t, gyro, accel, mag, q, bias_correction, t_prev, gyro_prev, kp, k
         else:
             r0, r1, r2 = g0, g1, g2
         gp0, gp1, gp2 = g0, g1, g2
-        # third row of C(q): k = C(q)ᵀ [0, 0, -1] = -(c20, c21, c22)
-        c20 = 2 * (q1 * q3 - q0 * q2)
-        c21 = 2 * (q2 * q3 + q0 * q1)
-        c22 = 1 - 2 * (q1 * q1 + q2 * q2)
-        e0 = e1 = e2 = 0.0
-        a0, a1, a2 = accel[i, 0], accel[i, 1], accel[i, 2]
-        a_norm = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-        if a_norm > 0.0:
-            u0, u1, u2 = a0 / a_norm, a1 / a_norm, a2 / a_norm
-            k0, k1, k2 = -c20, -c21, -c22
-            e0 += u1 * k2 - u2 * k1  # (a / |a|) × k
-            e1 += u2 * k0 - u0 * k2
-            e2 += u0 * k1 - u1 * k0
-        m0 = mag[i, 0]
-        if use_mag and m0 == m0:  # not NaN
-            m1, m2 = mag[i, 1], mag[i, 2]
-            # horizontal part of m_n = C(q) m
-            mn0 = ((1 - 2 * (q2 * q2 + q3 * q3)) * m0 + 2 * (q1 * q2 - q0 * q3) * m1
-                   + 2 * (q1 * q3 + q0 * q2) * m2)
-            mn1 = (2 * (q1 * q2 + q0 * q3) * m0 + (1 - 2 * (q1 * q1 + q3 * q3)) * m1
-                   + 2 * (q2 * q3 - q0 * q1) * m2)
-            h_norm = np.sqrt(mn0 * mn0 + mn1 * mn1)
-            if h_norm > 0.0:
-                # signed angle from h to magnetic north, about the navigation z axis
-                gamma = np.arctan2(mn0 * north_y - mn1 * north_x, mn0 * north_x + mn1 * north_y)
-                e0 += gamma * c20  # C(q)ᵀ [0, 0, γ]
-                e1 += gamma * c21
-                e2 += gamma * c22
-        if 0.0 < dt <= max_step:
-            bc0 += ki * e0 * dt
-            bc1 += ki * e1 * dt
-            bc2 += ki * e2 * dt
-            q0, q1, q2, q3 = integrate_gyro_scalar(q0, q1, q2, q3, r0 + kp * e0 + bc0,
-                                                   r1 + kp * e1 + bc1, r2 + kp * e2 + bc2, dt)
+        q0, q1, q2, q3, bc0, bc1, bc2 = mahony_step(
+            q0, q1, q2, q3, bc0, bc1, bc2, r0, r1, r2, accel[i, 0], accel[i, 1], accel[i, 2],
+            mag[i, 0], mag[i, 1], mag[i, 2], use_mag, north_x, north_y, kp, ki, dt,
+            0.0 < dt <= max_step)
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q0, q1, q2, q3
     q[0], q[1], q[2], q[3] = q0, q1, q2, q3
     bias_correction[0], bias_correction[1], bias_correction[2] = bc0, bc1, bc2
