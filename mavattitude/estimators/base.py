@@ -63,8 +63,10 @@ class Estimator:
         return None
 
     def has_heading_reference(self, mag_available: bool) -> bool:
-        """Whether yaw is observed (magnetometer) rather than integrated from the gyro alone."""
-        return self.uses_mag and mag_available
+        """Whether yaw is observed (magnetometer) rather than integrated from the gyro alone:
+        the estimator can use one, the log has one, and its ``use_mag`` parameter (if it has
+        that parameter) does not turn it off."""
+        return self.uses_mag and mag_available and bool(getattr(self.params, "use_mag", True))
 
 
 def needs_compile(estimator_classes) -> list[str]:

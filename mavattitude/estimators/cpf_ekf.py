@@ -1154,9 +1154,6 @@ class CpfEkf(Estimator):
         self.diagnostics = {key: diag[:, k] for k, key in enumerate(DIAG_KEYS)}
         return out
 
-    def has_heading_reference(self, mag_available: bool) -> bool:
-        return self.params.use_mag and mag_available
-
     @property
     def covariance(self) -> np.ndarray:
         return self._P.copy()

@@ -467,9 +467,6 @@ class Ekf(Estimator):
         self.diagnostics = {"cov_trace": cov_trace}
         return out
 
-    def has_heading_reference(self, mag_available: bool) -> bool:
-        return self.params.use_mag and mag_available
-
     @property
     def covariance(self) -> np.ndarray:
         return self._P.copy()

@@ -676,9 +676,6 @@ class EqKf(Estimator):
         self.diagnostics = {"cov_trace": trace, "accel_weight": weight, "accel_state": state}
         return out
 
-    def has_heading_reference(self, mag_available: bool) -> bool:
-        return self.params.use_mag and mag_available
-
     @property
     def covariance(self) -> np.ndarray:
         """P of [e (3), β (3)], a copy."""

@@ -143,9 +143,6 @@ class Mahony(Estimator):
         return mahony_run(t, gyro, accel, mag, self._q, self._bias_correction, self._t_prev,
                           self._gyro_prev, p.kp, p.ki, self.declination, p.use_mag, MAX_STEP_S, out)
 
-    def has_heading_reference(self, mag_available: bool) -> bool:
-        return self.params.use_mag and mag_available
-
     @property
     def gyro_bias(self) -> np.ndarray:
         """The filter's current gyro bias estimate, rad/s."""

@@ -329,9 +329,6 @@ class MahonyEkf(Estimator):
         self.diagnostics = {"cov_trace": cov_trace, "adaptive_r": adaptive_r, "mahony_weight": weight}
         return out
 
-    def has_heading_reference(self, mag_available: bool) -> bool:
-        return self.params.use_mag and mag_available
-
     @property
     def covariance(self) -> np.ndarray:
         return self._P.copy()
