@@ -332,16 +332,25 @@ CIRCLE_CLIMB = (STILL_S, 8.0)  # climb start, duration (s)
 CIRCLE_RAMP = (CIRCLE_CLIMB[0] + CIRCLE_CLIMB[1] + 2.0, 8.0)  # after 2 s of hover, 8 s to full speed
 
 
-def _circle_motion(t):
+def _ramped_circle(t, radius, speed, ramp, climb):
+    """A clockwise circle (seen from above) from home heading north, its centre ``radius`` east,
+    the speed ramped up over ``ramp`` (start, duration), with the vertical motion ``climb``
+    ((down, rate, accel) arrays of ``take_off``). Returns pos, vel, acc (NED) and φ, the angle
+    travelled (the track's heading) with its rate."""
     n = len(t)
-    progress, rate, rate_dot = ramped_progress(t, *CIRCLE_RAMP)
-    omega = CIRCLE_SPEED / CIRCLE_RADIUS
+    progress, rate, rate_dot = ramped_progress(t, *ramp)
+    omega = speed / radius
     phi, phi_dot, phi_ddot = omega * progress, omega * rate, omega * rate_dot
-    r, s, c = CIRCLE_RADIUS, np.sin(phi), np.cos(phi)
-    climb = take_off(t, *CIRCLE_CLIMB, CIRCLE_HEIGHT)
+    r, s, c = radius, np.sin(phi), np.cos(phi)
     pos = _stack(n, r * s, r * (1 - c), climb[0])
     vel = _stack(n, r * c * phi_dot, r * s * phi_dot, climb[1])
     acc = _stack(n, r * (c * phi_ddot - s * phi_dot ** 2), r * (s * phi_ddot + c * phi_dot ** 2), climb[2])
+    return pos, vel, acc, phi, phi_dot
+
+
+def _circle_motion(t):
+    climb = take_off(t, *CIRCLE_CLIMB, CIRCLE_HEIGHT)
+    pos, vel, acc, phi, _ = _ramped_circle(t, CIRCLE_RADIUS, CIRCLE_SPEED, CIRCLE_RAMP, climb)
     return Motion(pos, vel, acc, thrust_aligned(acc, phi))  # yaw along the track: the heading is φ
 
 
@@ -367,17 +376,11 @@ ORBIT_CLIMB = (ORBIT_RAMP[0] + ORBIT_RAMP[1] + 2.0, 20.0, 40.0)  # climb start (
 
 
 def _orbit_motion(t):
-    n = len(t)
-    progress, rate, rate_dot = ramped_progress(t, *ORBIT_RAMP)
-    omega = ORBIT_SPEED / ORBIT_RADIUS
-    phi, phi_dot, phi_ddot = omega * progress, omega * rate, omega * rate_dot
-    r, s, c = ORBIT_RADIUS, np.sin(phi), np.cos(phi)
     climb = take_off(t, *ORBIT_CLIMB)
-    pos = _stack(n, r * s, r * (1 - c), climb[0])
-    vel = _stack(n, r * c * phi_dot, r * s * phi_dot, climb[1])
-    acc = _stack(n, r * (c * phi_ddot - s * phi_dot ** 2), r * (s * phi_ddot + c * phi_dot ** 2), climb[2])
+    pos, vel, acc, phi, phi_dot = _ramped_circle(t, ORBIT_RADIUS, ORBIT_SPEED, ORBIT_RAMP, climb)
+    s, c = np.sin(phi), np.cos(phi)
     yaw = phi  # along the track
-    pitch = np.arctan2(-climb[1], r * phi_dot)  # body x along the velocity (0 at rest)
+    pitch = np.arctan2(-climb[1], ORBIT_RADIUS * phi_dot)  # body x along the velocity (0 at rest)
     f = acc - GRAVITY_NED  # roll: no body-y specific force, tan φ = f'_y / -f'_z in the yaw-pitch frame
     fx = c * f[:, 0] + s * f[:, 1]
     fy = -s * f[:, 0] + c * f[:, 1]
