@@ -128,7 +128,7 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
             if not (scored & span).any():
                 continue
             window = scored & span & (t < t[scored & span].min() + YAW_ALIGN_WINDOW_S)
-            offsets.append(float(_circular_mean_deg(error[window, 2])))
+            offsets.append(float(circular_mean_deg(error[window, 2])))
             error[span, 2] = wrap_deg(error[span, 2] - offsets[-1])
         yaw_offset = offsets[0]
 
@@ -166,7 +166,7 @@ def axis_metrics(error_deg: np.ndarray, reference_deg: np.ndarray,
     ss_res = float(np.dot(e, e))
     mse = ss_res / n
     if circular:
-        deviation = wrap_deg(ref - _circular_mean_deg(ref))
+        deviation = wrap_deg(ref - circular_mean_deg(ref))
     else:
         deviation = ref - ref.mean()
     ss_tot = float(np.dot(deviation, deviation))
@@ -188,7 +188,7 @@ def axis_metrics(error_deg: np.ndarray, reference_deg: np.ndarray,
     )
 
 
-def _circular_mean_deg(angles_deg: np.ndarray) -> float:
+def circular_mean_deg(angles_deg: np.ndarray) -> float:
     """Mean direction of angles (degrees), in [-180, 180): the angle of the mean unit vector."""
     a = np.radians(np.asarray(angles_deg, dtype=float))
     return float(wrap_deg(np.degrees(np.arctan2(np.sin(a).mean(), np.cos(a).mean()))))

@@ -41,7 +41,7 @@ from .. import estimators as est
 from .. import quaternion as quat
 from ..flight import AttitudeSeries, BaroSeries, GpsSeries, MagSeries
 from ..growing import Growing
-from ..metrics import AXES, Comparison, compare
+from ..metrics import AXES, Comparison, circular_mean_deg, compare
 from ..phase import PhaseTracker, pressure_height
 from ..pipeline import LOW_IMU_RATE_HZ, REINIT_GAP_S, Event, mag_on_imu_clock
 from ..readers import IMU_LIMITS, MAG_LIMITS, earth_field_power, pick_imu, pick_mag
@@ -493,7 +493,7 @@ class LiveEstimation:
             offset = seg.yaw_offset.get(name)
             if offset is None and scored.any():
                 first = scored & (c.t < c.t[scored][0] + 1.0)
-                offset = seg.yaw_offset[name] = _circular_mean_deg(err[first, 2])
+                offset = seg.yaw_offset[name] = circular_mean_deg(err[first, 2])
             err = err.copy()
             err[:, 2] = quat.wrap_deg(err[:, 2] - (offset or 0.0))
         return c.t, err, scored
@@ -521,10 +521,6 @@ class LiveEstimation:
 
     def _event(self, t: float, level: str, text: str) -> None:
         self.events.append(Event(t, level, text))
-
-
-def _circular_mean_deg(angles_deg: np.ndarray) -> float:
-    return float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(angles_deg))))))
 
 
 def _within(row, limits) -> bool:

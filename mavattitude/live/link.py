@@ -24,6 +24,7 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 
 from ..errors import InputError, UsageError  # noqa: E402
+from ..readers import enum_name  # noqa: E402
 
 GCS_SYSID, GCS_COMPID = 255, mavlink2.MAV_COMP_ID_MISSIONPLANNER  # who we are on the link
 RATE_WINDOW_S = 3.0  # s: arrival rates are counted over this trailing window
@@ -333,7 +334,7 @@ class RateRequester:
         if msg.result == mavlink2.MAV_RESULT_ACCEPTED:
             self._accepted.append(self._current)
         else:
-            self._failed.append((self._current, _enum("MAV_RESULT", msg.result)))
+            self._failed.append((self._current, enum_name("MAV_RESULT", msg.result)))
         self._next(now)
 
     def tick(self, now: float) -> None:
@@ -364,13 +365,8 @@ class RateRequester:
                 streams[stream] = max(streams.get(stream, 0.0), self.wanted[name])
         for stream, hz in streams.items():
             self.conn.mav.request_data_stream_send(*self.target, stream, max(1, int(round(hz))), 1)
-            self.notes.append(f"asked for stream {_enum('MAV_DATA_STREAM', stream)} at "
+            self.notes.append(f"asked for stream {enum_name('MAV_DATA_STREAM', stream)} at "
                               f"{max(1, int(round(hz)))} Hz (REQUEST_DATA_STREAM)")
-
-
-def _enum(enum: str, value: int) -> str:
-    entry = mavlink2.enums.get(enum, {}).get(value)
-    return entry.name.replace(enum + "_", "") if entry else str(value)
 
 
 def request_identity(conn, target: tuple[int, int]) -> None:

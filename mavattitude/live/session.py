@@ -20,8 +20,8 @@ from datetime import datetime, timezone
 from ..errors import InputError
 from ..pipeline import LOW_IMU_RATE_HZ, Event
 from .estimation import LiveEstimation
-from ..readers import identify_vehicle
-from .link import (LinkMonitor, RateRequester, _enum, close_link, mavlink2, open_link,
+from ..readers import enum_name, identify_vehicle
+from .link import (LinkMonitor, RateRequester, close_link, mavlink2, open_link,
                    request_identity, wait_readable)
 from .recorder import TlogRecorder
 
@@ -217,7 +217,7 @@ class _Session:
         src = heartbeat.get_srcSystem()
         self.vehicle = (src, heartbeat.get_srcComponent())
         self.say(f"vehicle: system {src} component {self.vehicle[1]}, "
-                 f"{_enum('MAV_TYPE', heartbeat.type)} on {_enum('MAV_AUTOPILOT', heartbeat.autopilot)}")
+                 f"{enum_name('MAV_TYPE', heartbeat.type)} on {enum_name('MAV_AUTOPILOT', heartbeat.autopilot)}")
         self._ask(now)
 
     def _ask(self, now: float) -> None:

@@ -235,13 +235,13 @@ def identify_vehicle(texts: list[str]) -> tuple[str | None, str | None]:
     for text in texts:
         if text.startswith("heartbeat "):
             _, _, mav_type, _, autopilot = text.split()
-            vehicle = _enum_name("MAV_TYPE", int(mav_type))
-            autopilot_name = _enum_name("MAV_AUTOPILOT", int(autopilot))
+            vehicle = enum_name("MAV_TYPE", int(mav_type))
+            autopilot_name = enum_name("MAV_AUTOPILOT", int(autopilot))
             return vehicle, " ".join(x for x in (autopilot_name, version) if x)
     return None, version
 
 
-def _enum_name(enum: str, value: int) -> str:
+def enum_name(enum: str, value: int) -> str:
     """'QUADROTOR' for MAV_TYPE 2: MAVLink's own name, without its prefix."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
     entry = mavlink.enums.get(enum, {}).get(value)
