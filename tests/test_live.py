@@ -5,6 +5,7 @@ SIGINT mid-stream), corrupt data between packets, a sender that stops and comes 
 vehicle reboot, and the link's bookkeeping on its own."""
 from __future__ import annotations
 
+import math
 import os
 import random
 import signal
@@ -83,8 +84,8 @@ def sender(port: int, plan, sim, garbage_every: int = 0):
         except Exception as exc:  # reported by the test
             holder["error"] = exc
         finally:
+            holder["done_at"] = time.monotonic()  # before "done": the stop test reads both
             holder["done"] = True
-            holder["done_at"] = time.monotonic()
 
     thread = threading.Thread(target=run, daemon=True)
     return thread, tap, holder
@@ -100,7 +101,7 @@ def listen(port: int, thread, holder, tmp_path, **options):
         if not lines:
             thread.start()
         lines.append(line)
-    result = run_live(opts, stop=lambda: holder["done"] and time.monotonic() - holder["done_at"] > 0.5,
+    result = run_live(opts, stop=lambda: time.monotonic() - holder.get("done_at", math.inf) > 0.5,
                       say=say)
     thread.join(5)
     assert holder["error"] is None, holder["error"]
@@ -260,8 +261,8 @@ def test_live_against_mavplayback_of_a_shared_sitl_log(tmp_path):
         # mavplayback is a Tk program: tests/tkstub stands in for tkinter (headless)
         subprocess.run([sys.executable, str(script), "--out", f"127.0.0.1:{port}", str(log)], env=env,
                        cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=60)
-        holder["done"] = True
         holder["done_at"] = time.monotonic()
+        holder["done"] = True
         holder["error"] = None
     result = listen(port, threading.Thread(target=play, daemon=True), holder, tmp_path)
     est = result.estimation
@@ -510,7 +511,7 @@ def test_udpout_speaks_first_so_a_listening_vehicle_hears_it(tmp_path, flight):
         except Exception as exc:
             holder["error"] = exc
         finally:
-            holder["done"], holder["done_at"] = True, time.monotonic()
+            holder["done_at"], holder["done"] = time.monotonic(), True
     result = listen(port, threading.Thread(target=run, daemon=True), holder, tmp_path,
                     url=f"udpout:127.0.0.1:{port}", request=False)
     vehicle.close()
@@ -537,7 +538,7 @@ def test_a_tcp_peer_that_goes_away_and_comes_back(tmp_path, flight):
         except Exception as exc:
             holder["error"] = exc
         finally:
-            holder["done"], holder["done_at"] = True, time.monotonic()
+            holder["done_at"], holder["done"] = time.monotonic(), True
     thread = threading.Thread(target=run, daemon=True)
     thread.start()
     time.sleep(0.3)  # the server listens before the session connects
