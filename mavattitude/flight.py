@@ -93,6 +93,7 @@ class Flight:
     segments: list[tuple[float, float]] = field(default_factory=list)
     segment_index: int = 0
     notes: list[str] = field(default_factory=list)  # things the reader fixed or noticed
+    warnings: list[str] = field(default_factory=list)  # data the reader had to leave out (damage)
 
     def all_series(self):
         """(kind, series) for every time series in the record."""

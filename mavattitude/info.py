@@ -42,7 +42,7 @@ def summarize(flight: Flight) -> dict:
     rates = {}
     for kind, s in flight.all_series():
         rates[s.source if kind in ("imu", "mag") else f"{kind}:{s.source}"] = round(_rate(s.t), 2)
-    warnings = []
+    warnings = list(flight.warnings)
     if imus[best]["rate_hz"] < LOW_IMU_RATE_HZ:
         warnings.append(f"low IMU rate: {imus[best]['rate_hz']:.1f} Hz (below {LOW_IMU_RATE_HZ:.0f} Hz): "
                         "estimates will be coarse")

@@ -9,7 +9,7 @@ import numpy as np
 from . import aiding as aid
 from . import estimators as est
 from . import quaternion as quat
-from .errors import UsageError
+from .errors import InputError, UsageError
 from .flight import AttitudeSeries, Flight, MagSeries
 from .metrics import Comparison, compare
 from .phase import PhaseSeries, detect_phase
@@ -79,7 +79,7 @@ def run_estimators(flight: Flight, names: list[str], imu_source: str | None = No
     """Run each named estimator over the chosen IMU. Returns (estimates, alignment, context)."""
     imu_source = imu_source or best_imu_source(flight)
     if imu_source not in flight.imu:
-        raise UsageError(f"IMU source {imu_source!r} is not in the log; it has: {', '.join(flight.imu)}")
+        raise InputError(flight.path, f"has no IMU source {imu_source!r} (--imu); it has: {', '.join(flight.imu)}")
     imu = flight.imu[imu_source]
     mag_source = mag_for_imu(flight, imu_source) if use_mag else None
     mag = mag_on_imu_clock(imu.t, flight.mag.get(mag_source)) if mag_source else None
@@ -168,8 +168,8 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     """
     if reference == "truth":
         if flight.truth is None:
-            raise UsageError(f"{flight.path}: --reference truth, but the log has no ground truth "
-                             "(SIM in .bin, SIMSTATE in .tlog)")
+            raise InputError(flight.path, "--reference truth, but the log has no ground truth "
+                                          "(SIM in .bin, SIMSTATE in .tlog)")
         ref = flight.truth
     elif reference == "autopilot":
         ref = flight.attitude
@@ -249,4 +249,6 @@ def _events(flight: Flight, ctx: dict, alignment: est.Alignment) -> list[Event]:
         events.append(Event(t, "warn", f"IMU gap of {gap:.1f} s: estimators re-initialised"))
     for note in flight.notes:
         events.append(Event(t0, "info", note))
+    for warning in flight.warnings:
+        events.append(Event(t0, "warn", warning))
     return events

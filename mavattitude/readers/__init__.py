@@ -91,17 +91,15 @@ def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
     path = str(path)
     fmt = sniff_format(path)
     with _captured_output() as chatter:  # pymavlink's complaints about corrupt data
-        if fmt == "bin":
-            col, params, texts, counts = read_dataflash(path, progress)
-            notes = []
-        else:
-            col, params, texts, counts, notes = read_tlog(path, progress)
+        decoded = read_dataflash(path, progress) if fmt == "bin" else read_tlog(path, progress)
+    col, notes, warnings = decoded.collector, decoded.notes, decoded.warnings
     col.finish()
     complaints = [line for line in chatter() if line.strip()]
     if col.outliers:
-        notes.append(f"dropped {col.outliers} samples whose timestamp was far off the clock (corrupt records)")
+        warnings.append(f"dropped {col.outliers} samples whose time fits neither the clock before them nor "
+                        "after (corrupt records)")
     if complaints:
-        notes.append(f"pymavlink skipped corrupt data ({len(complaints)} reports; first: {complaints[0]})")
+        warnings.append(f"pymavlink skipped corrupt data ({len(complaints)} reports; first: {complaints[0]})")
     if progress is not None:
         progress(1.0)
     segments = col.segments
@@ -114,19 +112,23 @@ def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
         raise InputError(path, f"has {len(segments)} clock segment(s); segment {segment} does not exist")
     if len(segments) > 1:
         spans = ", ".join(f"#{i}: {a:.1f}-{b:.1f} s" for i, (a, b) in enumerate(segments))
-        notes.append(f"the autopilot clock went back (reboot): {len(segments)} segments ({spans}); "
-                     f"using segment {segment}")
-    flight = Flight(path=path, format=fmt, params=params, message_counts=counts,
-                    segments=segments, segment_index=segment, notes=notes)
-    _fill_series(flight, col, segment)
-    flight.vehicle, flight.firmware = identify_vehicle(texts)
+        warnings.append(f"the autopilot clock went back (reboot): {len(segments)} segments ({spans}); "
+                        f"using segment {segment} (--segment N for another)")
+    flight = Flight(path=path, format=fmt, params=decoded.params, message_counts=decoded.counts,
+                    segments=segments, segment_index=segment, notes=notes, warnings=warnings)
+    unusable = _fill_series(flight, col, segment)
+    flight.vehicle, flight.firmware = identify_vehicle(decoded.texts)
+    if not flight.imu and unusable:
+        raise InputError(path, "IMU data present but none usable: " + "; ".join(unusable))
     if not flight.imu:
         raise InputError(path, "no IMU data (looked for IMU/IMU2/IMU3 in .bin; RAW_IMU, SCALED_IMU/2/3 "
                                "and HIGHRES_IMU in .tlog)")
     return flight
 
 
-def _fill_series(flight: Flight, col: Collector, segment: int) -> None:
+def _fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
+    """Fill the flight's series from one clock segment; returns why each IMU series that
+    holds data was not usable (none when every one was)."""
     def columns(kind, key):
         t, v, stats = col.columns(kind, key, segment)
         # a message that feeds two series (RAW_IMU: IMU and compass) has the same fixes in both
@@ -140,18 +142,25 @@ def _fill_series(flight: Flight, col: Collector, segment: int) -> None:
     def plausible(key, v, limits):
         """Rows that are finite and within physical ranges; corrupt records decode as anything."""
         ok = np.isfinite(v).all(axis=1)
+        finite = np.where(ok[:, None], v, 0.0)
         for cols, limit in limits:
-            ok &= np.linalg.norm(np.nan_to_num(v[:, cols]), axis=1) < limit
+            ok &= np.linalg.norm(finite[:, cols], axis=1) < limit
         if np.count_nonzero(~ok):
-            flight.notes.append(f"{key}: dropped {np.count_nonzero(~ok)} samples with impossible values")
+            flight.warnings.append(f"{key}: dropped {np.count_nonzero(~ok)} samples with impossible values")
         return ok
 
+    unusable = []
     for key in col.keys("imu"):
         t, v = columns("imu", key)
-        live = np.any(v != 0, axis=1)  # an unfitted sensor sends all zeros
-        live &= plausible(key, v, IMU_LIMITS)
+        fitted = np.any(v != 0, axis=1)  # an unfitted sensor sends all zeros
+        live = fitted & plausible(key, v, IMU_LIMITS)
         if np.count_nonzero(live) >= 2:
             flight.imu[key] = ImuSeries(key, t[live], v[live, :3], v[live, 3:6])
+        elif len(t):
+            why = ("all zeros (no sensor fitted?)" if not fitted.any() else
+                   "none within ±50 rad/s and ±50 g (saturated or corrupt)" if not live.any() else
+                   "fewer than two usable")
+            unusable.append(f"{key}: {len(t)} samples, {why}")
     for key in col.keys("mag"):
         t, v = columns("mag", key)
         live = np.any(v != 0, axis=1) & np.isfinite(v).all(axis=1)
@@ -174,6 +183,7 @@ def _fill_series(flight: Flight, col: Collector, segment: int) -> None:
             flight.baro = BaroSeries(key, t, v[:, 0], v[:, 1])
     flight.attitude = _attitude(col, "att", segment, columns)
     flight.truth = _attitude(col, "truth", segment, columns)
+    return unusable
 
 
 def _earth_field_scale(flight: Flight, key: str, field: np.ndarray) -> np.ndarray:

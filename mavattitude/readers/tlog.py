@@ -27,7 +27,7 @@ import os
 from pymavlink import mavutil
 
 from ..errors import InputError
-from .collect import Collector
+from .collect import Collector, Decoded
 
 G_STD = 9.80665
 MILLI_G_TO_MS2 = G_STD / 1000.0
@@ -142,8 +142,8 @@ def is_vehicle(msg) -> bool:
             or name in SCALED_IMUS or name in ("HIGHRES_IMU", "ATTITUDE"))
 
 
-def read_tlog(path: str, progress=None):
-    """Decode a .tlog into a Collector plus metadata. ``progress(fraction)`` is called as it goes."""
+def read_tlog(path: str, progress=None) -> Decoded:
+    """Decode a .tlog. ``progress(fraction)`` is called as it goes."""
     try:
         log = mavutil.mavlink_connection(path, dialect="ardupilotmega", robust_parsing=True)
     except Exception as exc:
@@ -179,10 +179,10 @@ def read_tlog(path: str, progress=None):
             other_systems.add(sysid)
             continue
         decoder.decode(msg, col.add)
-    notes = []
+    out = Decoded(col, decoder.params, decoder.texts, counts)
     if other_systems:
-        notes.append(f"ignored messages from other MAVLink systems {sorted(other_systems)} "
-                     f"(vehicle is system {vehicle_sysid})")
+        out.notes.append(f"ignored messages from other MAVLink systems {sorted(other_systems)} "
+                         f"(vehicle is system {vehicle_sysid})")
     if counts.get("BAD_DATA"):
-        notes.append(f"{counts['BAD_DATA']} corrupt or unknown packets skipped")
-    return col, decoder.params, decoder.texts, counts, notes
+        out.warnings.append(f"skipped {counts['BAD_DATA']} corrupt or unknown packets")
+    return out
