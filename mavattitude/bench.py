@@ -326,7 +326,7 @@ def format_table(result: dict) -> str:
 
 
 def run(names: list[str], scenario: str, duration: float, imu_rate: float, seed: int,
-        repeat: int, imufusion_samples: int, json_path: str | None,
+        repeat: int, imufusion_samples: int, json_out=None,
         live_seconds: float | None = None) -> int:
     """The ``bench`` command: checks its options, runs, prints the table, writes the JSON.
     ``live_seconds``: also the live figure (``bench_live``), streaming that long."""
@@ -334,20 +334,17 @@ def run(names: list[str], scenario: str, duration: float, imu_rate: float, seed:
 
     if scenario not in SCENARIOS:
         raise UsageError(f"unknown scenario {scenario!r}; choose from: {', '.join(SCENARIOS)}")
-    if not (duration > 0 and imu_rate > 0):
-        raise UsageError("--duration and --imu-rate must be positive")
-    if repeat < 1 or imufusion_samples < 1:
-        raise UsageError("--repeat and --imufusion-samples must be at least 1")
-    if live_seconds is not None and not live_seconds > 0:
-        raise UsageError("--live-seconds must be positive")
+    if not (duration > 0 and imu_rate > 0 and repeat >= 1 and imufusion_samples >= 1
+            and (live_seconds is None or live_seconds > 0)):
+        raise ValueError("durations, rates and counts must be positive")  # the CLI's types check them
     result = run_bench(names, scenario, duration, imu_rate, seed, repeat, imufusion_samples)
     print(format_table(result), end="")
     if live_seconds is not None:
         from .bench_live import format_live, run_live_bench
         result["live"] = run_live_bench(names, live_seconds, say=_say)
         print(format_live(result["live"]), end="")
-    if json_path:
-        Path(json_path).write_text(json.dumps(result, indent=2) + "\n")
-        print(f"results written to {json_path}")
+    if json_out is not None:  # an outputs.Output
+        with json_out.writing() as path:
+            Path(path).write_text(json.dumps(result, indent=2) + "\n")
     failed = any("error" in row for row in result["results"])
     return 1 if failed or (live_seconds is not None and not result["live"]["target_met"]) else 0

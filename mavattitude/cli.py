@@ -1,12 +1,22 @@
 """The ``mavattitude`` command: a thin layer over readers, pipeline, report and view.
 
-Exit status: 0 success, 1 a bad input (one line on stderr naming the file and the
-problem), 2 a usage error, 130 interrupted.
+Exit status (one rule for every command; the README lists it):
+
+- 0 success;
+- 1 a file, folder, device or endpoint named on the command line cannot be used: a log that
+  cannot be read or lacks what was asked of it (an IMU source, a clock segment, ground
+  truth), a parameter file with bad TOML or a bad value, an output that would write over an
+  input or another kind of file or cannot be created, a viewer or link that fails. One line
+  on stderr names it and says what is wrong;
+- 2 the command line itself is wrong, whatever the files hold: an unknown option, estimator
+  or parameter, a value out of its range, options that exclude each other, a malformed URL;
+- 130 interrupted (Ctrl-C); 141 the reader of our output went away (``| head``).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import textwrap
@@ -15,6 +25,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import InputError, UsageError
+from .outputs import Outputs
 
 DESCRIPTION = """\
 Replay ArduPilot flight logs (.bin DataFlash, .tlog telemetry) through attitude estimators
@@ -100,81 +111,94 @@ def _estimator_names(text: str) -> list[str]:
     return names
 
 
-def _sink_args(args, log_path: str) -> dict:
-    chosen = [x for x in ("rrd", "spawn", "connect", "web") if getattr(args, x)]
-    if len(chosen) > 1:
-        raise UsageError(f"choose one Rerun sink, not {' and '.join('--' + c for c in chosen)}")
-    if not chosen:
-        return {"rrd": Path(log_path).stem + ".rrd"}
-    return {chosen[0]: getattr(args, chosen[0])}
+def _plan_sink(args, outputs, default_rrd: str | None = None):
+    """The checked Rerun sink of --rrd/--spawn/--connect/--web (mutually exclusive in the
+    parser), ``default_rrd`` when none is given; None for no view."""
+    from .sink import plan_sink
+
+    for kind in ("rrd", "spawn", "connect", "web"):
+        value = getattr(args, kind)
+        if value:
+            return plan_sink(kind, value, outputs)
+    return plan_sink("rrd", default_rrd, outputs) if default_rrd else None
 
 
 def cmd_replay(args) -> int:
     from .estimators import needs_compile
-    from .pipeline import Event, run_replay
-    from .report import estimator_extras, format_events, format_table, write_csv, write_json
-
     from .params import build, load_file, log_defaults
+    from .pipeline import Event, run_replay
+    from .report import (csv_file_name, estimator_extras, format_events, format_table, nothing_scored,
+                         write_csv, write_json)
+    from .sink import open_sink
 
     names = _estimator_names(args.estimators)
-    if args.warmup < 0:
-        raise UsageError("--warmup must be zero or more seconds")
     file_values = load_file(args.params) if args.params else None
     source = args.params or "--params"
     params = build(names, file_values, args.set or (), source=source)  # bad values fail before reading
-    sink = None if args.no_view else _sink_args(args, args.log)
-    flight = _read(args.log, args.segment)
-    log_values, notes = log_defaults(flight, names, file_values, args.set or ())
-    if log_values:
-        params = build(names, file_values, args.set or (), source=source, log_values=log_values)
-    pending = needs_compile(names)
-    if pending:
-        print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
-              file=sys.stderr, flush=True)
-    result = run_replay(flight, names, reference=args.reference, imu_source=args.imu,
-                        warmup_s=args.warmup, declination_deg=args.declination,
-                        params=params, use_mag=not args.no_mag)
-    result.events += [Event(flight.time_span[0], "info", note) for note in notes]
-    for note in notes:
-        print(f"note: {note}")
-    for event in result.events:
-        if event.level == "warn":
-            _warn(event.text)
-    if result.reference is not None:
-        print(f"{flight.path}: {len(result.flight.imu[result.imu_source].t)} samples of "
-              f"{result.imu_source}, scored against {result.reference.source} "
-              f"({args.reference}) after a {args.warmup:g} s warm-up")
-        print(format_table(result.comparisons, result.reference.source))
-    print(format_events(result), end="")
-    if args.json:
-        write_json(args.json, flight.path, result.reference.source if result.reference else "none",
-                   result.comparisons, estimator_extras(result))
-        print(f"metrics written to {args.json}")
-    if args.export:
-        if result.reference is None:
-            raise UsageError("--export needs a reference attitude, and the log has none")
-        written = write_csv(args.export, result.reference, result.estimates)
-        print(f"CSV written to {args.export}/ ({', '.join(p.name for p in written.values())})")
-    if sink is not None:
-        _view(result, sink, args.log)
+    with Outputs(inputs=[args.log, args.params], force=args.force) as outputs:
+        json_out = outputs.file(args.json, "--json", "json")
+        export = outputs.folder(args.export, "--export",
+                                [csv_file_name(n) for n in ("reference", *names)], "csv")
+        sink = None if args.no_view else _plan_sink(args, outputs, default_rrd=Path(args.log).stem + ".rrd")
+        rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
+        flight = _read(args.log, args.segment)
+        log_values, notes = log_defaults(flight, names, file_values, args.set or ())
+        if log_values:
+            params = build(names, file_values, args.set or (), source=source, log_values=log_values)
+        pending = needs_compile(names)
+        if pending:
+            print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
+                  file=sys.stderr, flush=True)
+        result = run_replay(flight, names, reference=args.reference, imu_source=args.imu,
+                            warmup_s=args.warmup, declination_deg=args.declination,
+                            params=params, use_mag=not args.no_mag)
+        result.events += [Event(flight.time_span[0], "info", note) for note in notes]
+        for note in notes:
+            print(f"note: {note}")
+        for event in result.events:
+            if event.level == "warn":
+                _warn(event.text)
+        if result.reference is not None:
+            print(f"{flight.path}: {len(result.flight.imu[result.imu_source].t)} samples of "
+                  f"{result.imu_source}, scored against {result.reference.source} "
+                  f"({args.reference}) after a {args.warmup:g} s warm-up")
+            print(format_table(result.comparisons, result.reference.source))
+            why = nothing_scored(result.comparisons, args.warmup)
+            if why:
+                _warn(why)
+        print(format_events(result), end="")
+        if json_out:
+            with json_out.writing() as path:
+                write_json(path, flight.path, result.reference.source if result.reference else "none",
+                           result.comparisons, estimator_extras(result))
+            print(f"metrics written to {json_out.path}")
+        if export:
+            if result.reference is None:
+                raise InputError(args.log, "--export needs a reference attitude (ATT / ATTITUDE), "
+                                           "and the log has none")
+            written = write_csv(export, result.reference, result.estimates)
+            print(f"CSV written to {export}/ ({', '.join(p.name for p in written.values())})")
+        if rec is not None:
+            _view(result, rec, sink)
     return 0
 
 
-def _view(result, sink: dict, log_path: str) -> None:
+def _view(result, rec, sink) -> None:
     from . import view
+    from .sink import close_sink
 
-    rec = view.open_sink("mavattitude", Path(log_path).name, **sink)
     view.log_replay(result, rec)
-    if "web" in sink:
+    if sink.kind == "web":
         print("serving the recording to the web viewer; press Ctrl-C to stop", file=sys.stderr)
         try:
             while True:
                 time.sleep(1)
         except KeyboardInterrupt:
             pass
-    view.close_sink(rec)
-    if "rrd" in sink:
-        print(f"Rerun recording written to {sink['rrd']}; open it with: rerun {sink['rrd']}")
+    close_sink(rec, sink)
+    if sink.kind == "rrd":
+        sink.file.commit()
+        print(f"Rerun recording written to {sink.file.path}; open it with: rerun {sink.file.path}")
 
 
 # ---------------------------------------------------------------- estimators
@@ -186,7 +210,8 @@ def cmd_estimators(args) -> int:
 
     if args.json:
         print(json.dumps({name: {"summary": summary(cls), "uses_magnetometer": cls.uses_mag,
-                                 "params": {f: {"default": d, "help": h} for f, d, h in describe(cls.Params)},
+                                 "params": {f: {"default": d, "valid": str(v) if v else None, "help": h}
+                                            for f, d, v, h in describe(cls.Params)},
                                  "diagnostics": dict(cls.DIAGNOSTICS),
                                  "accel_states": list(cls.ACCEL_STATES)}
                           for name, cls in ESTIMATORS.items()}, indent=2))
@@ -196,14 +221,15 @@ def cmd_estimators(args) -> int:
         print(f"{name}: {summary(cls)}")
         print(f"  {heading}")
         rows = describe(cls.Params)
-        width = max((len(f) for f, _, _ in rows), default=0)
-        for field, default, help_text in rows:
-            print(f"  --set {name}.{field:<{width}} = {default!s:<10} {help_text}".rstrip())
+        width = max((len(f) for f, _, _, _ in rows), default=0)
+        for field, default, valid, help_text in rows:
+            print(f"  --set {name}.{field:<{width}} = {default!s:<8} {str(valid or 'true/false'):<11} "
+                  f"{help_text}".rstrip())
         for key, text in cls.DIAGNOSTICS.items():
             print(f"  diagnostic {key}: {text}")
         print()
     print("Override parameters with --set NAME.PARAM=VALUE or a TOML file (--params FILE) with a "
-          "[NAME] table per estimator.")
+          "[NAME] table per estimator; each value must lie in the interval shown after its default.")
     return 0
 
 
@@ -223,18 +249,18 @@ def cmd_simulate(args) -> int:
         raise UsageError("choose -o FILE or --live URL, not both")
     if args.scenario not in SCENARIOS:
         raise UsageError(f"unknown scenario {args.scenario!r}; choose from: {', '.join(SCENARIOS)}")
-    if args.output and Path(args.output).suffix.lower() not in (".tlog", ".bin"):
+    suffix = Path(args.output).suffix.lower() if args.output else None
+    if args.output and suffix not in (".tlog", ".bin"):
         raise UsageError(f"{args.output}: the output must end in .tlog or .bin")
-    if args.duration <= 0 or args.imu_rate <= 0:
-        raise UsageError("--duration and --imu-rate must be positive")
-    if args.speed < 0:
-        raise UsageError("--speed must be zero (as fast as possible) or positive")
     if args.live:
         return _simulate_live(args)
-    sim = simulate(args.scenario, args.duration, seed=args.seed, imu_rate=args.imu_rate)
-    path = write_log(sim, args.output)
-    print(f"{path}: {args.scenario}, {args.duration:g} s, IMU {args.imu_rate:g} Hz, seed {args.seed} "
-          f"({path.stat().st_size / 1e6:.2f} MB)")
+    with Outputs(force=args.force) as outputs:
+        out = outputs.file(args.output, "-o", "sim")
+        sim = simulate(args.scenario, args.duration, seed=args.seed, imu_rate=args.imu_rate)
+        with out.writing() as path:
+            write_log(sim, path, suffix)
+    print(f"{out.path}: {args.scenario}, {args.duration:g} s, IMU {args.imu_rate:g} Hz, seed {args.seed} "
+          f"({out.path.stat().st_size / 1e6:.2f} MB)")
     return 0
 
 
@@ -274,57 +300,52 @@ def cmd_live(args) -> int:
     from .live import LiveOptions, default_record_path, run_live
     from .live.session import check_ended_with_vehicle
     from .params import build, load_file
-    from .report import format_table, write_json
+    from .report import format_table, nothing_scored, write_json
 
     names = _estimator_names(args.estimators)
-    for flag, value in (("--imu-rate", args.imu_rate), ("--window", args.window), ("--timeout", args.timeout)):
-        if not value > 0:
-            raise UsageError(f"{flag} must be positive")
-    if args.duration is not None and not args.duration > 0:
-        raise UsageError("--duration must be positive")
-    if args.warmup < 0:
-        raise UsageError("--warmup must be zero or more seconds")
     params = build(names, load_file(args.params) if args.params else None, args.set or (),
                    source=args.params or "--params")
-    chosen = [x for x in ("rrd", "spawn", "connect", "web") if getattr(args, x)]
-    sink = {chosen[0]: getattr(args, chosen[0])} if chosen else None
     if args.record and args.no_record:
         raise UsageError("choose --record FILE or --no-record, not both")
-    if args.record and Path(args.record).exists():
-        raise UsageError(f"{args.record} exists: a recording never overwrites a file; choose another name")
-    record = None if args.no_record else (args.record or default_record_path())
-    pending = needs_compile(names)
-    if pending:
-        print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
-              file=sys.stderr, flush=True)
-    warm_up(names, params)
-    result = run_live(LiveOptions(
-        url=args.url, baud=args.baud, sysid=args.sysid, names=names, params=params,
-        imu_rate=args.imu_rate, request=not args.no_request, imu_source=args.imu, window=args.window,
-        timeout=args.timeout, record=record, warmup=args.warmup, declination=args.declination,
-        reference=args.reference, use_mag=not args.no_mag, duration=args.duration, sink=sink))
-    m = result.monitor
-    print(f"session: {result.seconds:.1f} s, {m.packets} packets ({m.lost} lost by sequence number, "
-          f"{m.bad} corrupt), {result.estimation.samples} IMU samples estimated"
-          + (f"; {result.recorded} packets recorded to {record}" if record else ""))
-    check_ended_with_vehicle(result, args.url)
-    if result.comparisons:
-        n_segments = len(result.estimation.segments)
-        where = (f" (clock segment {result.segment} of {n_segments}: the vehicle rebooted)"
-                 if n_segments > 1 else "")
-        print(f"final metrics against {result.reference} after a {args.warmup:g} s warm-up{where}:")
-        print(format_table(result.comparisons, result.reference))
-        if not any(a is not None for c in result.comparisons.values() for a in c.axes.values()):
-            print(f"nothing scored: the estimates span less than the {args.warmup:g} s warm-up "
-                  "(a longer session, or a shorter --warmup)")
-    else:
-        print("nothing scored: " + ("no IMU samples were estimated" if not result.estimation.samples
-                                    else "no reference attitude (ATTITUDE / SIMSTATE) arrived"))
-    if args.json:
-        write_json(args.json, args.url, result.reference or "none", result.comparisons)
-        print(f"metrics written to {args.json}")
-    if sink and "rrd" in sink:
-        print(f"Rerun recording written to {sink['rrd']}; open it with: rerun {sink['rrd']}")
+    with Outputs(inputs=[args.params], force=args.force) as outputs:
+        record = None if args.no_record else outputs.new_file(args.record or default_record_path(), "--record")
+        json_out = outputs.file(args.json, "--json", "json")
+        sink = _plan_sink(args, outputs)
+        pending = needs_compile(names)
+        if pending:
+            print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
+                  file=sys.stderr, flush=True)
+        warm_up(names, params)
+        result = run_live(LiveOptions(
+            url=args.url, baud=args.baud, sysid=args.sysid, names=names, params=params,
+            imu_rate=args.imu_rate, request=not args.no_request, imu_source=args.imu, window=args.window,
+            timeout=args.timeout, record=str(record) if record else None, warmup=args.warmup,
+            declination=args.declination, reference=args.reference, use_mag=not args.no_mag,
+            duration=args.duration, sink=sink))
+        m = result.monitor
+        print(f"session: {result.seconds:.1f} s, {m.packets} packets ({m.lost} lost by sequence number, "
+              f"{m.bad} corrupt), {result.estimation.samples} IMU samples estimated"
+              + (f"; {result.recorded} packets recorded to {record}" if record else ""))
+        check_ended_with_vehicle(result, args.url)
+        if result.comparisons:
+            n_segments = len(result.estimation.segments)
+            where = (f" (clock segment {result.segment} of {n_segments}: the vehicle rebooted)"
+                     if n_segments > 1 else "")
+            print(f"final metrics against {result.reference} after a {args.warmup:g} s warm-up{where}:")
+            print(format_table(result.comparisons, result.reference))
+            why = nothing_scored(result.comparisons, args.warmup)
+            if why:
+                _warn(why)
+        else:
+            print("nothing scored: " + ("no IMU samples were estimated" if not result.estimation.samples
+                                        else "no reference attitude (ATTITUDE / SIMSTATE) arrived"))
+        if json_out:
+            with json_out.writing() as path:
+                write_json(path, args.url, result.reference or "none", result.comparisons)
+            print(f"metrics written to {json_out.path}")
+        if sink is not None and sink.kind == "rrd":
+            sink.file.commit()
+            print(f"Rerun recording written to {sink.file.path}; open it with: rerun {sink.file.path}")
     return 0
 
 
@@ -334,22 +355,67 @@ def cmd_live(args) -> int:
 def cmd_bench(args) -> int:
     from .bench import run
 
-    return run(_estimator_names(args.estimators), args.scenario, args.duration, args.imu_rate,
-               args.seed, args.repeat, args.imufusion_samples, args.json,
-               live_seconds=args.live_seconds if args.live else None)
+    names = _estimator_names(args.estimators)
+    with Outputs(force=args.force) as outputs:
+        json_out = outputs.file(args.json, "--json", "json")
+        code = run(names, args.scenario, args.duration, args.imu_rate, args.seed, args.repeat,
+                   args.imufusion_samples, json_out, live_seconds=args.live_seconds if args.live else None)
+        if json_out:
+            print(f"results written to {json_out.path}")
+    return code
 
 
 # ---------------------------------------------------------------- parser
 
 
+def _number(low: float, high: float = math.inf, *, above: bool = False, whole: bool = False):
+    """An argparse type: a finite number from ``low`` (excluded with ``above``) to ``high``;
+    ``whole`` for integers. Anything else is a usage error naming the option."""
+    def parse(text: str):
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        ok = math.isfinite(value) and (value > low if above else value >= low) and value <= high
+        if ok and whole and value != int(value):
+            ok = False
+        if not ok:
+            kind = "a whole number" if whole else "a number"
+            bound = f"above {low:g}" if above else f"at least {low:g}"
+            limit = f" and at most {high:g}" if math.isfinite(high) else ""
+            raise argparse.ArgumentTypeError(f"expected {kind} {bound}{limit}, not {text!r}")
+        return int(value) if whole else value
+    parse.__name__ = "number"
+    return parse
+
+
+SECONDS = _number(0.0)  # zero or more
+POSITIVE = _number(0.0, above=True)
+COUNT = _number(1, whole=True)
+DEGREES = _number(-180.0, 180.0)
+SEED = _number(0, 2**32 - 1, whole=True)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors, as every other error here is."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mavattitude", description=DESCRIPTION, epilog=EPILOG,
+    parser = _Parser(prog="mavattitude", description=DESCRIPTION, epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"mavattitude {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
+    def force_arg(p):
+        p.add_argument("--force", action="store_true",
+                       help="write an output over an existing file of another kind (never over an "
+                            "input log or parameter file)")
+
     def segment_arg(p):
-        p.add_argument("--segment", type=int, default=None, metavar="N",
+        p.add_argument("--segment", type=_number(0, whole=True), default=None, metavar="N",
                        help="when the autopilot rebooted during the log (its clock went back), "
                             "use clock segment N (0-based); default: the longest")
 
@@ -377,11 +443,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--imu", default=None, metavar="SOURCE",
                    help="IMU source to estimate from, e.g. IMU[1], RAW_IMU, SCALED_IMU2, HIGHRES_IMU "
                         "(default: the fastest, most precise; see 'mavattitude info')")
-    p.add_argument("--warmup", type=float, default=10.0, metavar="S",
+    p.add_argument("--warmup", type=SECONDS, default=10.0, metavar="S",
                    help="seconds at the start not scored while estimators converge (default 10)")
-    p.add_argument("--declination", type=float, default=None, metavar="DEG",
-                   help="magnetic declination in degrees, east positive (default: the log's "
-                        "COMPASS_DEC, else 0 with a warning)")
+    p.add_argument("--declination", type=DEGREES, default=None, metavar="DEG",
+                   help="magnetic declination in degrees, east positive, -180 to 180 (default: "
+                        "the log's COMPASS_DEC, else 0 with a warning)")
     p.add_argument("--no-mag", action="store_true",
                    help="ignore the magnetometer: yaw from the gyro only, compared after removing "
                         "its initial offset")
@@ -403,6 +469,7 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--web", action="store_true",
                       help="serve the recording to Rerun's web viewer until Ctrl-C")
     view.add_argument("--no-view", action="store_true", help="no Rerun recording at all")
+    force_arg(out)
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("estimators", help="list the estimators with their parameters and defaults",
@@ -417,17 +484,18 @@ def build_parser() -> argparse.ArgumentParser:
                                    "write it as a genuine ArduPilot .tlog (MAVLink 2) or DataFlash "
                                    ".bin with ground truth (SIMSTATE / SIM).")
     p.add_argument("--scenario", default="figure8", help="scenario name (see --list; default figure8)")
-    p.add_argument("--duration", type=float, default=120.0, metavar="S", help="seconds (default 120)")
-    p.add_argument("--imu-rate", type=float, default=100.0, metavar="HZ", help="IMU rate (default 100)")
-    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed (default 0)")
+    p.add_argument("--duration", type=POSITIVE, default=120.0, metavar="S", help="seconds (default 120)")
+    p.add_argument("--imu-rate", type=POSITIVE, default=100.0, metavar="HZ", help="IMU rate (default 100)")
+    p.add_argument("--seed", type=SEED, default=0, help="sensor-noise seed (default 0)")
     p.add_argument("-o", "--output", metavar="FILE", help="output file: .tlog or .bin")
     p.add_argument("--live", metavar="URL",
                    help="instead of a file, act as an autopilot on this MAVLink connection (e.g. "
                         "udpout:127.0.0.1:14550): stream the flight in real time, honouring "
                         "SET_MESSAGE_INTERVAL and REQUEST_DATA_STREAM")
-    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+    p.add_argument("--speed", type=SECONDS, default=1.0, metavar="X",
                    help="with --live: times real time (default 1; 0 = as fast as possible)")
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
+    force_arg(p)
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser(
@@ -447,12 +515,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("url", nargs="?", default="udpin:0.0.0.0:14550",
                    help="a pymavlink connection string: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, "
                         "or a serial device (default udpin:0.0.0.0:14550)")
-    p.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
-    p.add_argument("--sysid", type=int, default=None, metavar="ID",
+    p.add_argument("--baud", type=COUNT, default=115200, help="serial baud rate (default 115200)")
+    p.add_argument("--sysid", type=_number(1, 255, whole=True), default=None, metavar="ID",
                    help="the vehicle's MAVLink system id (default: the first autopilot heard)")
     p.add_argument("--estimators", default="mahony", metavar="LIST",
                    help="comma-separated estimator names, or 'all' (default: mahony)")
-    p.add_argument("--imu-rate", type=float, default=50.0, metavar="HZ",
+    p.add_argument("--imu-rate", type=POSITIVE, default=50.0, metavar="HZ",
                    help="IMU rate to ask the vehicle for (default 50; ATTITUDE up to 50 Hz, GPS 5 Hz, "
                         "baro up to 10 Hz)")
     p.add_argument("--no-request", action="store_true",
@@ -460,27 +528,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--imu", default=None, metavar="SOURCE",
                    help="IMU message to estimate from (and ask for), e.g. RAW_IMU, SCALED_IMU2, HIGHRES_IMU "
                         "(default: ask for RAW_IMU, use the best that arrives)")
-    p.add_argument("--window", type=float, default=10.0, metavar="S",
+    p.add_argument("--window", type=POSITIVE, default=10.0, metavar="S",
                    help="seconds of the rolling metrics (default 10)")
-    p.add_argument("--timeout", type=float, default=5.0, metavar="S",
+    p.add_argument("--timeout", type=POSITIVE, default=5.0, metavar="S",
                    help="seconds without packets before the link counts as lost (default 5)")
     p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
                    help="score against the vehicle's ATTITUDE (default) or SITL's SIMSTATE truth")
-    p.add_argument("--warmup", type=float, default=10.0, metavar="S",
+    p.add_argument("--warmup", type=SECONDS, default=10.0, metavar="S",
                    help="seconds not scored in the final metrics while estimators converge (default 10)")
-    p.add_argument("--declination", type=float, default=None, metavar="DEG",
+    p.add_argument("--declination", type=DEGREES, default=None, metavar="DEG",
                    help="magnetic declination, degrees east (default: the vehicle's COMPASS_DEC, else 0)")
     p.add_argument("--no-mag", action="store_true", help="ignore the magnetometer")
     p.add_argument("--set", action="append", metavar="NAME.PARAM=VALUE",
                    help="override an estimator parameter (repeatable; see 'mavattitude estimators')")
     p.add_argument("--params", metavar="FILE", help="a TOML file of estimator parameters")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--duration", type=POSITIVE, default=None, metavar="S",
                    help="stop after this many seconds (default: run until Ctrl-C)")
     rec = p.add_argument_group("recording")
     rec.add_argument("--record", metavar="FILE",
                      help="the .tlog every received packet goes to (default live-<UTC time>.tlog)")
     rec.add_argument("--no-record", action="store_true", help="do not record")
     rec.add_argument("--json", metavar="FILE", help="write the final metrics as JSON")
+    force_arg(rec)
     viewer = p.add_argument_group("viewer (one of)").add_mutually_exclusive_group()
     viewer.add_argument("--spawn", action="store_true", help="stream to a newly spawned Rerun viewer")
     viewer.add_argument("--connect", metavar="URL", help="stream to a running Rerun viewer "
@@ -501,31 +570,53 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--estimators", default="all", metavar="LIST",
                    help="comma-separated estimator names, or 'all' (default: all)")
     p.add_argument("--scenario", default="figure8", help="simulated scenario (default figure8)")
-    p.add_argument("--duration", type=float, default=3600.0, metavar="S",
+    p.add_argument("--duration", type=POSITIVE, default=3600.0, metavar="S",
                    help="simulated seconds (default 3600)")
-    p.add_argument("--imu-rate", type=float, default=400.0, metavar="HZ", help="IMU rate (default 400)")
-    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed (default 0)")
-    p.add_argument("--repeat", type=int, default=3, metavar="N",
+    p.add_argument("--imu-rate", type=POSITIVE, default=400.0, metavar="HZ", help="IMU rate (default 400)")
+    p.add_argument("--seed", type=SEED, default=0, help="sensor-noise seed (default 0)")
+    p.add_argument("--repeat", type=COUNT, default=3, metavar="N",
                    help="time each run N times and keep the best (default 3)")
-    p.add_argument("--imufusion-samples", type=int, default=200_000, metavar="N",
+    p.add_argument("--imufusion-samples", type=COUNT, default=200_000, metavar="N",
                    help="samples imufusion's Python loop is timed on (default 200000)")
     p.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    force_arg(p)
     p.add_argument("--live", action="store_true",
                    help="also the live figure: a simulated autopilot streams RAW_IMU at 1 kHz and ATTITUDE "
                         "at 50 Hz over loopback UDP to a live session running the estimators; reports "
                         "packets dropped and packet-to-estimate latency (targets: 0, p99 <= 10 ms)")
-    p.add_argument("--live-seconds", type=float, default=60.0, metavar="S",
+    p.add_argument("--live-seconds", type=POSITIVE, default=60.0, metavar="S",
                    help="how long the live figure streams (default 60)")
     p.set_defaults(func=cmd_bench)
     return parser
 
 
 def main(argv=None) -> int:
+    # Rerun's own log lines would repeat, in Rust's format, what our one-line errors say.
+    os.environ.setdefault("RUST_LOG", "off")
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a usage error argparse has printed (2)
+        return exc.code
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    code = _run(args)
+    from .sink import shutdown
+    try:
+        closed = shutdown()
+    except KeyboardInterrupt:
+        closed = False
+    if not closed:
+        print("mavattitude: the Rerun viewer stopped answering; closed without it", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)  # Rerun's exit handler would wait for that viewer forever
+    return code
+
+
+def _run(args) -> int:
+    """Run the command; every error becomes one line on stderr and its exit status."""
     try:
         return args.func(args)
     except InputError as exc:
@@ -534,6 +625,9 @@ def main(argv=None) -> int:
     except UsageError as exc:
         print(f"mavattitude: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # our reader went away (`| head`): stop quietly, as Unix tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except OSError as exc:  # an output we cannot write, a port in use
         name = f"{exc.filename}: " if exc.filename else ""
         print(f"mavattitude: error: {name}{exc.strerror or exc}", file=sys.stderr)

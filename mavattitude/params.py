@@ -1,6 +1,10 @@
 """Estimator parameters from the command line and from a TOML file.
 
-Every estimator's parameters are a small dataclass with the paper's defaults. A user
+Every estimator's parameters are a small dataclass with the paper's defaults, each field
+declared with ``param(default, valid)``: ``valid`` is the interval of values that mean
+something, in interval notation (``"[0, inf)"``, ``"(0, 1]"``); a value outside it is refused
+before any work. A class may also list pairs of fields that must be strictly ordered
+(``ORDERED = (("norm_lo", "norm_hi"),)``: a ramp from ``lo`` to ``hi``). A user
 overrides them with ``--params FILE`` (a TOML table per estimator) and ``--set
 NAME.FIELD=VALUE`` (applied after the file, so the command line wins). Below both, a log can
 supply a default of its own (``log_defaults``: eq-kf's airspeed from an ArduPlane's cruise
@@ -16,8 +20,10 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 import re
 import sys
+from dataclasses import dataclass
 
 from .errors import InputError, UsageError
 
@@ -25,6 +31,48 @@ if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
+
+
+@dataclass(frozen=True)
+class Interval:
+    """The values a parameter may take: from ``lo`` to ``hi``, each end closed or open."""
+    lo: float
+    hi: float
+    lo_closed: bool
+    hi_closed: bool
+
+    @classmethod
+    def parse(cls, text: str) -> Interval:
+        m = re.fullmatch(r"\s*([\[(])\s*([^,\s]+)\s*,\s*([^\])\s]+)\s*([\])])\s*", text)
+        if not m:
+            raise ValueError(f"not an interval: {text!r} (write e.g. '[0, inf)' or '(0, 1]')")
+        return cls(float(m.group(2)), float(m.group(3)), m.group(1) == "[", m.group(4) == "]")
+
+    def __contains__(self, x: float) -> bool:
+        above = x >= self.lo if self.lo_closed else x > self.lo
+        below = x <= self.hi if self.hi_closed else x < self.hi
+        return above and below
+
+    def __str__(self) -> str:
+        def end(v):
+            return "inf" if v == math.inf else "-inf" if v == -math.inf else f"{v:g}"
+        return f"{'[' if self.lo_closed else '('}{end(self.lo)}, {end(self.hi)}{']' if self.hi_closed else ')'}"
+
+
+def param(default, valid: str | None = None):
+    """A parameter field: its default and, for numbers, the interval of values that mean
+    something (``valid``, e.g. ``"(0, inf)"`` for a noise density)."""
+    if valid is None and not isinstance(default, bool):
+        raise ValueError("a numeric parameter declares its valid interval")
+    interval = Interval.parse(valid) if valid is not None else None
+    if interval is not None and default not in interval:
+        raise ValueError(f"default {default!r} is outside its own valid interval {interval}")
+    return dataclasses.field(default=default, metadata={"valid": interval})
+
+
+def valid_interval(params_class, name: str) -> Interval | None:
+    """The valid interval ``param`` declared for a field (None for a flag)."""
+    return {f.name: f.metadata.get("valid") for f in dataclasses.fields(params_class)}[name]
 
 
 def load_file(path: str) -> dict[str, dict[str, object]]:
@@ -72,20 +120,39 @@ def build(names: list[str], file_values: dict | None = None, assignments: list[s
         values.setdefault(name, {})[field] = (value, "--set")
     for name in values:
         if name not in ESTIMATORS:
-            raise UsageError(f"{values[name][next(iter(values[name]))][1]}: unknown estimator {name!r}; "
-                             f"choose from: {', '.join(ESTIMATORS)}")
+            _fail(values[name][next(iter(values[name]))][1],
+                  f"unknown estimator {name!r}; choose from: {', '.join(ESTIMATORS)}")
     params = {}
     for name in names:
-        defaults = ESTIMATORS[name].Params()
-        changes = {}
+        cls = ESTIMATORS[name].Params
+        defaults = cls()
+        changes, origins = {}, {}
         known = {f.name: f for f in dataclasses.fields(defaults)}
         for field, (value, origin) in values.get(name, {}).items():
             if field not in known:
-                raise UsageError(f"{origin}: {name} has no parameter {field!r}; it has: "
-                                 f"{', '.join(known)} (see 'mavattitude estimators')")
-            changes[field] = convert(value, getattr(defaults, field), f"{origin}: {name}.{field}")
-        params[name] = dataclasses.replace(defaults, **changes)
+                _fail(origin, f"{name} has no parameter {field!r}; it has: "
+                              f"{', '.join(known)} (see 'mavattitude estimators')")
+            where = f"{name}.{field}"
+            changes[field] = convert(value, getattr(defaults, field), where, origin)
+            interval = known[field].metadata.get("valid")
+            if interval is not None and changes[field] not in interval:
+                _fail(origin, f"{where} = {changes[field]:g} is outside its valid range {interval}")
+            origins[field] = origin
+        chosen = dataclasses.replace(defaults, **changes)
+        for lo, hi in getattr(cls, "ORDERED", ()):
+            if not getattr(chosen, lo) < getattr(chosen, hi):
+                _fail(origins.get(lo, origins.get(hi, "--set")),
+                      f"{name}.{lo} ({getattr(chosen, lo):g}) must be below {name}.{hi} ({getattr(chosen, hi):g})")
+        params[name] = chosen
     return params
+
+
+def _fail(origin: str, problem: str):
+    """A bad value from the command line is a usage error (exit 2); from a file, an error in
+    that file (exit 1), named."""
+    if origin in ("--set", "log"):
+        raise UsageError(f"{origin}: {problem}")
+    raise InputError(origin, problem)
 
 
 def log_defaults(flight, names: list[str], file_values: dict | None = None,
@@ -115,7 +182,7 @@ def log_defaults(flight, names: list[str], file_values: dict | None = None,
     return values, notes
 
 
-def convert(value, default, where: str):
+def convert(value, default, where: str, origin: str = "--set"):
     """``value`` (a string from --set, or a TOML value) as the type of ``default``."""
     if isinstance(default, bool):
         if isinstance(value, bool):
@@ -125,25 +192,26 @@ def convert(value, default, where: str):
             return True
         if text in ("false", "no", "off", "0"):
             return False
-        raise UsageError(f"{where}: expected true or false, got {value!r}")
+        _fail(origin, f"{where}: expected true or false, got {value!r}")
     if isinstance(default, (int, float)):
         try:
             number = float(value) if not isinstance(value, bool) else None
         except (TypeError, ValueError):
             number = None
-        if number is None or number != number or number in (float("inf"), float("-inf")):
-            raise UsageError(f"{where}: expected a number, got {value!r}")
+        if number is None or not math.isfinite(number):
+            _fail(origin, f"{where}: expected a finite number, got {value!r}")
         if isinstance(default, int):
             if number != int(number):
-                raise UsageError(f"{where}: expected a whole number, got {value!r}")
+                _fail(origin, f"{where}: expected a whole number, got {value!r}")
             return int(number)
         return number
-    raise UsageError(f"{where}: this parameter cannot be set")
+    _fail(origin, f"{where}: this parameter cannot be set")
 
 
-def describe(params_class) -> list[tuple[str, object, str]]:
-    """(field, default, comment) for each parameter of a params dataclass; the comment is the
-    one written after the field in its source, so the code stays the one place it is said."""
+def describe(params_class) -> list[tuple[str, object, Interval | None, str]]:
+    """(field, default, valid interval, comment) for each parameter of a params dataclass; the
+    comment is the one written after the field in its source, so the code stays the one place
+    it is said."""
     comments = {}
     try:
         source = inspect.getsource(params_class)
@@ -154,5 +222,5 @@ def describe(params_class) -> list[tuple[str, object, str]]:
         if m:
             comments[m.group(1)] = m.group(2).strip()
     defaults = params_class()
-    return [(f.name, getattr(defaults, f.name), comments.get(f.name, ""))
+    return [(f.name, getattr(defaults, f.name), f.metadata.get("valid"), comments.get(f.name, ""))
             for f in dataclasses.fields(defaults)]

@@ -125,6 +125,18 @@ def estimator_extras(result) -> dict[str, dict]:
     return out
 
 
+def nothing_scored(comparisons: dict[str, Comparison], warmup_s: float) -> str | None:
+    """Why no sample was scored, when none was: a log (or session) about as short as the
+    warm-up, or an estimate that never overlaps the reference. None when something was."""
+    if not comparisons or any(a is not None for c in comparisons.values() for a in c.axes.values()):
+        return None
+    spans = [float(c.t[-1] - c.t[0]) for c in comparisons.values() if len(c.t)]
+    if not spans:
+        return "nothing scored: the estimates and the reference never overlap in time"
+    return (f"nothing scored: the estimates overlap the reference for {max(spans):.1f} s, no more than the "
+            f"{warmup_s:g} s warm-up (use a shorter --warmup)")
+
+
 def format_events(result) -> str:
     """One line per estimator state other than "used": how often and how long the
     accelerometer update was skipped or down-weighted; and one line for a watchdog's resets."""
@@ -189,7 +201,7 @@ def write_csv(directory, reference: AttitudeSeries,
     directory.mkdir(parents=True, exist_ok=True)
     targets = {"reference": (directory / "reference.csv", reference)}
     for name, series in estimates.items():
-        path = directory / f"{_file_stem(name)}.csv"
+        path = directory / csv_file_name(name)
         if any(path == p for p, _ in targets.values()):
             raise ValueError(f"estimator {name!r} would overwrite {path.name}")
         targets[name] = (path, series)
@@ -198,9 +210,10 @@ def write_csv(directory, reference: AttitudeSeries,
     return {name: path for name, (path, _) in targets.items()}
 
 
-def _file_stem(name: str) -> str:
+def csv_file_name(name: str) -> str:
+    """The CSV file ``write_csv`` writes for a series named ``name``."""
     stem = re.sub(r"[^A-Za-z0-9._-]", "_", str(name)).lstrip(".")
-    return stem or "_"
+    return (stem or "_") + ".csv"
 
 
 def _write_attitude_csv(path: Path, series: AttitudeSeries) -> None:

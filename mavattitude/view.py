@@ -56,9 +56,7 @@ a point or two).
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Iterable, Sequence
-from urllib.parse import quote
 
 import numpy as np
 import rerun as rr
@@ -149,47 +147,6 @@ def body_path(name: str) -> str:
 
 def ghost_path(name: str) -> str:
     return f"world/{_part(name)}/reference"
-
-
-# ---------------------------------------------------------------- sinks
-
-
-def open_sink(app_id: str, recording_name: str, rrd: str | None = None, spawn: bool = False,
-              connect: str | None = None, web: bool = False, *, web_port: int | None = None,
-              grpc_port: int | None = None, open_browser: bool = True) -> rr.RecordingStream:
-    """A new recording with exactly one sink.
-
-    - ``rrd``: write that file (call ``close_sink`` at the end to finish it);
-    - ``spawn``: start the native viewer and stream to it;
-    - ``connect``: stream to a running viewer, e.g. ``rerun+http://127.0.0.1:9876/proxy``;
-    - ``web``: serve the data over gRPC and the web viewer over HTTP (prints the address on
-      stderr). The servers live as long as the returned stream and the process: the caller
-      keeps both alive (e.g. until Ctrl-C).
-    """
-    chosen = [bool(rrd), bool(spawn), bool(connect), bool(web)]
-    if sum(chosen) != 1:
-        raise ValueError("open_sink: choose exactly one of rrd, spawn, connect, web")
-    rec = rr.RecordingStream(app_id)
-    if rrd:
-        rec.save(rrd)
-    elif spawn:
-        rec.spawn()
-    elif connect:
-        rec.connect_grpc(connect)
-    else:
-        url = rec.serve_grpc(grpc_port=grpc_port)
-        rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
-        port = web_port or 9090
-        print(f"Rerun web viewer: http://localhost:{port}/?url={quote(url, safe='')}",
-              file=sys.stderr)
-    rec.send_recording_name(recording_name)
-    return rec
-
-
-def close_sink(rec: rr.RecordingStream) -> None:
-    """Flush everything; for a file sink, also write the .rrd footer."""
-    rec.flush()
-    rec.disconnect()
 
 
 # ---------------------------------------------------------------- blueprint
@@ -770,6 +727,8 @@ def summary_markdown(result: ReplayResult) -> str:
         if c.yaw_aligned:
             note += f"; yaw offset {c.yaw_offset_deg:+.1f}° removed"
         lines.append(f"| {name} | {c.reference} | {' | '.join(cells)} | {n} | {note} |")
+    if fl.warnings:
+        lines += ["", "## Data the reader left out", ""] + [f"- {w}" for w in fl.warnings]
     if fl.notes:
         lines += ["", "## Reader notes", ""] + [f"- {n}" for n in fl.notes]
     return "\n".join(lines) + "\n"

@@ -111,7 +111,7 @@ def test_simulate_writes_a_log_replay_reads(tmp_path, capsys):
     (["replay", "missing.bin"], 1, "missing.bin: no such file"),
     (["info", "missing.tlog"], 1, "missing.tlog: no such file"),
     (["replay", SAMPLE_LOGS / "static.bin", "--estimators", "nope", "--no-view"], 2, "unknown estimator"),
-    (["replay", SAMPLE_LOGS / "static.bin", "--imu", "IMU[7]", "--no-view"], 2, "IMU[7]"),
+    (["replay", SAMPLE_LOGS / "static.bin", "--imu", "IMU[7]", "--no-view"], 1, "IMU[7]"),
     (["replay", SAMPLE_LOGS / "static.bin", "--warmup", "-1", "--no-view"], 2, "--warmup"),
     (["simulate", "--scenario", "nope", "-o", "x.tlog"], 2, "unknown scenario"),
     (["simulate", "-o", "x.csv"], 2, "must end in .tlog or .bin"),
@@ -134,7 +134,7 @@ def test_garbage_file_is_one_line_error(tmp_path, capsys):
 def test_truth_reference_on_a_log_without_truth(capsys):
     code, _, err = run(capsys, "replay", shared_log("copter-3.4-erlebrain-22.bin"),
                        "--reference", "truth", "--no-view")
-    assert code == 2 and "no ground truth" in err
+    assert code == 1 and "no ground truth" in err
 
 
 def test_module_and_console_script_help():
@@ -224,7 +224,7 @@ def test_plane_log_supplies_the_eq_kf_airspeed_param_unless_the_user_sets_it():
 @pytest.mark.parametrize("extra, code, text", [
     (["--set", "mahony.kq=1"], 2, "mahony has no parameter 'kq'"),
     (["--set", "mahony.kp"], 2, "expected ESTIMATOR.PARAMETER=VALUE"),
-    (["--set", "mahony.kp=fast"], 2, "expected a number"),
+    (["--set", "mahony.kp=fast"], 2, "expected a finite number"),
     (["--set", "mahony.use_mag=maybe"], 2, "expected true or false"),
     (["--set", "nope.kp=1"], 2, "unknown estimator 'nope'"),
     (["--params", "missing.toml"], 1, "missing.toml: no such file"),

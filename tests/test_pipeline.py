@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mavattitude import quaternion as quat
-from mavattitude.errors import UsageError
+from mavattitude.errors import InputError, UsageError
 from mavattitude.flight import ImuSeries, MagSeries
 from mavattitude.pipeline import (contiguous_runs, mag_on_imu_clock, resolve_declination,
                                   run_replay)
@@ -76,7 +76,7 @@ def test_reference_truth_adds_the_autopilot_row(sim_logs):
     with pytest.raises(UsageError, match="unknown reference"):
         run_replay(flight, ["mahony"], reference="nope")
     no_truth = replace(flight, truth=None)
-    with pytest.raises(UsageError, match="no ground truth"):
+    with pytest.raises(InputError, match="no ground truth"):
         run_replay(no_truth, ["mahony"], reference="truth")
 
 

@@ -57,6 +57,13 @@ class Estimator:
         ``uses_aiding``."""
         raise NotImplementedError
 
+    def _chunk(self, t, gyro, accel, mag, in_air=None):
+        """The inputs as the compiled kernels want them (``as_chunk``), once ``initialize``
+        has given the filter a state to start from."""
+        if not self.initialized:
+            raise RuntimeError(f"{self.name}: call initialize(q0, gyro_bias) before update()")
+        return as_chunk(t, gyro, accel, mag, in_air)
+
     @property
     def covariance(self) -> np.ndarray | None:
         """The current state covariance (a copy), or None for a filter without one."""

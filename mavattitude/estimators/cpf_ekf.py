@@ -121,7 +121,8 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from .base import MAX_STEP_S, Estimator, as_chunk
+from ..params import param
+from .base import MAX_STEP_S, Estimator
 from .mahony import mahony_step
 
 NX = 20
@@ -153,44 +154,44 @@ NAUX = 28
 
 @dataclass
 class CpfEkfParams:
-    gyro_noise: float = 1.5e-3  # gyro rate noise density, rad/s/√Hz
-    accel_noise: float = 0.2  # accelerometer noise density (vibration included), m/s²/√Hz
-    gyro_bias_walk: float = 5e-5  # gyro bias random walk, rad/s/√s
-    accel_bias_walk: float = 1e-3  # z-accelerometer bias random walk, m/s²/√s
-    earth_field_walk: float = 1e-4  # earth field random walk, gauss/√s
-    body_field_walk: float = 1e-5  # magnetometer bias random walk, gauss/√s
-    mag_noise: float = 0.05  # magnetometer noise per axis (interference included), gauss (1σ per sample)
-    declination_noise_deg: float = 5.0  # declination pseudo-measurement, degrees (1σ per compass sample)
-    gps_vel_noise: float = 0.3  # GPS velocity noise per axis, m/s (1σ)
-    gps_pos_noise: float = 1.0  # GPS horizontal position noise when the log gives no accuracy, m (1σ)
-    gps_pos_noise_min: float = 0.3  # floor under a reported horizontal accuracy, m
-    gps_alt_noise: float = 3.0  # GPS altitude noise (used without a fresh baro), m (1σ)
-    gps_delay_s: float = 0.0  # how old a GPS fix is when logged, s (0: fused as current)
-    baro_noise: float = 1.0  # baro height noise, m (1σ)
-    gps_timeout_s: float = 2.0  # no GPS for longer: synthetic zero velocity, s
-    baro_timeout_s: float = 2.0  # no baro for longer: GPS altitude instead, s
-    synthetic_vel_noise: float = 1.0  # synthetic zero-velocity noise without GPS, m/s (1σ; 0: none)
-    innovation_gate: float = 0.0  # reject a scalar update with |ν| > gate·√S, σ (0: no gate)
-    tilt_sigma0_deg: float = 2.0  # initial (and reset) roll/pitch 1σ, degrees
-    yaw_sigma0_deg: float = 5.0  # initial (and reset) yaw 1σ with a magnetometer, degrees
-    yaw_sigma0_nomag_deg: float = 30.0  # initial yaw 1σ without a magnetometer, degrees
-    heading_hold_noise_deg: float = 0.5  # without a magnetometer: zero-innovation heading measurement, degrees (1σ; 0: off)
-    vel_sigma0: float = 1.0  # initial velocity 1σ, m/s
-    pos_sigma0: float = 5.0  # initial position 1σ, m
-    gyro_bias_sigma0_dps: float = 0.1  # initial gyro bias 1σ, °/s
-    accel_bias_sigma0: float = 0.1  # initial z-accelerometer bias 1σ, m/s²
-    earth_field_sigma0: float = 0.02  # initial earth field 1σ, gauss
-    body_field_sigma0: float = 0.02  # initial magnetometer bias 1σ, gauss
-    watchdog: bool = True  # reset the EKF from the complementary filter on divergence (eq 21)
-    reset_threshold: float = 0.27416  # N of eq 21: squared Euler-angle difference sum, rad²
-    reset_cycles: int = 3  # consecutive watchdog cycles over N that trigger a reset
-    reset_bias_covariance: bool = True  # on a reset, bias variances back to their initial values (estimates kept)
-    watchdog_period_s: float = 0.02  # watchdog cycle: one check per this span (the paper's 50 Hz IMU; 0: every IMU sample), s
-    cpf_kp: float = 0.2  # complementary filter proportional gain, 1/s (as mahony)
-    cpf_ki: float = 0.0005  # complementary filter integral gain, 1/s² (as mahony)
-    use_mag: bool = True  # fuse the magnetometer when the log has one
-    use_gps: bool = True  # fuse GPS velocity and position when the log has them
-    use_baro: bool = True  # fuse baro height when the log has it
+    gyro_noise: float = param(1.5e-3, "(0, inf)")  # gyro rate noise density, rad/s/√Hz
+    accel_noise: float = param(0.2, "(0, inf)")  # accelerometer noise density (vibration included), m/s²/√Hz
+    gyro_bias_walk: float = param(5e-5, "[0, inf)")  # gyro bias random walk, rad/s/√s
+    accel_bias_walk: float = param(1e-3, "[0, inf)")  # z-accelerometer bias random walk, m/s²/√s
+    earth_field_walk: float = param(1e-4, "[0, inf)")  # earth field random walk, gauss/√s
+    body_field_walk: float = param(1e-5, "[0, inf)")  # magnetometer bias random walk, gauss/√s
+    mag_noise: float = param(0.05, "(0, inf)")  # magnetometer noise per axis (interference included), gauss (1σ per sample)
+    declination_noise_deg: float = param(5.0, "(0, inf)")  # declination pseudo-measurement, degrees (1σ per compass sample)
+    gps_vel_noise: float = param(0.3, "(0, inf)")  # GPS velocity noise per axis, m/s (1σ)
+    gps_pos_noise: float = param(1.0, "(0, inf)")  # GPS horizontal position noise when the log gives no accuracy, m (1σ)
+    gps_pos_noise_min: float = param(0.3, "[0, inf)")  # floor under a reported horizontal accuracy, m
+    gps_alt_noise: float = param(3.0, "(0, inf)")  # GPS altitude noise (used without a fresh baro), m (1σ)
+    gps_delay_s: float = param(0.0, "[0, inf)")  # how old a GPS fix is when logged, s (0: fused as current)
+    baro_noise: float = param(1.0, "(0, inf)")  # baro height noise, m (1σ)
+    gps_timeout_s: float = param(2.0, "[0, inf)")  # no GPS for longer: synthetic zero velocity, s
+    baro_timeout_s: float = param(2.0, "[0, inf)")  # no baro for longer: GPS altitude instead, s
+    synthetic_vel_noise: float = param(1.0, "[0, inf)")  # synthetic zero-velocity noise without GPS, m/s (1σ; 0: none)
+    innovation_gate: float = param(0.0, "[0, inf)")  # reject a scalar update with |ν| > gate·√S, σ (0: no gate)
+    tilt_sigma0_deg: float = param(2.0, "[0, 180]")  # initial (and reset) roll/pitch 1σ, degrees
+    yaw_sigma0_deg: float = param(5.0, "[0, 180]")  # initial (and reset) yaw 1σ with a magnetometer, degrees
+    yaw_sigma0_nomag_deg: float = param(30.0, "[0, 180]")  # initial yaw 1σ without a magnetometer, degrees
+    heading_hold_noise_deg: float = param(0.5, "[0, inf)")  # without a magnetometer: zero-innovation heading measurement, degrees (1σ; 0: off)
+    vel_sigma0: float = param(1.0, "[0, inf)")  # initial velocity 1σ, m/s
+    pos_sigma0: float = param(5.0, "[0, inf)")  # initial position 1σ, m
+    gyro_bias_sigma0_dps: float = param(0.1, "[0, inf)")  # initial gyro bias 1σ, °/s
+    accel_bias_sigma0: float = param(0.1, "[0, inf)")  # initial z-accelerometer bias 1σ, m/s²
+    earth_field_sigma0: float = param(0.02, "[0, inf)")  # initial earth field 1σ, gauss
+    body_field_sigma0: float = param(0.02, "[0, inf)")  # initial magnetometer bias 1σ, gauss
+    watchdog: bool = param(True)  # reset the EKF from the complementary filter on divergence (eq 21)
+    reset_threshold: float = param(0.27416, "(0, inf)")  # N of eq 21: squared Euler-angle difference sum, rad²
+    reset_cycles: int = param(3, "[1, inf)")  # consecutive watchdog cycles over N that trigger a reset
+    reset_bias_covariance: bool = param(True)  # on a reset, bias variances back to their initial values (estimates kept)
+    watchdog_period_s: float = param(0.02, "[0, inf)")  # watchdog cycle: one check per this span (the paper's 50 Hz IMU; 0: every IMU sample), s
+    cpf_kp: float = param(0.2, "[0, inf)")  # complementary filter proportional gain, 1/s (as mahony)
+    cpf_ki: float = param(0.0005, "[0, inf)")  # complementary filter integral gain, 1/s² (as mahony)
+    use_mag: bool = param(True)  # fuse the magnetometer when the log has one
+    use_gps: bool = param(True)  # fuse GPS velocity and position when the log has them
+    use_baro: bool = param(True)  # fuse baro height when the log has it
 
 
 # parameter vector layout for the kernel
@@ -1133,7 +1134,7 @@ class CpfEkf(Estimator):
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        t, gyro, accel, mag, _ = as_chunk(t, gyro, accel, mag)
+        t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
         n = len(t)
         if aiding is None:
             from ..aiding import Aiding

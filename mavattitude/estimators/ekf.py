@@ -63,15 +63,16 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .base import MAX_STEP_S, Estimator, as_chunk
+from ..params import param
+from .base import MAX_STEP_S, Estimator
 
 
 @dataclass
 class EkfParams:
-    q_gyro: float = 1e-2  # gyro noise variance per axis (paper 000's Q), (rad/s)²
-    r_accel: float = 0.25  # noise variance per axis of the normalised accelerometer a/‖a‖, 1
-    r_mag: float = 0.01  # compass heading noise variance, rad²
-    use_mag: bool = True  # measure heading from the magnetometer when the log has one
+    q_gyro: float = param(1e-2, "(0, inf)")  # gyro noise variance per axis (paper 000's Q), (rad/s)²
+    r_accel: float = param(0.25, "(0, inf)")  # noise variance per axis of the normalised accelerometer a/‖a‖, 1
+    r_mag: float = param(0.01, "(0, inf)")  # compass heading noise variance, rad²
+    use_mag: bool = param(True)  # measure heading from the magnetometer when the log has one
 
 
 # ---------------------------------------------------------------- model functions (njit)
@@ -456,7 +457,7 @@ class Ekf(Estimator):
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
-        t, gyro, accel, mag, _ = as_chunk(t, gyro, accel, mag)
+        t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
         n = len(t)
         out = np.empty((n, 4))
         cov_trace = np.empty(n)

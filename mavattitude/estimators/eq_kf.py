@@ -121,36 +121,39 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from .base import MAX_STEP_S, Estimator, as_chunk
+from ..params import param
+from .base import MAX_STEP_S, Estimator
 
 
 @dataclass
 class EqKfParams:
-    gyro_noise: float = 1e-3  # rad/s/√Hz, gyro white-noise density (attitude process noise)
-    bias_walk: float = 3e-5  # rad/s/√s, gyro-bias random walk
-    int_noise: float = 0.3  # 1: step-rotation uncertainty as a fraction of |ω_k - ω_k-1|·Δt
-    accel_noise: float = 0.007  # rad·√s (1/√Hz), accelerometer direction noise density; R₀ = σ²/Δt
-    mag_noise: float = 0.05  # rad·√s, magnetometer heading noise density; R_m = σ²/Δt
-    init_att_sigma: float = 0.2  # rad, initial attitude uncertainty, 1σ per axis
-    init_bias_sigma: float = 5e-4  # rad/s, initial gyro-bias uncertainty, 1σ per axis
-    norm_lo: float = 0.05  # 1 (fraction of g): trust falls from 1 when |‖f̃‖/g - 1| exceeds this ...
-    norm_hi: float = 0.2  # 1 (fraction of g): ... to 0 here
-    rate_lo: float = 1.0  # rad/s: trust falls from 1 above this rotation rate ...
-    rate_hi: float = 3.0  # rad/s: ... to 0 here
-    gate_noise: float = 0.005  # rad, residual direction noise floor of the gate, 1σ
-    gate_lo: float = 3.0  # 1 (normalised residual d): trust falls from 1 above this ...
-    gate_hi: float = 5.0  # 1: ... to 0 here
-    trust_rise: float = 3.0  # s: the trust climbs from 0 to 1 no faster than over this time
-    trust_lpf: float = 0.1  # s, time constant of the low-pass f̃ (norm and consistency tests)
-    vib_time: float = 1.0  # s, averaging time of the direction-noise (vibration) estimate
-    still_rate: float = 0.05  # rad/s: still when rotating slower than this ...
-    still_accel: float = 0.2  # m/s²: ... with the accelerometer staying within this ...
-    still_time: float = 2.0  # s: ... for this long
-    cons_tol: float = 0.05  # rad: residual angle beyond what ‖f̃‖ explains that means attitude error ...
-    cons_norm: float = 0.02  # 1 (fraction of g): ... while |‖f̃‖/g - 1| stays below this ...
-    cons_time: float = 1.5  # s: ... for this long
-    use_mag: bool = True  # correct heading from the magnetometer when the log has one
-    airspeed: float = 0.0  # m/s, fixed-wing turn compensation: speed along body x (0: off)
+    gyro_noise: float = param(1e-3, "(0, inf)")  # rad/s/√Hz, gyro white-noise density (attitude process noise)
+    bias_walk: float = param(3e-5, "[0, inf)")  # rad/s/√s, gyro-bias random walk
+    int_noise: float = param(0.3, "[0, inf)")  # 1: step-rotation uncertainty as a fraction of |ω_k - ω_k-1|·Δt
+    accel_noise: float = param(0.007, "(0, inf)")  # rad·√s (1/√Hz), accelerometer direction noise density; R₀ = σ²/Δt
+    mag_noise: float = param(0.05, "(0, inf)")  # rad·√s, magnetometer heading noise density; R_m = σ²/Δt
+    init_att_sigma: float = param(0.2, "[0, 3.15]")  # rad, initial attitude uncertainty, 1σ per axis
+    init_bias_sigma: float = param(5e-4, "[0, inf)")  # rad/s, initial gyro-bias uncertainty, 1σ per axis
+    norm_lo: float = param(0.05, "[0, inf)")  # 1 (fraction of g): trust falls from 1 when |‖f̃‖/g - 1| exceeds this ...
+    norm_hi: float = param(0.2, "(0, inf)")  # 1 (fraction of g): ... to 0 here
+    rate_lo: float = param(1.0, "[0, inf)")  # rad/s: trust falls from 1 above this rotation rate ...
+    rate_hi: float = param(3.0, "(0, inf)")  # rad/s: ... to 0 here
+    gate_noise: float = param(0.005, "[0, inf)")  # rad, residual direction noise floor of the gate, 1σ
+    gate_lo: float = param(3.0, "(0, inf)")  # 1 (normalised residual d): trust falls from 1 above this ...
+    gate_hi: float = param(5.0, "(0, inf)")  # 1: ... to 0 here
+    trust_rise: float = param(3.0, "[0, inf)")  # s: the trust climbs from 0 to 1 no faster than over this time
+    trust_lpf: float = param(0.1, "[0, inf)")  # s, time constant of the low-pass f̃ (norm and consistency tests)
+    vib_time: float = param(1.0, "[0, inf)")  # s, averaging time of the direction-noise (vibration) estimate
+    still_rate: float = param(0.05, "[0, inf)")  # rad/s: still when rotating slower than this ...
+    still_accel: float = param(0.2, "[0, inf)")  # m/s²: ... with the accelerometer staying within this ...
+    still_time: float = param(2.0, "[0, inf)")  # s: ... for this long
+    cons_tol: float = param(0.05, "[0, inf)")  # rad: residual angle beyond what ‖f̃‖ explains that means attitude error ...
+    cons_norm: float = param(0.02, "[0, inf)")  # 1 (fraction of g): ... while |‖f̃‖/g - 1| stays below this ...
+    cons_time: float = param(1.5, "[0, inf)")  # s: ... for this long
+    use_mag: bool = param(True)  # correct heading from the magnetometer when the log has one
+    airspeed: float = param(0.0, "[0, 300]")  # m/s, fixed-wing turn compensation: speed along body x (0: off)
+
+    ORDERED = (("norm_lo", "norm_hi"), ("rate_lo", "rate_hi"), ("gate_lo", "gate_hi"))  # each a ramp
 
 
 ACCEL_STATES = ("used", "down-weighted", "skipped")
@@ -664,7 +667,7 @@ class EqKf(Estimator):
         return prm
 
     def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
-        t, gyro, accel, mag, in_air = as_chunk(t, gyro, accel, mag, in_air)
+        t, gyro, accel, mag, in_air = self._chunk(t, gyro, accel, mag, in_air)
         n = len(t)
         out = np.empty((n, 4))
         trace = np.empty(n)

@@ -49,23 +49,15 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
+from ..params import param
 from .base import MAX_STEP_S, Estimator
 
 
 @dataclass
 class EskfParams:
-    gyro_arw: float = 1e-3  # gyro rate noise density (angle random walk), rad/s/√Hz
-    accel_noise: float = 0.04  # accelerometer noise density, m/s²/√Hz
-    p0_deg: float = 2.0  # initial 1σ of each attitude error angle, degrees
-
-
-def as_imu_chunk(t, gyro, accel):
-    """Contiguous float64 t (N,), gyro (N, 3), accel (N, 3) for the kernels (no magnetometer)."""
-    t = np.ascontiguousarray(t, dtype=np.float64)
-    n = len(t)
-    gyro = np.ascontiguousarray(gyro, dtype=np.float64).reshape(n, 3)
-    accel = np.ascontiguousarray(accel, dtype=np.float64).reshape(n, 3)
-    return t, gyro, accel
+    gyro_arw: float = param(1e-3, "(0, inf)")  # gyro rate noise density (angle random walk), rad/s/√Hz
+    accel_noise: float = param(0.04, "(0, inf)")  # accelerometer noise density, m/s²/√Hz
+    p0_deg: float = param(2.0, "[0, 180]")  # initial 1σ of each attitude error angle, degrees
 
 
 # ---------------------------------------------------------------- shared scalar kernels
@@ -302,7 +294,7 @@ class Eskf(Estimator):
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
-        t, gyro, accel = as_imu_chunk(t, gyro, accel)
+        t, gyro, accel, _, _ = self._chunk(t, gyro, accel, None)
         n = len(t)
         out = np.empty((n, 4))
         cov_trace = np.empty(n)

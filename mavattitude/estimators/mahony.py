@@ -36,14 +36,15 @@ import numpy as np
 from numba import njit
 
 from ..quaternion import integrate_gyro_scalar
-from .base import MAX_STEP_S, Estimator, as_chunk
+from ..params import param
+from .base import MAX_STEP_S, Estimator
 
 
 @dataclass
 class MahonyParams:
-    kp: float = 0.2  # proportional gain, 1/s
-    ki: float = 0.0005  # integral gain, 1/s²
-    use_mag: bool = True  # correct heading from the magnetometer when the log has one
+    kp: float = param(0.2, "[0, inf)")  # proportional gain, 1/s
+    ki: float = param(0.0005, "[0, inf)")  # integral gain, 1/s²
+    use_mag: bool = param(True)  # correct heading from the magnetometer when the log has one
 
 
 @njit(cache=True, inline="always")
@@ -137,7 +138,7 @@ class Mahony(Estimator):
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
-        t, gyro, accel, mag, _ = as_chunk(t, gyro, accel, mag)
+        t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
         out = np.empty((len(t), 4))
         p = self.params
         return mahony_run(t, gyro, accel, mag, self._q, self._bias_correction, self._t_prev,

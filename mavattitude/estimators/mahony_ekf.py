@@ -62,22 +62,23 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..quaternion import integrate_gyro_scalar
-from .base import MAX_STEP_S, Estimator, as_chunk
+from ..params import param
+from .base import MAX_STEP_S, Estimator
 from .ekf import predict
 
 
 @dataclass
 class MahonyEkfParams:
-    kp: float = 0.5  # internal Mahony proportional gain, 1/s (mahony's: 0.2; see the docstring)
-    ki: float = 0.005  # internal Mahony integral gain, 1/s² (mahony's: 0.0005)
-    use_mag: bool = True  # the internal Mahony corrects heading from the magnetometer
-    q_gyro: float = 1e-2  # gyro noise variance per axis (eq 12: Q = 1e-2 I₃), (rad/s)²
-    r0: float = 1e-4  # measurement noise variance per quaternion component at rest (eq 17), 1
-    k_accel: float = 1000.0  # eq 17's k: R = r0 [1 + k_accel |‖a‖ - g|], 1/(m/s²)
-    k_mahony: float = 100.0  # Mahony gravity-error weight 1/(1 + k_mahony |ā - ā_ref|); 0: none, 1/(m/s²)
-    accel_lp_s: float = 0.5  # time constant of ā, the low-passed ‖a‖ - g, s
-    accel_ref_s: float = 60.0  # time constant of ā_ref, ā's slow baseline (0: none, ā_ref = 0), s
-    weight_min_rate: float = 20.0  # IMU rate below which the weight stays 1, Hz
+    kp: float = param(0.5, "[0, inf)")  # internal Mahony proportional gain, 1/s (mahony's: 0.2; see the docstring)
+    ki: float = param(0.005, "[0, inf)")  # internal Mahony integral gain, 1/s² (mahony's: 0.0005)
+    use_mag: bool = param(True)  # the internal Mahony corrects heading from the magnetometer
+    q_gyro: float = param(1e-2, "(0, inf)")  # gyro noise variance per axis (eq 12: Q = 1e-2 I₃), (rad/s)²
+    r0: float = param(1e-4, "(0, inf)")  # measurement noise variance per quaternion component at rest (eq 17), 1
+    k_accel: float = param(1000.0, "[0, inf)")  # eq 17's k: R = r0 [1 + k_accel |‖a‖ - g|], 1/(m/s²)
+    k_mahony: float = param(100.0, "[0, inf)")  # Mahony gravity-error weight 1/(1 + k_mahony |ā - ā_ref|); 0: none, 1/(m/s²)
+    accel_lp_s: float = param(0.5, "[0, inf)")  # time constant of ā, the low-passed ‖a‖ - g, s
+    accel_ref_s: float = param(60.0, "[0, inf)")  # time constant of ā_ref, ā's slow baseline (0: none, ā_ref = 0), s
+    weight_min_rate: float = param(20.0, "[0, inf)")  # IMU rate below which the weight stays 1, Hz
 
 
 @njit(cache=True, inline='always')
@@ -311,7 +312,7 @@ class MahonyEkf(Estimator):
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
-        t, gyro, accel, mag, _ = as_chunk(t, gyro, accel, mag)
+        t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
         n = len(t)
         out = np.empty((n, 4))
         self.mahony_q = np.empty((n if self.keep_mahony else 0, 4))

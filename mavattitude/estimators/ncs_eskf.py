@@ -111,31 +111,32 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
+from ..params import param
 from .base import MAX_STEP_S, Estimator
-from .eskf import as_imu_chunk, exp_s, normalize_into, qmul_s, set_q, step_dt
+from .eskf import exp_s, normalize_into, qmul_s, set_q, step_dt
 
 
 @dataclass
 class NcsEskfParams:
-    gyro_arw: float = 1e-3  # gyro rate noise density (angle random walk), rad/s/√Hz
-    accel_noise: float = 0.14  # accelerometer noise density, m/s²/√Hz
-    p0_deg: float = 2.0  # initial 1σ of each attitude error angle, degrees
-    total_threshold: float = 0.2  # g: skip the update when |‖a‖ - g| exceeds it (paper 0.2 g)
-    h_threshold_air: float = 0.01  # g: horizontal manoeuvre threshold in the air (paper 0.01 g)
-    h_threshold_ground: float = 0.1  # g: horizontal manoeuvre threshold on the ground (paper 0.1 g)
-    segmented: bool = True  # threshold by flight phase (paper §3.2); False: h_threshold_air always
-    accel_lpf_hz: float = 0.0  # Hz: first-order low-pass of the accelerometer (§1.3 3)), 0 = off
+    gyro_arw: float = param(1e-3, "(0, inf)")  # gyro rate noise density (angle random walk), rad/s/√Hz
+    accel_noise: float = param(0.14, "(0, inf)")  # accelerometer noise density, m/s²/√Hz
+    p0_deg: float = param(2.0, "[0, 180]")  # initial 1σ of each attitude error angle, degrees
+    total_threshold: float = param(0.2, "[0, inf)")  # g: skip the update when |‖a‖ - g| exceeds it (paper 0.2 g)
+    h_threshold_air: float = param(0.01, "[0, inf)")  # g: horizontal manoeuvre threshold in the air (paper 0.01 g)
+    h_threshold_ground: float = param(0.1, "[0, inf)")  # g: horizontal manoeuvre threshold on the ground (paper 0.1 g)
+    segmented: bool = param(True)  # threshold by flight phase (paper §3.2); False: h_threshold_air always
+    accel_lpf_hz: float = param(0.0, "[0, inf)")  # Hz: first-order low-pass of the accelerometer (§1.3 3)), 0 = off
     # Additions to the paper (each has a value that turns it off):
-    gate_sigma: float = 6.0  # σ of tilt uncertainty added (root-sum-square) to the gate; 0: off
-    taper: float = 1.0  # 0-1: R / (1 - taper · residual / gate), 1 = no weight at the gate; 0: off
-    estimate_bias: bool = True  # learn the gyro bias (horizontal effect only); False: 3 states
-    bias_p0_dps: float = 0.01  # initial 1σ of the bias left after the alignment, °/s
-    bias_walk: float = 6e-5  # gyro bias random walk, rad/s/√s
-    step_noise: float = 0.25  # integration uncertainty per step, fraction of |Δω| dt; 0: off
-    cons_tol: float = 0.05  # rad: residual angle beyond what ‖f̃‖ explains that means attitude error ...
-    cons_norm: float = 0.02  # 1 (fraction of g): ... while |‖f̃‖/g - 1| stays below this ...
-    cons_rate: float = 1.0  # rad/s: ... and the rotation below this ...
-    cons_time: float = 1.5  # s: ... for this long (0: no consistency test)
+    gate_sigma: float = param(6.0, "[0, inf)")  # σ of tilt uncertainty added (root-sum-square) to the gate; 0: off
+    taper: float = param(1.0, "[0, 1]")  # 0-1: R / (1 - taper · residual / gate), 1 = no weight at the gate; 0: off
+    estimate_bias: bool = param(True)  # learn the gyro bias (horizontal effect only); False: 3 states
+    bias_p0_dps: float = param(0.01, "[0, inf)")  # initial 1σ of the bias left after the alignment, °/s
+    bias_walk: float = param(6e-5, "[0, inf)")  # gyro bias random walk, rad/s/√s
+    step_noise: float = param(0.25, "[0, inf)")  # integration uncertainty per step, fraction of |Δω| dt; 0: off
+    cons_tol: float = param(0.05, "[0, inf)")  # rad: residual angle beyond what ‖f̃‖ explains that means attitude error ...
+    cons_norm: float = param(0.02, "[0, inf)")  # 1 (fraction of g): ... while |‖f̃‖/g - 1| stays below this ...
+    cons_rate: float = param(1.0, "[0, inf)")  # rad/s: ... and the rotation below this ...
+    cons_time: float = param(1.5, "[0, inf)")  # s: ... for this long (0: no consistency test)
 
 
 ACCEL_USED, ACCEL_TOTAL, ACCEL_HORIZONTAL, ACCEL_NONE = 0, 1, 2, 3
@@ -560,11 +561,8 @@ class NcsEskf(Estimator):
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
-        t, gyro, accel = as_imu_chunk(t, gyro, accel)
+        t, gyro, accel, _, in_air = self._chunk(t, gyro, accel, None, in_air)
         n = len(t)
-        if in_air is None:
-            in_air = np.full(n, np.nan)
-        in_air = np.ascontiguousarray(in_air, dtype=np.float64).reshape(n)
         out = np.empty((n, 4))
         diag = {"cov_trace": np.empty(n), "accel_state": np.empty(n, dtype=np.int8),
                 "h_residual": np.empty(n), "h_gate": np.empty(n)}

@@ -20,7 +20,7 @@ class TlogRecorder:
     def __init__(self, path):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "wb")
+        self._f = open(self.path, "xb")  # a recording never replaces a file
         self.packets = 0
         self.bytes = 0
         self._flushed_at = time.monotonic()

@@ -19,6 +19,7 @@ from datetime import datetime, timezone
 
 from ..errors import InputError
 from ..pipeline import LOW_IMU_RATE_HZ, Event
+from ..sink import Sink
 from .estimation import LiveEstimation
 from ..readers import enum_name, identify_vehicle
 from .link import (LinkMonitor, RateRequester, close_link, mavlink2, open_link,
@@ -67,7 +68,7 @@ class LiveOptions:
     reference: str = "autopilot"
     use_mag: bool = True
     duration: float | None = None  # s of wall time, then stop
-    sink: dict | None = None  # one of {"rrd": path}, {"spawn": True}, {"connect": url}, {"web": True}
+    sink: Sink | None = None  # where the Rerun view goes (sink.plan_sink), if anywhere
     record_latency: bool = False
 
 
@@ -147,10 +148,10 @@ class _Session:
                                   expect_declination=opts.request)
         self.rec = self.live_view = None
         if opts.sink:
-            from .. import view
+            from ..sink import open_sink
             from .display import LiveView
-            self.rec = view.open_sink("mavattitude", f"live {opts.url}", **opts.sink)
-            self.live_view = LiveView(self.rec, self.est, opts.window, to_file="rrd" in opts.sink)
+            self.rec = open_sink(opts.sink, "mavattitude", f"live {opts.url}")
+            self.live_view = LiveView(self.rec, self.est, opts.window, to_file=opts.sink.kind == "rrd")
         self.start = time.monotonic()
         # a listen-only session stays silent, but an outgoing UDP link must speak to be heard
         self.talk = opts.request or opts.url.startswith("udpout:")
@@ -304,9 +305,12 @@ class _Session:
             self.live_view.push(chunk)
         self._show_events()
         if self.live_view is not None:
-            from .. import view
+            from ..sink import close_sink
             self.live_view.flush()
-            view.close_sink(self.rec)
+            try:
+                close_sink(self.rec, self.opts.sink)
+            except InputError as exc:  # the metrics still count: say it and go on
+                self.say(f"warning: {exc}")
         comparisons, seg = est.final_comparisons()
         ref = est.reference_series(seg) if seg is not None else None
         return LiveResult(est, self.monitor, comparisons, ref.source if ref is not None else None,

@@ -23,10 +23,11 @@ SCENARIOS: dict[str, str] = {name: s.description for name, s in REGISTRY.items()
 _WRITERS = {".tlog": write_tlog, ".bin": write_bin}
 
 
-def write_log(sim: SimFlight, path) -> Path:
-    """Write ``sim`` as a .tlog or .bin, chosen by the suffix of ``path``; returns the path."""
+def write_log(sim: SimFlight, path, suffix: str | None = None) -> Path:
+    """Write ``sim`` as a .tlog or .bin, chosen by ``suffix`` (default: that of ``path``);
+    returns the path."""
     path = Path(path)
-    writer = _WRITERS.get(path.suffix.lower())
+    writer = _WRITERS.get((suffix or path.suffix).lower())
     if writer is None:
         raise ValueError(f"{path}: cannot write a {path.suffix or 'suffix-less'} log; "
                          f"use a .tlog or .bin file name")
