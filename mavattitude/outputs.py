@@ -111,9 +111,7 @@ class Outputs:
         """Check ``path`` as an output of ``kind`` and reserve its temporary file; None if no path."""
         if not path:
             return None
-        path = Path(path)
-        self._refuse_inputs(path, option)
-        self._refuse_taken(path, option)
+        path = self._unclaimed(path, option)
         if path.exists() or path.is_symlink():
             if path.is_dir():
                 raise InputError(path, f"{option} names a folder; give a file name, "
@@ -142,9 +140,7 @@ class Outputs:
         it must not exist at all, whatever ``--force`` says. Its folder is made."""
         if not path:
             return None
-        path = Path(path)
-        self._refuse_inputs(path, option)
-        self._refuse_taken(path, option)
+        path = self._unclaimed(path, option)
         if path.exists() or path.is_symlink():
             raise InputError(path, f"exists: {option} never writes over a file; choose another name")
         self._make_folder(path.parent, option)
@@ -155,12 +151,9 @@ class Outputs:
         """Check ``path`` as a folder the command writes ``names`` (files of ``kind``) into."""
         if not path:
             return None
-        path = Path(path)
-        self._refuse_inputs(path, option)
-        folder = self._make_folder(path, option)
+        folder = self._make_folder(self._unclaimed(path, option), option)
         for name in names:
-            target = folder / name
-            self._refuse_inputs(target, option)
+            target = self._unclaimed(folder / name, option)
             if target.is_dir():
                 raise InputError(target, f"{option}: is a folder where a {KIND_NAMES[kind]} goes")
             if (target.is_file() and target.stat().st_size and not self.force
@@ -174,15 +167,16 @@ class Outputs:
             raise InputError(folder, f"{option}: cannot create files here ({exc.strerror})") from None
         return folder
 
-    def _refuse_taken(self, path: Path, option: str) -> None:
-        for other, other_option in self.taken + [(o.path, o.option) for o in self.files]:
-            if other.resolve() == path.resolve():
-                raise InputError(path, f"named by both {other_option} and {option}; give each its own file")
-
-    def _refuse_inputs(self, path: Path, option: str) -> None:
+    def _unclaimed(self, path, option: str) -> Path:
+        """``path``, once sure it is no input and no other output of this command."""
+        path = Path(path)
         for source in self.inputs:
             if same_file(path, source) or path.resolve() == source.resolve():
                 raise InputError(path, f"{option} would write over the input {source}; choose another name")
+        for other, other_option in self.taken + [(o.path, o.option) for o in self.files]:
+            if other.resolve() == path.resolve():
+                raise InputError(path, f"named by both {other_option} and {option}; give each its own file")
+        return path
 
     @staticmethod
     def _make_folder(folder: Path, option: str) -> Path:
