@@ -96,6 +96,35 @@ def test_a_time_a_few_seconds_off_is_corrupt_not_a_reboot():
 # ---------------------------------------------------------------- clocks
 
 
+def test_the_clock_tracker_decides_the_same_fed_in_pieces():
+    """A live link feeds the tracker a few samples at a time; a log, all at once."""
+    from mavattitude.readers.collect import ClockTracker
+
+    rng = np.random.default_rng(4)
+    t = np.concatenate([5000.0 + np.zeros(1), 1.0 + 0.01 * np.arange(400), 50.0 + 0.01 * np.arange(300),
+                        0.5 + 0.01 * np.arange(300), 30.0 + 0.01 * np.arange(3)])
+    t[rng.choice(len(t), 12, replace=False)] = rng.uniform(-10, 1e4, 12)  # corrupt times
+    whole = ClockTracker()
+    labels, _ = whole.push(t)
+    for g, label in whole.finish():
+        labels[g] = label
+    pieces = ClockTracker()
+    streamed = np.full(len(t), 99)
+    start = 0
+    while start < len(t):
+        size = int(rng.integers(1, 9))
+        out, earlier = pieces.push(t[start:start + size])
+        streamed[start:start + size] = out
+        for g, label in earlier:
+            streamed[g] = label
+        start += size
+    for g, label in pieces.finish():
+        streamed[g] = label
+    np.testing.assert_array_equal(streamed, labels)
+    assert set(labels.tolist()) == {-1, 0, 1}  # one reboot, some corrupt, nothing left held
+    assert labels[0] == -1 and np.all(labels[-3:] == -1)  # a lone first time; a jump nothing confirmed
+
+
 def test_collector_splits_reboots_sorts_and_dedupes():
     col = Collector()
     for t in [10.0, 10.1, 10.3, 10.2, 10.3, 10.4]:  # one reordered, one repeated

@@ -3,14 +3,17 @@
 A reader hands over samples in SI units with their time in seconds on the autopilot clock:
 one at a time (``add``, the .tlog reader) or a whole message type at once (``add_columns``,
 the .bin reader, with each record's file offset as its order). ``finish`` then follows the
-clock through all samples in file order (``track_clock``):
+clock through all samples in file order (``ClockTracker``, which a live link uses too):
 
+- the clock counts once ``CONFIRM_SAMPLES`` samples in a row agree on it (so a corrupt first
+  sample does not set it);
 - a jump of the clock by more than ``JUMP_S``, back (a reboot) or ahead (logging paused, a
   link back after an outage), counts only once ``CONFIRM_SAMPLES`` samples in a row agree
   with the new clock; until then the samples that jumped are held, and dropped as corrupt
   records (a flipped bit in a time field) if the old clock resumes. A jump back starts a new
   clock segment;
-- a sample with a negative or non-finite time is dropped as corrupt.
+- a sample with a negative or non-finite time is dropped as corrupt, and so is one that
+  agrees with neither the clock nor the samples held.
 
 Then, per series, ``columns`` keeps one segment, sorts by time and drops repeated
 timestamps: smaller backward steps are reordering (a GPS sample logged after a later IMU
@@ -36,64 +39,110 @@ REBOOT_JUMP_S = JUMP_S
 FORWARD_JUMP_S = 60.0
 
 
+HELD = -2  # a label: waiting for the samples after it to say which clock it is on
+CORRUPT = -1
+
+
 @njit(cache=True)
-def track_clock(t, jump, confirm):
-    """The clock segment of each sample, in file order; -1 for a corrupt one (see module doc)."""
-    n = len(t)
-    seg = np.full(n, -1, np.int64)
-    held = np.empty(confirm, np.int64)
-    n_held = 0
-    held_max = 0.0
-    current = 0
-    clock_max = -np.inf
-    segment_start = 0  # index of the first sample of the current segment
-    segment_count = 0
-    for i in range(n):
+def _track(t, first_index, jump, confirm, state, held, out, res_index, res_label):
+    """The clock-following of ``ClockTracker.push`` over ``t`` (see the module docstring).
+    ``state``: [segment, clock_max, n_held, held_max, confirmed]; ``held``: global indices
+    of the held samples. Writes a label per sample to ``out`` (HELD for one held) and the
+    labels of held samples decided here to ``res_index``/``res_label``; returns how many."""
+    current, clock_max, n_held, held_max, confirmed = int(state[0]), state[1], int(state[2]), state[3], state[4]
+    n_res = 0
+    for i in range(len(t)):
         x = t[i]
+        g = first_index + i
         if not (x >= 0.0 and x < np.inf):
+            out[i] = CORRUPT
             continue
-        if clock_max == -np.inf:
-            clock_max = x
-            seg[i] = current
-            segment_count = 1
-            continue
-        fits_old = clock_max - jump <= x <= clock_max + jump
-        if n_held:
-            fits_new = held_max - jump <= x <= held_max + jump
-            if fits_old and not fits_new:  # the old clock resumed: what jumped was corrupt
+        if n_held and held_max - jump <= x <= held_max + jump:  # agrees with the held samples
+            out[i] = HELD
+            held[n_held] = g
+            n_held += 1
+            held_max = max(held_max, x)
+            if n_held == confirm:  # a clock: the first, or one that jumped
+                if confirmed and held_max < clock_max - jump:
+                    current += 1  # it went back: a reboot
+                for k in range(n_held):
+                    res_index[n_res] = held[k]
+                    res_label[n_res] = current
+                    n_res += 1
+                clock_max = held_max
+                confirmed = 1.0
                 n_held = 0
-            elif fits_new:
-                held[n_held] = i
-                n_held += 1
-                held_max = max(held_max, x)
-                if n_held == confirm:  # the jump is real
-                    if t[held[0]] < clock_max - jump:  # back: a reboot
-                        if segment_count < confirm:  # what came before is too short for a clock
-                            for j in range(segment_start, i):
-                                if seg[j] == current:
-                                    seg[j] = -1
-                        else:
-                            current += 1
-                        segment_start = held[0]
-                        segment_count = 0
-                    for k in range(n_held):
-                        seg[held[k]] = current
-                    segment_count += n_held
-                    clock_max = held_max
-                    n_held = 0
-                continue
+            continue
+        if confirmed and clock_max - jump <= x <= clock_max + jump:  # the clock goes on
+            for k in range(n_held):  # what jumped was corrupt
+                res_index[n_res] = held[k]
+                res_label[n_res] = CORRUPT
+                n_res += 1
+            n_held = 0
+            out[i] = current
+            clock_max = max(clock_max, x)
+            continue
+        if n_held and confirmed:
+            out[i] = CORRUPT  # agrees with nothing: a corrupt time
+            continue
+        if n_held > 1:  # no clock yet: the samples that agree so far are the clock, this a jump
+            for k in range(n_held):
+                res_index[n_res] = held[k]
+                res_label[n_res] = current
+                n_res += 1
+            clock_max = held_max
+            confirmed = 1.0
+        elif n_held == 1:  # no clock yet, and two lone samples disagree: keep the newer
+            res_index[n_res] = held[0]
+            res_label[n_res] = CORRUPT
+            n_res += 1
+        out[i] = HELD
+        held[0] = g
+        n_held = 1
+        held_max = x
+    state[0], state[1], state[2], state[3], state[4] = current, clock_max, n_held, held_max, confirmed
+    return n_res
+
+
+class ClockTracker:
+    """The autopilot clock followed through samples in arrival order: a log's (``Collector``)
+    or a live link's. ``push`` labels each sample with its clock segment, ``CORRUPT``, or
+    ``HELD`` when it jumped and the samples after it must decide; those decisions come later
+    (``decided``). ``finish`` decides what is still held: corrupt."""
+
+    def __init__(self, jump: float = JUMP_S, confirm: int = CONFIRM_SAMPLES):
+        self.jump, self.confirm = jump, confirm
+        self._state = np.array([0.0, -np.inf, 0.0, 0.0, 0.0])
+        self._held = np.zeros(confirm, np.int64)
+        self.seen = 0  # samples pushed so far
+
+    def push(self, t) -> tuple[np.ndarray, list[tuple[int, int]]]:
+        """Labels for ``t`` (their indices run on from the samples pushed before), and the
+        (index, label) decided now for samples held before this call."""
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        out = np.empty(len(t), np.int64)
+        res_index = np.empty(len(t) + self.confirm, np.int64)
+        res_label = np.empty(len(t) + self.confirm, np.int64)
+        n = _track(t, self.seen, self.jump, self.confirm, self._state, self._held, out, res_index, res_label)
+        earlier = []
+        for g, label in zip(res_index[:n].tolist(), res_label[:n].tolist()):
+            if g >= self.seen:
+                out[g - self.seen] = label
             else:
-                continue  # agrees with neither clock: corrupt
-        if fits_old:
-            seg[i] = current
-            segment_count += 1
-            if x > clock_max:
-                clock_max = x
-        else:
-            held[0] = i
-            n_held = 1
-            held_max = x
-    return seg
+                earlier.append((g, label))
+        self.seen += len(t)
+        return out, earlier
+
+    def finish(self) -> list[tuple[int, int]]:
+        """The end of the samples: whatever is held is decided corrupt (a jump that nothing
+        after it confirmed)."""
+        n = int(self._state[2])
+        self._state[2] = 0
+        return [(int(g), CORRUPT) for g in self._held[:n]]
+
+    @property
+    def segment(self) -> int:
+        return int(self._state[0])
 
 
 class Collector:
@@ -139,7 +188,10 @@ class Collector:
         order = np.concatenate([m[0] for m in merged.values()])
         t = np.concatenate([m[1] for m in merged.values()])
         sort = np.argsort(order, kind="stable")
-        seg_sorted = track_clock(t[sort], JUMP_S, CONFIRM_SAMPLES)
+        tracker = ClockTracker()
+        seg_sorted, _ = tracker.push(t[sort])
+        for g, label in tracker.finish():
+            seg_sorted[g] = label
         seg = np.empty_like(seg_sorted)
         seg[sort] = seg_sorted
         self.outliers = int(np.count_nonzero(seg < 0))
