@@ -13,11 +13,13 @@ one IMU period after it was taken (that latency is not compensated here; at 50 H
 - GPS accuracy: the reported horizontal (and vertical) 1σ position accuracy in metres, NaN
   where the log does not give it;
 - baro height: metres up, from the pressure through the standard atmosphere
-  (``phase.pressure_height``), relative to the median over its first ``BARO_START_S``.
+  (``phase.pressure_height``), relative to the first good sample.
 
-Dropped, not fused: fixes below 3D (``fix_type`` < 3) or at 0°/0°; a fix not newer than the
-previous one kept (out of order); a fix or baro sample whose IMU sample comes more than
-``MAX_LATENCY_S`` (or two IMU periods, if longer) after it (stale: an IMU gap); of two
+Each measurement is fused at the first IMU sample to arrive with or after it (``Placer``; by
+time where there is no arrival order) whose time is not earlier than its own. Dropped, not
+fused: fixes below 3D (``fix_type`` < 3) or at 0°/0°; a sample not newer than the previous
+one kept (out of order); a sample whose IMU sample comes more than ``MAX_LATENCY_S`` (or two
+IMU intervals, if longer: a telemetry log's IMU at 4 Hz) after it (stale: an IMU gap); of two
 samples that fall on the same IMU sample, the older.
 """
 from __future__ import annotations
@@ -32,7 +34,6 @@ from .phase import pressure_height
 WGS84_A = 6_378_137.0  # m, semi-major axis
 WGS84_E2 = 6.694_379_990_14e-3  # first eccentricity squared
 MAX_LATENCY_S = 0.5  # s: a measurement reaching the IMU clock later than this is stale
-BARO_START_S = 3.0  # s: the baro height's zero is the median over this first span
 MIN_PRESSURE_PA = 1e3  # below this a pressure reading is not plausible
 
 
@@ -101,88 +102,110 @@ def ned_to_geodetic(origin, ned) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return lat, lon, alt0 - ned[..., 2]
 
 
-def _rows(imu_t: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For measurement times ``t`` (sorted): the IMU row each is fused at and which to keep."""
-    n = len(imu_t)
-    period = float(np.median(np.diff(imu_t))) if n > 1 else 0.0
-    max_latency = max(MAX_LATENCY_S, 2.0 * period)
-    row = np.searchsorted(imu_t, t, side="left")
-    keep = row < n
-    keep[keep] &= imu_t[row[keep]] - t[keep] <= max_latency
-    # Of several samples on one IMU row, the newest: keep a sample only if the next kept one
-    # lands on another row.
-    idx = np.flatnonzero(keep)
-    last = np.ones(len(idx), dtype=bool)
-    last[:-1] = row[idx[1:]] != row[idx[:-1]]
-    keep[idx[~last]] = False
-    return row, keep
+GPS_COLUMNS = ("t", "lat", "lon", "alt", "vn", "ve", "vd", "fix", "sats", "h_acc", "v_acc", "arrival")
+BARO_COLUMNS = ("t", "pressure", "arrival")
 
 
-def _increasing(t: np.ndarray) -> np.ndarray:
-    """True where a sample is newer than every earlier sample (out-of-order ones are False)."""
-    ok = np.ones(len(t), dtype=bool)
-    if len(t) > 1:
-        ok[1:] = t[1:] > np.maximum.accumulate(t)[:-1]
-    return ok
+class Placer:
+    """Measurements onto the IMU clock as they arrive: what ``build`` does for whole arrays,
+    the estimation core (``runner``) does a chunk at a time, with the same result.
 
+    ``place`` decides, for the samples of a kind added since its last call (rows of
+    ``GPS_COLUMNS`` or ``BARO_COLUMNS``), the IMU row each is fused at: the first IMU row to
+    arrive with or after it whose time is not earlier than its own; samples whose row has not
+    arrived yet wait for the next call. ``take`` hands over the measurements of IMU rows
+    [a, b). The GPS origin is the first good fix, the baro zero the first good sample."""
 
-def build(imu_t: np.ndarray, gps: GpsSeries | None, baro: BaroSeries | None,
-          origin: tuple[float, float, float] | None = None, baro_zero: float | None = None) -> Aiding:
-    """The aiding measurements of ``gps`` and ``baro`` on the IMU timestamps ``imu_t``.
+    def __init__(self):
+        self.origin: tuple[float, float, float] | None = None
+        self.baro_zero: float | None = None
+        self.done = {"gps": 0, "baro": 0}  # samples decided (placed or dropped)
+        self._last_kept = {"gps": -np.inf, "baro": -np.inf}
+        self._placed = {"gps": np.empty((0, 9)), "baro": np.empty((0, 2))}  # IMU row, values
 
-    ``origin`` and ``baro_zero`` fix the GPS origin and the baro height's zero (live, chunk by
-    chunk: each chunk keeps the first's); without them they come from these samples."""
-    imu_t = np.asarray(imu_t, dtype=float)
-    out = Aiding.empty(len(imu_t))
-    out.origin, out.baro_zero = origin, baro_zero
-    if len(imu_t) == 0:
-        return out
-    if gps is not None and len(gps.t):
-        lat = np.asarray(gps.lat_deg, dtype=float)
-        lon = np.asarray(gps.lon_deg, dtype=float)
-        alt = np.asarray(gps.alt_m, dtype=float)
-        t = np.asarray(gps.t, dtype=float)
-        good = ((np.asarray(gps.fix_type) >= 3) & np.isfinite(lat) & np.isfinite(lon)
-                & np.isfinite(alt) & ~((lat == 0) & (lon == 0)) & np.isfinite(t))
-        good &= _increasing(np.where(good, t, -np.inf))
+    def place(self, kind: str, samples: np.ndarray, imu_t: np.ndarray, imu_arrival: np.ndarray) -> None:
+        rows = samples[self.done[kind]:]
+        if not len(rows):
+            return
+        row = np.maximum(np.searchsorted(imu_arrival, rows[:, -1], side="left"),
+                         np.searchsorted(imu_t, rows[:, 0], side="left"))
+        waiting = np.flatnonzero(row >= len(imu_t))
+        n = int(waiting[0]) if len(waiting) else len(rows)  # the rest wait for their IMU row
+        rows, row = rows[:n], row[:n]
+        self.done[kind] += n
+        good = _usable(kind, rows)
+        good &= rows[:, 0] > np.maximum.accumulate(
+            np.concatenate([[self._last_kept[kind]], np.where(good, rows[:, 0], -np.inf)]))[:-1]
         if good.any():
-            if out.origin is None:
-                first = int(np.flatnonzero(good)[0])
-                out.origin = (float(lat[first]), float(lon[first]), float(alt[first]))
-            row, keep = _rows(imu_t, np.where(good, t, np.inf))
-            keep &= good
-            pos = geodetic_to_ned(out.origin, lat, lon, alt)
-            r = row[keep]
-            out.gps_pos[r] = pos[keep]
-            out.gps_vel[r] = np.asarray(gps.vel_ned, dtype=float)[keep]
-            out.gps_h_acc[r] = np.asarray(gps.h_acc_m, dtype=float)[keep]
-            v_acc = getattr(gps, "v_acc_m", None)
-            if v_acc is not None:
-                out.gps_v_acc[r] = np.asarray(v_acc, dtype=float)[keep]
-            bad_acc = ~(out.gps_h_acc > 0)
-            out.gps_h_acc[bad_acc] = np.nan
-            bad_acc = ~(out.gps_v_acc > 0)
-            out.gps_v_acc[bad_acc] = np.nan
+            self._last_kept[kind] = float(rows[good, 0].max())
+        # the IMU interval before the row's predecessor: not one that ends in a gap
+        period = np.where(row > 1, imu_t[np.maximum(row - 1, 0)] - imu_t[np.maximum(row - 2, 0)], 0.0)
+        good &= imu_t[row] - rows[:, 0] <= np.maximum(MAX_LATENCY_S, 2.0 * period)  # else stale: an IMU gap
+        rows, row = rows[good], row[good]
+        if not len(rows):
+            return
+        if kind == "baro":
+            h = pressure_height(rows[:, 1])
+            if self.baro_zero is None:
+                self.baro_zero = float(h[0])
+            values = (h - self.baro_zero)[:, None]
+        else:
+            if self.origin is None:
+                self.origin = (float(rows[0, 1]), float(rows[0, 2]), float(rows[0, 3]))
+            pos = geodetic_to_ned(self.origin, rows[:, 1], rows[:, 2], rows[:, 3])
+            h_acc = np.where(rows[:, 9] > 0, rows[:, 9], np.nan)
+            v_acc = np.where(rows[:, 10] > 0, rows[:, 10], np.nan)
+            values = np.column_stack([pos, rows[:, 4:7], h_acc, v_acc])
+        self._placed[kind] = np.vstack([self._placed[kind], np.column_stack([row, values])])
+
+    def take(self, a: int, b: int) -> Aiding:
+        """The measurements fused at IMU rows [a, b); of two on one row, the newer."""
+        out = Aiding.empty(b - a)
+        for kind, placed in self._placed.items():
+            mine = (placed[:, 0] >= a) & (placed[:, 0] < b)
+            rows, values = placed[mine, 0].astype(np.int64) - a, placed[mine, 1:]
+            if kind == "baro":
+                out.baro_height[rows] = values[:, 0]
+            else:
+                out.gps_pos[rows], out.gps_vel[rows] = values[:, 0:3], values[:, 3:6]
+                out.gps_h_acc[rows], out.gps_v_acc[rows] = values[:, 6], values[:, 7]
+            self._placed[kind] = placed[~mine]
+        out.origin, out.baro_zero = self.origin, self.baro_zero
+        return out
+
+
+def _usable(kind: str, rows: np.ndarray) -> np.ndarray:
+    """Samples worth fusing: a 3D fix away from 0°/0°; a plausible pressure."""
+    ok = np.isfinite(rows[:, 0])
+    if kind == "baro":
+        return ok & np.isfinite(rows[:, 1]) & (rows[:, 1] > MIN_PRESSURE_PA)
+    lat, lon, alt = rows[:, 1], rows[:, 2], rows[:, 3]
+    return ok & (rows[:, 7] >= 3) & np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt) & ~((lat == 0) & (lon == 0))
+
+
+def gps_rows(gps: GpsSeries, arrival: np.ndarray) -> np.ndarray:
+    """A GPS series as rows of ``GPS_COLUMNS``."""
+    n = len(gps.t)
+    v_acc = gps.v_acc_m if gps.v_acc_m is not None else np.full(n, np.nan)
+    return np.column_stack([gps.t, gps.lat_deg, gps.lon_deg, gps.alt_m, gps.vel_ned, gps.fix_type, gps.num_sats,
+                            gps.h_acc_m, v_acc, arrival]).astype(float)
+
+
+def baro_rows(baro: BaroSeries, arrival: np.ndarray) -> np.ndarray:
+    """A baro series as rows of ``BARO_COLUMNS``."""
+    return np.column_stack([baro.t, baro.pressure_pa, arrival]).astype(float)
+
+
+def build(imu_t: np.ndarray, gps: GpsSeries | None, baro: BaroSeries | None) -> Aiding:
+    """The aiding measurements of ``gps`` and ``baro`` on the IMU timestamps ``imu_t``, time
+    standing in for arrival (``Placer`` over the whole arrays)."""
+    imu_t = np.asarray(imu_t, dtype=float)
+    placer = Placer()
+    if gps is not None and len(gps.t):
+        placer.place("gps", gps_rows(gps, gps.t), imu_t, imu_t)
     if baro is not None and len(baro.t):
-        p = np.asarray(baro.pressure_pa, dtype=float)
-        t = np.asarray(baro.t, dtype=float)
-        good = np.isfinite(p) & (p > MIN_PRESSURE_PA) & np.isfinite(t)
-        good &= _increasing(np.where(good, t, -np.inf))
-        if np.count_nonzero(good) >= (1 if out.baro_zero is not None else 2):
-            h = pressure_height(np.where(good, p, np.nan))
-            if out.baro_zero is None:
-                start = good & (t <= t[good][0] + BARO_START_S)
-                out.baro_zero = float(np.median(h[start]))
-            h = h - out.baro_zero
-            row, keep = _rows(imu_t, np.where(good, t, np.inf))
-            keep &= good
-            out.baro_height[row[keep]] = h[keep]
-    return out
-
-
-def from_flight(flight, imu_t: np.ndarray) -> Aiding:
-    """``build`` from a ``Flight``'s GPS and barometer."""
-    return build(imu_t, flight.gps, flight.baro)
+        placer.place("baro", baro_rows(baro, baro.t), imu_t, imu_t)
+    return placer.take(0, len(imu_t))
 
 
 def from_sim(sim) -> Aiding:
@@ -190,8 +213,7 @@ def from_sim(sim) -> Aiding:
     it would read: a steady 3D fix with its reported horizontal and vertical accuracy."""
     g = sim.gps
     n = len(g.t)
-    gps = GpsSeries("sim", g.t, g.lat_deg, g.lon_deg, g.alt_m, g.vel_ned,
-                    np.full(n, g.fix_type), np.full(n, g.num_sats), np.full(n, g.h_acc_m))
-    gps.v_acc_m = np.full(n, g.v_acc_m)
+    gps = GpsSeries("sim", g.t, g.lat_deg, g.lon_deg, g.alt_m, g.vel_ned, np.full(n, g.fix_type),
+                    np.full(n, g.num_sats), np.full(n, g.h_acc_m), v_acc_m=np.full(n, g.v_acc_m))
     baro = BaroSeries("sim", sim.baro.t, sim.baro.pressure_pa, sim.baro.alt_m)
     return build(sim.t, gps, baro)

@@ -12,7 +12,7 @@ Ours: one ``update()`` over the whole chunk (input checks, kernel, output array)
 per sample ``update(...)`` or ``update_no_magnetometer(...)`` then ``get_quaternion()`` into
 an output array, its inputs converted to its units (°/s, g, µT) beforehand, outside the timing.
 
-The magnetometer reaches the estimators as in ``replay`` (``pipeline.mag_on_imu_clock``, the
+The magnetometer reaches the estimators as in ``replay`` (``runner.held_magnetometer``, the
 interface of ``estimators.base``): the latest compass sample held at every IMU time (a new
 one every 40th sample at 400 Hz with a 10 Hz compass). imufusion likewise gets ``update``
 with the latest compass sample on every sample, as its documentation calls it. An estimator
@@ -86,7 +86,7 @@ def make_data(scenario: str = "figure8", duration: float = 3600.0, imu_rate: flo
     """Simulate the flight and prepare the estimators' inputs and starting point."""
     from .aiding import from_sim
     from .estimators import align
-    from .pipeline import mag_on_imu_clock
+    from .runner import held_magnetometer
     from .sim import simulate
 
     _say(f"simulating {scenario}, {duration:g} s at {imu_rate:g} Hz "
@@ -99,7 +99,7 @@ def make_data(scenario: str = "figure8", duration: float = 3600.0, imu_rate: flo
     simulate_s = time.perf_counter() - start
     _say(f"simulated in {simulate_s:.1f} s")
     imu = sim.imu[0]
-    mag = mag_on_imu_clock(sim.t, MagSeries("mag", sim.mag.t, sim.mag.field))
+    mag = held_magnetometer(sim.t, MagSeries("mag", sim.mag.t, sim.mag.field))
     in_air = (-sim.truth.pos_ned[:, 2] > AIR_ABOVE_M).astype(np.float64)
     a = align(sim.t, imu.gyro, imu.accel, mag, sim.declination_rad)
     return BenchData(scenario, seed, float(duration), float(imu_rate), sim.t, imu.gyro, imu.accel,

@@ -126,7 +126,8 @@ def _plan_sink(args, outputs, default_rrd: str | None = None):
 def cmd_replay(args) -> int:
     from .estimators import needs_compile
     from .params import build, load_file, log_defaults
-    from .pipeline import Event, run_replay
+    from .events import Event
+    from .pipeline import run_replay
     from .report import (csv_file_name, estimator_extras, format_events, format_table, nothing_scored,
                          write_csv, write_json)
     from .sink import open_sink

@@ -8,10 +8,15 @@ time-stamped on the autopilot's clock, in seconds since it booted:
 - magnetic field tesla, pressure pascal, heights metres;
 - latitude/longitude in degrees (named ``*_deg``: the one non-SI quantity, kept as GPS gives it);
 - attitudes as unit quaternions [w, x, y, z] rotating body to NED.
+
+Each sensor series may carry ``arrival``: every sample's place in the order the log holds
+them (a .bin's record offsets, a .tlog's packet count). The estimation core gives each IMU
+sample what had arrived before it, as a live link would have (``runner``); without it, the
+order of time stands in.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -24,6 +29,7 @@ class ImuSeries:
     t: np.ndarray  # (N,) s
     gyro: np.ndarray  # (N, 3) rad/s, FRD
     accel: np.ndarray  # (N, 3) m/s², specific force, FRD
+    arrival: np.ndarray | None = None  # (N,) order in the log (see the module docstring)
 
 
 @dataclass
@@ -31,6 +37,7 @@ class MagSeries:
     source: str
     t: np.ndarray
     field: np.ndarray  # (N, 3) tesla, FRD
+    arrival: np.ndarray | None = None  # (N,) order in the log (see the module docstring)
 
 
 @dataclass
@@ -44,6 +51,8 @@ class GpsSeries:
     fix_type: np.ndarray  # int: 0-1 no fix, 2 2D, 3 3D, 4+ DGPS/RTK
     num_sats: np.ndarray  # int
     h_acc_m: np.ndarray  # horizontal accuracy; NaN where unknown
+    v_acc_m: np.ndarray | None = None  # vertical accuracy; NaN or None where unknown
+    arrival: np.ndarray | None = None  # (N,) order in the log (see the module docstring)
 
 
 @dataclass
@@ -52,6 +61,7 @@ class BaroSeries:
     t: np.ndarray
     pressure_pa: np.ndarray
     alt_m: np.ndarray  # relative altitude the autopilot reports; NaN where absent
+    arrival: np.ndarray | None = None  # (N,) order in the log (see the module docstring)
 
 
 @dataclass
@@ -59,19 +69,6 @@ class AttitudeSeries:
     source: str  # "ATT", "ATTITUDE", "SIMSTATE", "SIM", or an estimator's name
     t: np.ndarray
     q: np.ndarray  # (N, 4) unit quaternions [w, x, y, z], body -> NED
-
-
-SERIES_TYPES = (ImuSeries, MagSeries, GpsSeries, BaroSeries, AttitudeSeries)
-
-
-def series_len(series) -> int:
-    return len(series.t)
-
-
-def select(series, mask: np.ndarray):
-    """The same series with only the samples where ``mask`` is true."""
-    return replace(series, **{f.name: getattr(series, f.name)[mask]
-                              for f in fields(series) if f.name != "source"})
 
 
 @dataclass

@@ -6,7 +6,7 @@ import os
 import numpy as np
 
 from .flight import GRAVITY, Flight
-from .pipeline import LOW_IMU_RATE_HZ
+from .runner import LOW_IMU_RATE_HZ
 from .readers import best_imu_source, imu_rate
 
 

@@ -17,10 +17,10 @@ slightly below or above its start is still judged correctly by the hysteresis ba
 """
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .flight import BaroSeries, Flight, GpsSeries
 from .growing import Growing
@@ -55,18 +55,15 @@ def pressure_height(pressure_pa: np.ndarray) -> np.ndarray:
 
 
 def detect_phase(flight: Flight) -> PhaseSeries | None:
-    """The ground/air phase over the flight, or None when the log has no height source."""
+    """The ground/air phase over a whole flight (``PhaseTracker`` over its best height
+    source), or None when the log has no height source."""
     height = _baro_height(flight.baro) or _gps_height(flight.gps)
     if height is None:
         return None
     source, t, h = height
-    h = _running_median(t, h, SMOOTH_S)
-    h = h - np.median(h[t <= t[0] + START_S])
-    # Hysteresis: the last threshold crossed decides; the start is on the ground.
-    mark = np.where(h > AIR_ABOVE_M, 1.0, np.where(h < GROUND_BELOW_M, 0.0, np.nan))
-    mark[0] = 0.0 if np.isnan(mark[0]) else mark[0]
-    last = np.maximum.accumulate(np.where(np.isnan(mark), 0, np.arange(len(mark))))
-    return PhaseSeries(source, t, h, mark[last])
+    tracker = PhaseTracker(source)
+    tracker.add(t, h)
+    return tracker.series()
 
 
 def _baro_height(baro: BaroSeries | None):
@@ -87,53 +84,64 @@ def _gps_height(gps: GpsSeries | None):
     return "GPS height", gps.t[ok], gps.alt_m[ok]
 
 
-def _running_median(t: np.ndarray, x: np.ndarray, span_s: float) -> np.ndarray:
-    """Median over a centred window of about ``span_s`` seconds (odd sample count)."""
-    period = float(np.median(np.diff(t))) if len(t) > 1 else span_s
-    k = int(span_s / period) // 2 if period > 0 else 0
-    if k < 1:
-        return x.copy()
-    padded = np.pad(x, k, mode="edge")
-    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1)
-    return np.median(windows, axis=1)
+@njit(cache=True)
+def _track(t, h, start, lo, state):
+    """Heights above the start and the phase for samples [start, len(t)) of the accepted ones
+    (``t`` increasing): the median of the last SMOOTH_S of samples, minus the median of the
+    first START_S of samples (of those so far); hysteresis between the thresholds.
+    ``lo``: a sample no later than SMOOTH_S before the first new one. ``state``: [in_air].
+    Returns (height, in_air) of the new samples."""
+    n = len(t) - start
+    height = np.empty(n)
+    in_air = np.empty(n)
+    n_start = 0
+    while n_start < len(t) and t[n_start] <= t[0] + START_S:
+        n_start += 1
+    for k in range(n):
+        i = start + k
+        while t[lo] < t[i] - SMOOTH_S:
+            lo += 1
+        h_rel = np.median(h[lo:i + 1]) - np.median(h[:min(i + 1, n_start)])
+        if h_rel > AIR_ABOVE_M:
+            state[0] = 1.0
+        elif h_rel < GROUND_BELOW_M:
+            state[0] = 0.0
+        height[k] = h_rel
+        in_air[k] = state[0]
+    return height, in_air
 
 
 class PhaseTracker:
-    """The ground/air phase sample by sample, for a live link (``detect_phase`` sees the
-    whole log; this sees only the past). Same thresholds and hysteresis; causal versions of
-    the rest: the height is the median of the last ``SMOOTH_S`` of samples, the start is the
+    """The ground/air phase sample by sample, seeing only the past (the estimation core feeds
+    it heights as they arrive, a whole log's at once or a link's a few at a time, with the
+    same result): the height is the median of the last ``SMOOTH_S`` of samples, the start the
     median of the samples of the first ``START_S`` (of those seen so far, until then).
 
-    ``add(t, height)`` takes a chunk of raw heights (baro pressure height, or GPS altitude)
-    in time order; ``on_clock(t)`` gives the phase at other times like ``PhaseSeries.on_clock``.
+    ``add(t, height)`` takes raw heights (baro pressure height, or GPS altitude) in time order,
+    ignoring non-finite ones and any not newer than the last; ``n`` counts the phase rows.
     """
 
     def __init__(self, source: str):
         self.source = source
-        self._recent: deque[tuple[float, float]] = deque()  # (t, raw height) of the last SMOOTH_S
-        self._start_heights: list[float] = []
-        self._t0: float | None = None
-        self._state = 0.0
+        self._heights = Growing(2)  # t, raw height of every sample accepted
         self._rows = Growing(3)  # t, height above the start (smoothed), in_air
+        self._state = np.zeros(1)
 
     def add(self, t, height) -> None:
-        for ti, hi in zip(np.asarray(t, dtype=float).tolist(), np.asarray(height, dtype=float).tolist()):
-            last = self._rows.last
-            if not np.isfinite(hi) or (last is not None and ti <= last[0]):
-                continue
-            if self._t0 is None:
-                self._t0 = ti
-            if ti <= self._t0 + START_S:
-                self._start_heights.append(hi)
-            self._recent.append((ti, hi))
-            while self._recent[0][0] < ti - SMOOTH_S:
-                self._recent.popleft()
-            h = float(np.median([x for _, x in self._recent])) - float(np.median(self._start_heights))
-            if h > AIR_ABOVE_M:
-                self._state = 1.0
-            elif h < GROUND_BELOW_M:
-                self._state = 0.0
-            self._rows.append((ti, h, self._state))
+        t = np.asarray(t, dtype=float).reshape(-1)
+        height = np.asarray(height, dtype=float).reshape(-1)
+        last = self._heights.last[0] if self._heights.n else -np.inf
+        ok = np.isfinite(height) & np.isfinite(t)
+        ok &= t > np.maximum.accumulate(np.concatenate([[last], np.where(ok, t, -np.inf)]))[:-1]
+        if not ok.any():
+            return
+        start = self._heights.n
+        self._heights.extend(np.column_stack([t[ok], height[ok]]))
+        rows = self._heights.view()
+        t_all = np.ascontiguousarray(rows[:, 0])
+        lo = int(np.searchsorted(t_all, t_all[start] - SMOOTH_S))
+        h_rel, in_air = _track(t_all, np.ascontiguousarray(rows[:, 1]), start, lo, self._state)
+        self._rows.extend(np.column_stack([rows[start:, 0], h_rel, in_air]))
 
     @property
     def n(self) -> int:

@@ -66,7 +66,8 @@ from . import quaternion as quat
 from .aiding import ned_to_geodetic
 from .flight import AttitudeSeries, GpsSeries
 from .metrics import AXES
-from .pipeline import Event, ReplayResult
+from .events import Event
+from .pipeline import ReplayResult
 
 TIMELINE = "time"
 

@@ -11,7 +11,7 @@ import numpy as np
 from mavattitude import quaternion as quat
 from mavattitude.estimators import align, create
 from mavattitude.flight import MagSeries
-from mavattitude.pipeline import mag_on_imu_clock
+from mavattitude.runner import held_magnetometer
 from mavattitude.sim import SensorParams, simulate
 
 
@@ -43,7 +43,7 @@ def accel_110():
 def inputs(sim, mag: bool = True):
     """(t, gyro, accel, mag on the IMU clock or None) of IMU 0."""
     imu = sim.imu[0]
-    m = mag_on_imu_clock(sim.t, MagSeries("mag", sim.mag.t, sim.mag.field)) if mag else None
+    m = held_magnetometer(sim.t, MagSeries("mag", sim.mag.t, sim.mag.field)) if mag else None
     return sim.t, imu.gyro, imu.accel, m
 
 

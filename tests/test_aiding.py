@@ -69,7 +69,7 @@ def test_no_good_fix_means_no_gps_and_no_origin():
     assert not a.has_gps and not a.has_baro and len(a) == len(imu_t)
 
 
-def test_baro_height_is_up_from_the_start_median():
+def test_baro_height_is_up_from_the_first_sample():
     imu_t = np.arange(0.0, 20.0, 0.01)
     t = np.arange(0.05, 20.0, 0.1)
     height = np.where(t > 10.0, 12.0, 0.0)

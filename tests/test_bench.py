@@ -16,7 +16,7 @@ from mavattitude.estimators import ESTIMATORS, Estimator
 from mavattitude.estimators.base import MAX_STEP_S
 from mavattitude.estimators.mahony import Mahony, MahonyParams
 from mavattitude.flight import MagSeries
-from mavattitude.pipeline import mag_on_imu_clock
+from mavattitude.runner import held_magnetometer
 from mavattitude.sim import simulate
 
 SHORT = ["bench", "--duration", "20", "--imu-rate", "100", "--repeat", "1"]
@@ -159,7 +159,7 @@ def _mahony_reference(t, gyro, accel, mag, q0, bias, params, declination):
 def test_mahony_kernel_matches_the_vector_formulation(use_mag):
     sim = simulate("figure8", 30.0, seed=4, imu_rate=200.0)
     t, gyro, accel = sim.t.copy(), sim.imu[0].gyro.copy(), sim.imu[0].accel.copy()
-    mag = mag_on_imu_clock(t, MagSeries("mag", sim.mag.t, sim.mag.field))
+    mag = held_magnetometer(t, MagSeries("mag", sim.mag.t, sim.mag.field))
     t[3000:] += 3.0  # a gap, not integrated over
     accel[::500] = 0.0  # accelerometer dropouts
     params = MahonyParams(kp=1.0, ki=0.05, use_mag=use_mag)  # large gains: the terms matter

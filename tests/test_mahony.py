@@ -12,13 +12,13 @@ from mavattitude.estimators.alignment import detect_still
 from mavattitude.estimators.mahony import Mahony, MahonyParams
 from mavattitude.flight import AttitudeSeries, MagSeries
 from mavattitude.metrics import compare
-from mavattitude.pipeline import mag_on_imu_clock
+from mavattitude.runner import held_magnetometer
 from mavattitude.sim import SensorParams, simulate
 
 
 def _inputs(sim):
     imu = sim.imu[0]
-    mag = mag_on_imu_clock(sim.t, MagSeries("mag", sim.mag.t, sim.mag.field))
+    mag = held_magnetometer(sim.t, MagSeries("mag", sim.mag.t, sim.mag.field))
     return sim.t, imu.gyro, imu.accel, mag
 
 

@@ -1,4 +1,4 @@
-"""The pipeline: magnetometer on the IMU clock, declination, restarts after gaps, scoring rows."""
+"""Replay: magnetometer on the IMU clock, declination, restarts after gaps, scoring rows."""
 from __future__ import annotations
 
 import math
@@ -10,15 +10,15 @@ import pytest
 from mavattitude import quaternion as quat
 from mavattitude.errors import InputError, UsageError
 from mavattitude.flight import ImuSeries, MagSeries
-from mavattitude.pipeline import (contiguous_runs, mag_on_imu_clock, resolve_declination,
-                                  run_replay)
+from mavattitude.pipeline import resolve_declination, run_replay
 from mavattitude.readers import read_log
+from mavattitude.runner import held_magnetometer
 
 
 def test_mag_is_held_until_stale():
     mag = MagSeries("m", np.array([1.0, 1.1, 1.2, 5.0]), np.arange(12.0).reshape(4, 3))
     imu_t = np.array([0.9, 1.0, 1.05, 1.25, 1.6, 1.8, 5.01])
-    out = mag_on_imu_clock(imu_t, mag)
+    out = held_magnetometer(imu_t, mag)
     assert np.isnan(out[0]).all()  # before the first sample
     np.testing.assert_array_equal(out[1], [0, 1, 2])
     np.testing.assert_array_equal(out[2], [0, 1, 2])
@@ -26,12 +26,7 @@ def test_mag_is_held_until_stale():
     np.testing.assert_array_equal(out[4], [6, 7, 8])  # 0.4 s old: still within 0.5 s
     assert np.isnan(out[5]).all()  # 0.6 s old: stale
     np.testing.assert_array_equal(out[6], [9, 10, 11])
-    assert mag_on_imu_clock(imu_t, None) is None
-
-
-def test_contiguous_runs_split_at_gaps():
-    t = np.array([0.0, 0.1, 0.2, 3.0, 3.1, 3.2, 3.3, 10.0])
-    assert contiguous_runs(t) == [(0, 3), (3, 7), (7, 8)]
+    assert held_magnetometer(imu_t, None) is None
 
 
 def test_declination_sources(sim_logs):

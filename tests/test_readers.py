@@ -74,7 +74,7 @@ def test_lone_timestamp_far_ahead_is_dropped_a_real_jump_kept():
     for t in [900.0, 900.1, 900.2, 900.3, 900.4]:  # a telemetry link that came back 15 minutes later
         col.add("imu", "A", t, (t,))
     col.finish()
-    t, _, _ = col.columns("imu", "A", 0)
+    t = col.columns("imu", "A", 0).t
     np.testing.assert_allclose(t, [1.0, 1.1, 1.2, 1.3, 900.0, 900.1, 900.2, 900.3, 900.4])
     assert col.outliers == 1 and len(col.segments) == 1
 
@@ -125,7 +125,7 @@ def test_the_clock_tracker_decides_the_same_fed_in_pieces():
     assert labels[0] == -1 and np.all(labels[-3:] == -1)  # a lone first time; a jump nothing confirmed
 
 
-def test_collector_splits_reboots_sorts_and_dedupes():
+def test_collector_splits_reboots_and_keeps_samples_newer_than_those_before():
     col = Collector()
     for t in [10.0, 10.1, 10.3, 10.2, 10.3, 10.4]:  # one reordered, one repeated
         col.add("imu", "A", t, (t,))
@@ -133,10 +133,11 @@ def test_collector_splits_reboots_sorts_and_dedupes():
         col.add("imu", "A", t, (t,))
     col.finish()
     assert len(col.segments) == 2
-    t, v, stats = col.columns("imu", "A", 0)
-    np.testing.assert_allclose(t, [10.0, 10.1, 10.2, 10.3, 10.4])
-    assert stats == {"reordered": 1, "duplicates": 1}
-    t, _, _ = col.columns("imu", "A", 1)
+    c = col.columns("imu", "A", 0)
+    np.testing.assert_allclose(c.t, [10.0, 10.1, 10.3, 10.4])  # 10.2 came too late: as live drops it
+    assert (c.reordered, c.duplicates) == (1, 1)
+    np.testing.assert_array_equal(c.arrival, [0, 1, 2, 5])  # each sample's place in the file
+    t = col.columns("imu", "A", 1).t
     np.testing.assert_allclose(t, [0.5, 0.6, 0.7, 0.8, 0.9])
     assert col.longest_segment() == 0
 

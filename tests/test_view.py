@@ -20,7 +20,8 @@ from mavattitude import quaternion as quat  # noqa: E402
 from mavattitude import view  # noqa: E402
 from mavattitude.flight import AttitudeSeries, Flight, GpsSeries, ImuSeries  # noqa: E402
 from mavattitude.metrics import AXES, AxisMetrics, Comparison  # noqa: E402
-from mavattitude.pipeline import Event, ReplayResult  # noqa: E402
+from mavattitude.events import Event  # noqa: E402
+from mavattitude.pipeline import ReplayResult  # noqa: E402
 from mavattitude.outputs import Outputs  # noqa: E402
 from mavattitude.sink import close_sink, open_sink, plan_sink  # noqa: E402
 

@@ -24,6 +24,7 @@ MIN_STILL_S = 1.0
 MIN_STILL_SAMPLES = 5
 MAX_STILL_S = 60.0  # averaging longer adds nothing; a long wait on the ground is common
 START_SAMPLES = 5  # samples averaged for the initial attitude when the vehicle is not still
+MAG_START_FACTOR = 20  # ... and START_SAMPLES times this for the heading (compass samples are fewer)
 
 
 @dataclass
@@ -34,23 +35,44 @@ class Alignment:
     heading_from_mag: bool
 
 
-def detect_still(t, gyro, accel) -> int:
-    """Number of samples at the start during which the vehicle is still (0 if not still)."""
+def still_period(t, gyro, accel) -> tuple[int, bool]:
+    """(samples at the start during which the vehicle is still, 0 if not still; whether more
+    samples after these could change that). Undecided while every sample so far is still and
+    they span less than ``MAX_STILL_S``: the next one may move or may not."""
     n = len(t)
-    k = min(n, max(START_SAMPLES, int(np.searchsorted(t, t[0] + 0.5))))
     if n < MIN_STILL_SAMPLES:
-        return 0
+        return 0, False
+    k = min(n, max(START_SAMPLES, int(np.searchsorted(t, t[0] + 0.5))))
     g0 = np.median(gyro[:k], axis=0)
     a0 = np.median(accel[:k], axis=0)
     if np.linalg.norm(g0) > MAX_PLAUSIBLE_BIAS_RAD_S or abs(np.linalg.norm(a0) - GRAVITY) > STILL_ACCEL_MS2:
-        return 0
+        return 0, True
     moving = (np.linalg.norm(gyro - g0, axis=1) > STILL_GYRO_RAD_S) | \
              (np.linalg.norm(accel - a0, axis=1) > STILL_ACCEL_MS2)
-    end = int(np.argmax(moving)) if moving.any() else n
-    end = min(end, int(np.searchsorted(t, t[0] + MAX_STILL_S)))
+    cap = int(np.searchsorted(t, t[0] + MAX_STILL_S))
+    decided = bool(moving.any()) or cap < n
+    end = min(int(np.argmax(moving)) if moving.any() else n, cap)
     if end < MIN_STILL_SAMPLES or t[end - 1] - t[0] < MIN_STILL_S:
-        return 0
-    return end
+        return 0, decided
+    return end, decided
+
+
+def detect_still(t, gyro, accel) -> int:
+    """Number of samples at the start during which the vehicle is still (0 if not still)."""
+    return still_period(t, gyro, accel)[0]
+
+
+def alignment_decided(t, gyro, accel, complete: bool) -> bool:
+    """Whether ``align`` on these first samples of a run gives what it would given more of
+    the run: the still period at the start has ended (or is capped), and without one, the
+    samples the heading is averaged over are in. ``complete``: there are no more samples."""
+    if complete:
+        return True
+    n = len(t)
+    if n < max(START_SAMPLES, MIN_STILL_SAMPLES) or t[-1] < t[0] + 0.5:
+        return False  # the reference window of ``still_period`` is not complete yet
+    n_still, decided = still_period(t, gyro, accel)
+    return decided and (n_still > 0 or n >= START_SAMPLES * MAG_START_FACTOR)
 
 
 def align(t, gyro, accel, mag=None, declination: float = 0.0) -> Alignment:
@@ -66,7 +88,7 @@ def align(t, gyro, accel, mag=None, declination: float = 0.0) -> Alignment:
     yaw = 0.0
     use_mag = False
     if mag is not None:
-        m = mag[span] if n_still else mag[: max(START_SAMPLES, 1) * 20]
+        m = mag[span] if n_still else mag[:START_SAMPLES * MAG_START_FACTOR]
         m = m[~np.isnan(m).any(axis=1)]
         if len(m):
             yaw = float(quat.heading_from_mag(roll, pitch, m.mean(axis=0), declination))

@@ -8,11 +8,11 @@ same numbers.
 
 Inputs are SI on the autopilot clock: ``t`` (N,) s, ``gyro`` (N, 3) rad/s, ``accel`` (N, 3)
 m/s² specific force, ``mag`` (N, 3) tesla: the latest magnetometer sample at each IMU time
-(held between samples, as the pipeline's ``mag_on_imu_clock`` gives it), NaN where there is
+(held between samples, as the ``runner`` holds it), NaN where there is
 none or it is stale, ``in_air`` (N,) 1.0 in the air, 0.0 on the ground, NaN unknown (see ``phase``).
-An estimator with ``uses_aiding`` also gets ``aiding``: the GPS and baro measurements of the
-chunk on the IMU clock (``mavattitude.aiding.Aiding``, NaN where none), or None when the log
-has none.
+Every ``update`` takes ``aiding``: the GPS and baro measurements of the chunk on the IMU clock
+(``mavattitude.aiding.Aiding``, NaN where none), or None when there are none; only an
+estimator with ``uses_aiding`` reads it.
 Output: (N, 4) quaternions [w, x, y, z], body FRD -> NED.
 
 Diagnostics: after each ``update`` an estimator leaves per-sample series for that chunk in
@@ -53,8 +53,8 @@ class Estimator:
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
         """Process a chunk of samples; returns the attitude after each one, (N, 4).
-        ``aiding`` (the chunk's ``aiding.Aiding`` rows) is passed only to estimators with
-        ``uses_aiding``."""
+        ``aiding``: the chunk's ``aiding.Aiding`` rows, or None; an estimator without
+        ``uses_aiding`` ignores it."""
         raise NotImplementedError
 
     def _chunk(self, t, gyro, accel, mag, in_air=None):

@@ -456,7 +456,7 @@ class Ekf(Estimator):
         self._gyro_prev = np.zeros(3)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
+    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
         t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
         n = len(t)
         out = np.empty((n, 4))

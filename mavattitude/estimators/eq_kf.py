@@ -666,7 +666,7 @@ class EqKf(Estimator):
         prm[_P_AIRSPEED] = max(p.airspeed, 0.0)
         return prm
 
-    def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
+    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
         t, gyro, accel, mag, in_air = self._chunk(t, gyro, accel, mag, in_air)
         n = len(t)
         out = np.empty((n, 4))

@@ -293,7 +293,7 @@ class Eskf(Estimator):
         self._gyro_prev = np.zeros(3)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
+    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
         t, gyro, accel, _, _ = self._chunk(t, gyro, accel, None)
         n = len(t)
         out = np.empty((n, 4))

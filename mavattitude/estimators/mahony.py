@@ -137,7 +137,7 @@ class Mahony(Estimator):
         self._gyro_prev = np.zeros(3)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
+    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
         t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
         out = np.empty((len(t), 4))
         p = self.params

@@ -311,7 +311,7 @@ class MahonyEkf(Estimator):
         self.mahony_q = np.empty((0, 4))  # the internal Mahony attitude over the last chunk
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
+    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
         t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
         n = len(t)
         out = np.empty((n, 4))

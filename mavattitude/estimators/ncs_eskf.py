@@ -560,7 +560,7 @@ class NcsEskf(Estimator):
         self._cons[C_T], self._cons[C_G], self._cons[C_STILL] = 0.0, GRAVITY, 0.0
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None) -> np.ndarray:
+    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
         t, gyro, accel, _, in_air = self._chunk(t, gyro, accel, None, in_air)
         n = len(t)
         out = np.empty((n, 4))

@@ -17,7 +17,8 @@ import rerun as rr
 
 from .. import view
 from ..metrics import AXES
-from .estimation import Chunk, LiveEstimation
+from ..runner import Chunk
+from .estimation import LiveEstimation
 
 # s of wall time between sends: a viewer watching gets a smooth picture, a file fewer, larger
 # chunks (each send is a chunk with its own schema: many small ones make a large file)

@@ -14,14 +14,17 @@ import os
 import signal
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 
 from ..errors import InputError
-from ..pipeline import LOW_IMU_RATE_HZ, Event
+from ..events import Event
+from ..runner import LOW_IMU_RATE_HZ
 from ..sink import Sink
 from .estimation import LiveEstimation
 from ..readers import enum_name, identify_vehicle
+from ..readers.tlog import is_vehicle
 from .link import (LinkMonitor, RateRequester, close_link, mavlink2, open_link,
                    request_identity, wait_readable)
 from .recorder import TlogRecorder
@@ -32,6 +35,7 @@ WAIT_NOTE_EVERY_S = 10.0
 MAX_BATCH = 500  # packets decoded before the estimators step, at most
 DRAIN_S = 2.0  # s at most spent, after a stop, on the packets still in the socket
 GCS_HEARTBEAT_S = 1.0  # a ground station says it is there once a second
+BEFORE_VEHICLE_PACKETS = 20_000  # kept until the vehicle's first HEARTBEAT says which system it is
 # Heartbeats from these are not the vehicle, whatever autopilot field they carry.
 NOT_VEHICLES = {getattr(mavlink2, f"MAV_TYPE_{n}") for n in (
     "GCS", "ANTENNA_TRACKER", "ONBOARD_CONTROLLER", "GIMBAL", "ADSB", "CAMERA", "CHARGING_STATION",
@@ -164,6 +168,7 @@ class _Session:
         self.next_tick = self.start
         self.last_wait_note = self.start
         self.events_shown = 0
+        self.before_vehicle: deque = deque(maxlen=BEFORE_VEHICLE_PACKETS)  # (message, arrival)
 
     def receive(self, limit: int) -> int:
         """Handle up to ``limit`` packets waiting on the link, then step the estimators.
@@ -190,8 +195,10 @@ class _Session:
             if self.vehicle is None:
                 if not (name == "HEARTBEAT" and msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID
                         and msg.type not in NOT_VEHICLES and (opts.sysid is None or src[0] == opts.sysid)):
+                    self.before_vehicle.append((msg, now))
                     continue
                 self._found_vehicle(msg, now)
+                self._catch_up()
             if src != self.vehicle:
                 continue
             self.monitor.heard(msg, now)
@@ -213,6 +220,18 @@ class _Session:
             if chunk is not None and self.live_view is not None:
                 self.live_view.push(chunk)
         return got
+
+    def _catch_up(self) -> None:
+        """Estimate what the vehicle sent before its first HEARTBEAT, as a log reader does:
+        from its first message that says it is the vehicle (``readers.tlog.is_vehicle``)."""
+        started = False
+        for msg, at in self.before_vehicle:
+            if (msg.get_srcSystem(), msg.get_srcComponent()) != self.vehicle:
+                continue
+            started = started or is_vehicle(msg)
+            if started:
+                self.est.add(msg, at)
+        self.before_vehicle.clear()
 
     def _found_vehicle(self, heartbeat, now: float) -> None:
         src = heartbeat.get_srcSystem()
@@ -300,7 +319,7 @@ class _Session:
 
     def finish(self, ended_by: str) -> LiveResult:
         est = self.est
-        chunk = est.step()
+        chunk = est.step(final=True)
         if chunk is not None and self.live_view is not None:
             self.live_view.push(chunk)
         self._show_events()

@@ -130,14 +130,14 @@ def _fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
     """Fill the flight's series from one clock segment; returns why each IMU series that
     holds data was not usable (none when every one was)."""
     def columns(kind, key):
-        t, v, stats = col.columns(kind, key, segment)
+        c = col.columns(kind, key, segment)
         # a message that feeds two series (RAW_IMU: IMU and compass) has the same fixes in both
-        for text in ((f"{key}: dropped {stats['duplicates']} samples with repeated timestamps"
-                      if stats["duplicates"] else None),
-                     (f"{key}: sorted {stats['reordered']} out-of-order samples" if stats["reordered"] else None)):
+        for text in ((f"{key}: dropped {c.duplicates} samples with repeated timestamps" if c.duplicates else None),
+                     (f"{key}: dropped {c.reordered} samples older than one before them (out of order)"
+                      if c.reordered else None)):
             if text and text not in flight.notes:
                 flight.notes.append(text)
-        return t, v
+        return c.t, c.values, c.arrival
 
     def plausible(key, v, limits):
         """Rows that are finite and within physical ranges; corrupt records decode as anything."""
@@ -151,36 +151,36 @@ def _fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
 
     unusable = []
     for key in col.keys("imu"):
-        t, v = columns("imu", key)
+        t, v, arrival = columns("imu", key)
         fitted = np.any(v != 0, axis=1)  # an unfitted sensor sends all zeros
         live = fitted & plausible(key, v, IMU_LIMITS)
         if np.count_nonzero(live) >= 2:
-            flight.imu[key] = ImuSeries(key, t[live], v[live, :3], v[live, 3:6])
+            flight.imu[key] = ImuSeries(key, t[live], v[live, :3], v[live, 3:6], arrival=arrival[live])
         elif len(t):
             why = ("all zeros (no sensor fitted?)" if not fitted.any() else
                    "none within ±50 rad/s and ±50 g (saturated or corrupt)" if not live.any() else
                    "fewer than two usable")
             unusable.append(f"{key}: {len(t)} samples, {why}")
     for key in col.keys("mag"):
-        t, v = columns("mag", key)
+        t, v, arrival = columns("mag", key)
         live = np.any(v != 0, axis=1) & np.isfinite(v).all(axis=1)
         if np.count_nonzero(live) < 2:
             continue
         # Repair the unit before judging plausibility: a whole series off by 1e6 is a unit
         # bug, not a series of corrupt records.
-        t, v = t[live], _earth_field_scale(flight, key, v[live])
+        t, v, arrival = t[live], _earth_field_scale(flight, key, v[live]), arrival[live]
         live = plausible(key, v, MAG_LIMITS)
         if np.count_nonzero(live) >= 2:
-            flight.mag[key] = MagSeries(key, t[live], v[live])
+            flight.mag[key] = MagSeries(key, t[live], v[live], arrival=arrival[live])
     for key in col.keys("gps"):
-        t, v = columns("gps", key)
+        t, v, arrival = columns("gps", key)
         if len(t):
-            flight.gps = GpsSeries(key, t, v[:, 0], v[:, 1], v[:, 2], v[:, 3:6],
-                                   v[:, 6].astype(int), v[:, 7].astype(int), v[:, 8])
+            flight.gps = GpsSeries(key, t, v[:, 0], v[:, 1], v[:, 2], v[:, 3:6], v[:, 6].astype(int),
+                                   v[:, 7].astype(int), v[:, 8], arrival=arrival)
     for key in col.keys("baro"):
-        t, v = columns("baro", key)
+        t, v, arrival = columns("baro", key)
         if len(t):
-            flight.baro = BaroSeries(key, t, v[:, 0], v[:, 1])
+            flight.baro = BaroSeries(key, t, v[:, 0], v[:, 1], arrival=arrival)
     flight.attitude = _attitude(col, "att", segment, columns)
     flight.truth = _attitude(col, "truth", segment, columns)
     return unusable
@@ -217,7 +217,7 @@ def _attitude(col: Collector, prefix: str, segment: int, columns) -> AttitudeSer
     best = None
     for kind in (f"{prefix}_euler", f"{prefix}_quat"):
         for key in col.keys(kind):
-            t, v = columns(kind, key)
+            t, v, _ = columns(kind, key)
             if not len(t):
                 continue
             ok = np.isfinite(v).all(axis=1) & (np.abs(v).max(axis=1) < 10.0)  # rad or unit quaternion

@@ -15,14 +15,16 @@ clock through all samples in file order (``ClockTracker``, which a live link use
 - a sample with a negative or non-finite time is dropped as corrupt, and so is one that
   agrees with neither the clock nor the samples held.
 
-Then, per series, ``columns`` keeps one segment, sorts by time and drops repeated
-timestamps: smaller backward steps are reordering (a GPS sample logged after a later IMU
-sample), fixed by the sort.
+Then, per series, ``columns`` keeps one segment and, of its samples in file order, those newer
+than every one before them: a sample out of order within its series (a telemetry link that
+reordered two packets) or repeating a time is dropped, as a live link must drop it. Across
+series, order does not matter (a GPS sample logged after a later IMU sample).
 """
 from __future__ import annotations
 
 from array import array
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -202,8 +204,8 @@ class Collector:
             spans.append((float(times.min()), float(times.max())) if len(times) else (np.inf, -np.inf))
         self._segment_spans = spans
         start = 0
-        for k, (o, times, values) in merged.items():
-            self._series[k] = (times, values, seg[start:start + len(times)])
+        for k, (order, times, values) in merged.items():
+            self._series[k] = (order, times, values, seg[start:start + len(times)])
             start += len(times)
 
     @property
@@ -216,19 +218,29 @@ class Collector:
     def keys(self, kind: str) -> list[str]:
         return [k for (kd, k) in self._series if kd == kind]
 
-    def columns(self, kind: str, key: str, segment: int) -> tuple[np.ndarray, np.ndarray, dict]:
-        """(t, values (N, M), stats) for one series in one segment: sorted, unique times."""
+    def columns(self, kind: str, key: str, segment: int) -> Columns:
+        """One series in one segment, each sample newer than every one before it in the file
+        (as a live link keeps them: a sample cannot be estimated after a later one was)."""
         if (kind, key) not in self._series:
-            return np.empty(0), np.empty((0, 0)), {"reordered": 0, "duplicates": 0}
-        t, values, seg = self._series[(kind, key)]
+            return Columns(np.empty(0), np.empty((0, 0)), np.empty(0, np.int64), 0, 0)
+        arrival, t, values, seg = self._series[(kind, key)]
         mine = seg == segment
-        t, values = t[mine], values[mine]
-        order = np.argsort(t, kind="stable")
-        reordered = int(np.count_nonzero(np.diff(t) < 0))
-        t, values = t[order], values[order]
-        keep = np.concatenate([[True], np.diff(t) > 0]) if len(t) else np.zeros(0, bool)
-        return t[keep], values[keep], {"reordered": reordered,
-                                       "duplicates": int(len(t) - np.count_nonzero(keep))}
+        arrival, t, values = arrival[mine], t[mine], values[mine]
+        order = np.argsort(arrival, kind="stable")
+        arrival, t, values = arrival[order], t[order], values[order]
+        before = np.maximum.accumulate(np.concatenate([[-np.inf], t]))[:-1]
+        keep = t > before
+        repeated = int(np.count_nonzero(t == before))
+        return Columns(t[keep], values[keep], arrival[keep], int(len(t) - np.count_nonzero(keep)) - repeated,
+                       repeated)
+
+
+class Columns(NamedTuple):
+    t: np.ndarray  # (N,) s
+    values: np.ndarray  # (N, M)
+    arrival: np.ndarray  # (N,) each sample's place in the file
+    reordered: int  # samples dropped for being older than one before them
+    duplicates: int  # samples dropped for repeating the time of the one before
 
 
 @dataclass

@@ -1,0 +1,387 @@
+"""The estimation core: estimators run over one clock segment's samples, as they arrive.
+
+Replay, live, bench, evaluate and tune all run the estimators through a ``Runner``. Replay
+hands it a whole log at once, live a few packets at a time; either way every IMU sample is
+given exactly what had *arrived* before it (``arrival``: a log's file order, a link's packet
+order), so the two give the same estimates to the last bit:
+
+- the magnetometer: the latest sample to arrive, held until stale (older than
+  ``MAG_STALE_PERIODS`` of its own last interval, and at least ``MAG_STALE_MIN_S``);
+- the ground/air phase (``phase.PhaseTracker``): from baro height, or GPS height (3D fix)
+  when no baro sample had arrived by the first IMU sample;
+- GPS and baro (estimators with ``uses_aiding``): each measurement once, at the first IMU
+  sample to arrive after it whose time is not earlier than its own, unless that sample is
+  more than ``aiding.MAX_LATENCY_S`` (or two IMU intervals) later (stale). The GPS origin is
+  the first good fix, the baro zero the first good sample.
+
+Runs: the estimators start at the first IMU sample and again after a gap longer than
+``REINIT_GAP_S``, from the alignment of the run's first samples (``estimators.align``). A
+run waits until its alignment is decided (``alignment_decided``: the still period at its start
+has ended, or reached ``alignment.MAX_STILL_S``), so a live session that starts on the ground
+shows its first estimates when the vehicle first moves, and replay aligns on exactly what
+live did. A run without a still period keeps the first run's gyro bias, and an estimator with
+no heading reference carries its yaw across the gap.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import aiding as aid
+from . import estimators as est
+from . import quaternion as quat
+from .events import Event
+from .flight import AttitudeSeries
+from .growing import Growing
+from .phase import STALE_S, PhaseTracker, pressure_height
+
+# An IMU gap longer than this restarts the estimators from a fresh alignment: after it the
+# vehicle may be anywhere (logging paused while disarmed, a crash and a pick-up).
+REINIT_GAP_S = 2.0
+# IMU rates below this leave the gyro integration too coarse for good estimates.
+LOW_IMU_RATE_HZ = 20.0
+# A magnetometer sample older than this many of its own intervals (or MAG_STALE_MIN_S) is stale.
+MAG_STALE_PERIODS = 3.0
+MAG_STALE_MIN_S = 0.5
+
+IMU, MAG, GPS, BARO = "imu", "mag", "gps", "baro"
+WIDTH = {IMU: 8, MAG: 5, GPS: len(aid.GPS_COLUMNS), BARO: len(aid.BARO_COLUMNS)}  # arrival last
+
+
+@dataclass
+class Chunk:
+    """What one ``step`` produced: estimates at the IMU times ``t``."""
+    t: np.ndarray
+    q: dict[str, np.ndarray]  # estimator -> (N, 4)
+    diagnostics: dict[str, dict[str, np.ndarray]]  # estimator -> key -> (N,)
+    in_air: np.ndarray
+
+    @staticmethod
+    def join(chunks: list[Chunk]) -> Chunk | None:
+        if not chunks:
+            return None
+        if len(chunks) == 1:
+            return chunks[0]
+        first = chunks[0]
+        return Chunk(np.concatenate([c.t for c in chunks]),
+                     {n: np.vstack([c.q[n] for c in chunks]) for n in first.q},
+                     {n: {k: np.concatenate([c.diagnostics[n][k] for c in chunks]) for k in first.diagnostics[n]}
+                      for n in first.diagnostics},
+                     np.concatenate([c.in_air for c in chunks]))
+
+
+@dataclass
+class Run:
+    """One stretch of IMU data without a gap: [start, end) rows, and how it began."""
+    start: int
+    alignment: est.Alignment
+    end: int = 0
+
+
+class Runner:
+    """Estimators ``names`` (``params``: name -> parameter dataclass) on one clock segment.
+
+    Feed it with ``add_imu``, ``add_mag``, ``add_gps``, ``add_baro`` in any order, as long as
+    every sample that arrived before an IMU sample is added before the ``step`` that runs it
+    (a log: everything, then ``step(final=True)``; a link: each packet as it comes, ``step``
+    now and then). ``declination``: rad, east positive.
+    """
+
+    def __init__(self, names: list[str], params: dict | None = None, declination: float = 0.0,
+                 use_mag: bool = True, imu_source: str = "IMU", mag_source: str | None = None):
+        self.names = list(names)
+        self.estimators = [est.create(n, (params or {}).get(n), declination) for n in self.names]
+        self.uses_aiding = any(e.uses_aiding for e in self.estimators)
+        self.declination = declination
+        self.use_mag = use_mag
+        self.imu_source, self.mag_source = imu_source, mag_source
+        self.store = {kind: Growing(width) for kind, width in WIDTH.items()}
+        self.done = 0  # IMU rows estimated
+        self.runs: list[Run] = []
+        self.running = False
+        self.events: list[Event] = []
+        self.estimates = {n: Growing(4) for n in self.names}  # (N, 4) at the IMU rows estimated
+        self.diagnostics: dict[str, dict[str, list]] = {n: {} for n in self.names}  # key -> arrays
+        self.in_air = Growing(1)
+        self.has_heading = {e.name: e.has_heading_reference(False) for e in self.estimators}
+        self._phase: PhaseTracker | None = None
+        self._heights_seen = 0  # height samples given to the phase tracker
+        self._phase_rows = Growing(1)  # the tracker's row count after each height sample
+        self._phase_reported = 0
+        self._placer = aid.Placer()
+        self._aiding_chunks: list[aid.Aiding] = []
+
+    # ------------------------------------------------------------ input
+
+    def add_imu(self, t, gyro, accel, arrival) -> None:
+        """IMU samples in time order (rad/s, m/s²); ``arrival``: their place in the arrival order."""
+        self._add(IMU, np.column_stack([t, gyro, accel, arrival]))
+
+    def add_mag(self, t, field_t, arrival) -> None:
+        """Magnetometer samples in time order (tesla)."""
+        self._add(MAG, np.column_stack([t, field_t, arrival]))
+
+    def add_gps(self, rows: np.ndarray) -> None:
+        """GPS samples in time order, rows of ``aiding.GPS_COLUMNS``."""
+        self._add(GPS, rows)
+
+    def add_baro(self, rows: np.ndarray) -> None:
+        """Baro samples in time order, rows of ``aiding.BARO_COLUMNS``."""
+        self._add(BARO, rows)
+
+    def _add(self, kind: str, rows: np.ndarray) -> None:
+        if len(rows):
+            self.store[kind].extend(rows)
+
+    def add_flight(self, flight) -> None:
+        """A whole log (``flight.Flight``): its IMU and compass of the runner's sources, GPS and
+        baro, in the order the log holds them (``arrival``; by time where a series lacks it)."""
+        imu = flight.imu[self.imu_source]
+        mag = flight.mag.get(self.mag_source) if self.mag_source and self.use_mag else None
+        series = [s for s in (imu, mag, flight.gps, flight.baro) if s is not None]
+        by_time = any(s.arrival is None for s in series)
+
+        def arrival(s):
+            return s.t if by_time else s.arrival
+        self.add_imu(imu.t, imu.gyro, imu.accel, arrival(imu))
+        if mag is not None:
+            self.add_mag(mag.t, mag.field, arrival(mag))
+        if flight.gps is not None:
+            self.add_gps(aid.gps_rows(flight.gps, arrival(flight.gps)))
+        if flight.baro is not None:
+            self.add_baro(aid.baro_rows(flight.baro, arrival(flight.baro)))
+
+    # ------------------------------------------------------------ stepping
+
+    def step(self, final: bool = False) -> Chunk | None:
+        """Estimate every IMU row added since the last step that can be: all of them, but for
+        the rows of a run whose alignment is not decided yet (unless ``final``: no more data)."""
+        imu = self.store[IMU].view()
+        t = imu[:, 0]
+        chunks = []
+        while self.done < len(t):
+            a = self.done
+            if self.running and a > 0 and t[a] - t[a - 1] > REINIT_GAP_S:
+                self.running = False
+                self.events.append(Event(float(t[a]), "warn", f"IMU gap of {t[a] - t[a - 1]:.1f} s: "
+                                                              "estimators re-initialised"))
+            gaps = np.flatnonzero(np.diff(t[a:]) > REINIT_GAP_S)
+            b = a + int(gaps[0]) + 1 if len(gaps) else len(t)
+            if not self.running and not self._start_run(a, b, complete=final or b < len(t)):
+                break
+            chunks.append(self._run(a, b))
+            self.done = self.runs[-1].end = b
+        return Chunk.join(chunks)
+
+    def _start_run(self, a: int, b: int, complete: bool) -> bool:
+        imu = self.store[IMU].view()[a:b]
+        t, gyro, accel = imu[:, 0], imu[:, 1:4], imu[:, 4:7]
+        if not est.alignment.alignment_decided(t, gyro, accel, complete):
+            return False
+        mag = self._mag_held(a, b)
+        alignment = est.align(t, gyro, accel, mag, self.declination)
+        if not self.runs:
+            self._report_start(t, mag is not None, alignment)
+        elif alignment.still_span is None:
+            alignment.gyro_bias = self.runs[0].alignment.gyro_bias  # no new still period: keep the first
+        for e in self.estimators:
+            q0 = alignment.q0
+            previous = self.estimates[e.name]
+            if self.runs and not alignment.heading_from_mag and previous.n:
+                # no heading reference: carry the yaw over the gap rather than restart it at 0
+                roll, pitch, _ = quat.to_euler(q0)
+                q0 = quat.from_euler(roll, pitch, quat.to_euler(previous.last)[2])
+            e.initialize(q0, alignment.gyro_bias)
+            self.has_heading[e.name] = e.has_heading_reference(mag is not None)
+        self.runs.append(Run(a, alignment, a))
+        self.running = True
+        return True
+
+    def _report_start(self, t: np.ndarray, has_mag: bool, alignment: est.Alignment) -> None:
+        t0 = float(t[0])
+        rate = float(1.0 / np.median(np.diff(t))) if len(t) > 1 else 0.0
+        self.events.append(Event(t0, "info", f"IMU source {self.imu_source} at {rate:.1f} Hz, "
+                                             f"magnetometer {self.mag_source if has_mag else 'none'}"))
+        if rate < LOW_IMU_RATE_HZ:
+            self.events.append(Event(t0, "warn", f"low IMU rate: {rate:.1f} Hz (below {LOW_IMU_RATE_HZ:.0f} Hz): "
+                                                 "gyro integration is coarse and estimates will lag"))
+        if alignment.still_span:
+            a, b = alignment.still_span
+            bias = np.degrees(alignment.gyro_bias)
+            self.events.append(Event(b, "info", f"still {a:.1f}-{b:.1f} s: gyro bias "
+                                                f"[{bias[0]:.3f}, {bias[1]:.3f}, {bias[2]:.3f}] °/s"))
+        else:
+            self.events.append(Event(t0, "warn", "no initial still period: gyro bias starts at 0"))
+
+    def _run(self, a: int, b: int) -> Chunk:
+        imu = self.store[IMU].view()[a:b]
+        t = np.ascontiguousarray(imu[:, 0])
+        gyro, accel = imu[:, 1:4], imu[:, 4:7]
+        mag = self._mag_held(a, b)
+        in_air = self._in_air(a, b)
+        aiding = self._aiding(a, b) if self.uses_aiding else None
+        if aiding is not None:
+            self._aiding_chunks.append(aiding)
+        out, diagnostics = {}, {}
+        for e in self.estimators:
+            q = e.update(t, gyro, accel, mag, in_air, aiding=aiding)
+            out[e.name] = q
+            diagnostics[e.name] = dict(e.diagnostics)
+            self.estimates[e.name].extend(q)
+            parts = self.diagnostics[e.name]
+            for key in set(parts) | set(e.diagnostics):
+                if key not in parts:  # rows before the key first appeared: nothing
+                    parts[key] = [_nothing(a, e.diagnostics[key].dtype)]
+                parts[key].append(np.asarray(e.diagnostics[key]) if key in e.diagnostics
+                                  else _nothing(len(t), parts[key][0].dtype))
+            if "reset" in e.diagnostics:
+                for tr in t[np.asarray(e.diagnostics["reset"]) == 1.0]:
+                    self.events.append(Event(float(tr), "warn", f"{e.name}: watchdog reset (EKF attitude too "
+                                                                "far from its complementary filter): restarted from it"))
+        self.in_air.extend(in_air)
+        return Chunk(t, out, diagnostics, in_air)
+
+    # ------------------------------------------------------------ what each IMU sample is given
+
+    def _latest_arrived(self, kind: str, a: int, b: int, usable: np.ndarray | None = None) -> np.ndarray:
+        """For IMU rows [a, b): the index of the latest sample of ``kind`` to have arrived
+        before each, among the ``usable`` ones; -1 where none had."""
+        rows = self.store[kind].view()
+        index = np.arange(len(rows)) if usable is None else np.flatnonzero(usable)
+        k = latest_arrived(rows[index, -1], self.store[IMU].view()[a:b, -1])
+        return np.where(k >= 0, index[np.maximum(k, 0)], -1) if len(index) else k
+
+    def _mag_held(self, a: int, b: int) -> np.ndarray | None:
+        """The latest compass sample to have arrived before each IMU row, NaN where stale."""
+        if not self.use_mag or not self.store[MAG].n:
+            return None
+        m = self.store[MAG].view()
+        return held_field(self.store[IMU].view()[a:b, 0], m[:, 0], m[:, 1:4], self._latest_arrived(MAG, a, b))
+
+    def _height_usable(self, kind: str) -> np.ndarray:
+        rows = self.store[kind].view()
+        return rows[:, 1] > aid.MIN_PRESSURE_PA if kind == BARO else rows[:, 7] >= 3
+
+    def _in_air(self, a: int, b: int) -> np.ndarray:
+        """The ground/air phase at each IMU row, from the heights that arrived before it. The
+        source: baro, if a baro sample had arrived by the first IMU row to have any height
+        before it, else GPS height (3D fix)."""
+        if self._phase is None:
+            baro = self._latest_arrived(BARO, 0, b, self._height_usable(BARO))
+            gps = self._latest_arrived(GPS, 0, b, self._height_usable(GPS))
+            first = np.flatnonzero((baro >= 0) | (gps >= 0))
+            if not len(first):
+                return np.full(b - a, np.nan)  # no height has arrived yet
+            source = "baro height" if baro[first[0]] >= 0 else "GPS height"
+            self._phase = PhaseTracker(source)
+            t_first = float(self.store[IMU].view()[first[0], 0])
+            self.events.append(Event(t_first, "info", f"ground/air phase from {source}"))
+        kind = BARO if self._phase.source == "baro height" else GPS
+        rows = self.store[kind].view()
+        usable = self._height_usable(kind)
+        for j in range(self._heights_seen, len(rows)):  # the tracker's rows after each sample
+            if usable[j]:
+                self._phase.add(rows[j:j + 1, 0], self._raw_height(kind, rows[j:j + 1]))
+            self._phase_rows.append((self._phase.n,))
+        self._heights_seen = len(rows)
+        phase = self._phase.series()
+        self._phase_events(phase)
+        k = self._latest_arrived(kind, a, b)
+        n_rows = np.where(k >= 0, self._phase_rows.view()[np.maximum(k, 0), 0], 0).astype(np.int64)
+        out = np.full(b - a, np.nan)
+        have = n_rows > 0
+        j = n_rows[have] - 1
+        age = self.store[IMU].view()[a:b, 0][have] - phase.t[j]
+        out[have] = np.where(age <= STALE_S, phase.in_air[j], np.nan)
+        return out
+
+    @staticmethod
+    def _raw_height(kind: str, rows: np.ndarray) -> np.ndarray:
+        return pressure_height(rows[:, 1]) if kind == BARO else rows[:, 3]
+
+    def _phase_events(self, phase) -> None:
+        for i in range(max(self._phase_reported, 1), len(phase.t)):
+            if phase.in_air[i] != phase.in_air[i - 1]:
+                self.events.append(Event(float(phase.t[i]), "info", ("in the air" if phase.in_air[i] else "on the ground")
+                                         + f" ({phase.source} {phase.height_m[i]:.1f} m above the start)"))
+        self._phase_reported = len(phase.t)
+
+    def _aiding(self, a: int, b: int) -> aid.Aiding:
+        """GPS and baro on IMU rows [a, b), each sample once (``aiding.Placer``)."""
+        imu = self.store[IMU].view()
+        for kind in (GPS, BARO):
+            self._placer.place(kind, self.store[kind].view(), imu[:, 0], imu[:, -1])
+        return self._placer.take(a, b)
+
+    # ------------------------------------------------------------ results
+
+    def estimate(self, name: str) -> AttitudeSeries:
+        """An estimator's attitude at every IMU row estimated so far."""
+        t = self.store[IMU].column(0)[:self.done]
+        return AttitudeSeries(name, t, self.estimates[name].view())
+
+    @property
+    def restarts(self) -> list[tuple[float, float]]:
+        """(time, gap before it) of every run after the first."""
+        t = self.store[IMU].column(0)
+        return [(float(t[r.start]), float(t[r.start] - t[r.start - 1])) for r in self.runs[1:]]
+
+    @property
+    def alignment(self) -> est.Alignment | None:
+        return self.runs[0].alignment if self.runs else None
+
+    def diagnostic_series(self, name: str) -> dict[str, np.ndarray]:
+        """An estimator's diagnostics at every IMU row estimated so far: key -> (N,)."""
+        return {k: np.concatenate(parts) for k, parts in self.diagnostics[name].items()}
+
+    def aiding(self) -> aid.Aiding | None:
+        """The GPS and baro measurements handed to the estimators, at every IMU row estimated
+        so far (None when no estimator takes them)."""
+        if not self.uses_aiding:
+            return None
+        chunks = self._aiding_chunks or [aid.Aiding.empty(0)]
+        out = aid.Aiding(*(np.concatenate([getattr(c, f) for c in chunks])
+                           for f in ("gps_pos", "gps_vel", "gps_h_acc", "gps_v_acc", "baro_height")))
+        out.origin, out.baro_zero = self._placer.origin, self._placer.baro_zero
+        return out
+
+    def phase_series(self):
+        return self._phase.series() if self._phase is not None and self._phase.n else None
+
+
+def latest_arrived(arrival: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """For each of ``at`` (arrival keys): the index of the latest sample (they are in time
+    order) among those whose ``arrival`` is not later; -1 where there is none. Keys that tie
+    (time standing in for arrival) count as arrived."""
+    if not len(arrival):
+        return np.full(len(at), -1)
+    order = np.argsort(arrival, kind="stable")
+    latest = np.maximum.accumulate(order)
+    count = np.searchsorted(arrival[order], at, side="right")
+    return np.where(count > 0, latest[np.maximum(count - 1, 0)], -1)
+
+
+def held_field(imu_t: np.ndarray, mag_t: np.ndarray, field: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """The compass sample ``held`` (index, -1 none) at each IMU time, NaN where there is none or
+    it is stale: older than MAG_STALE_PERIODS of the interval before it (at least MAG_STALE_MIN_S)."""
+    k = np.maximum(held, 0)
+    interval = np.diff(mag_t, prepend=-np.inf)[k]
+    max_age = np.maximum(MAG_STALE_MIN_S, MAG_STALE_PERIODS * interval)
+    out = field[k].copy()
+    out[(held < 0) | (imu_t - mag_t[k] > max_age)] = np.nan
+    return out
+
+
+def held_magnetometer(imu_t: np.ndarray, mag) -> np.ndarray | None:
+    """A compass series (``flight.MagSeries``) on the IMU clock, as the runner holds it when
+    time stands in for arrival (simulated data, the bench): None without one."""
+    if mag is None or not len(mag.t):
+        return None
+    return held_field(imu_t, mag.t, mag.field, latest_arrived(mag.t, imu_t))
+
+
+def _nothing(n: int, dtype) -> np.ndarray:
+    """Diagnostic values where an estimator gave none: 0 for codes, NaN for measures."""
+    return np.zeros(n, dtype) if np.dtype(dtype).kind in "iub" else np.full(n, np.nan)
