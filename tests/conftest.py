@@ -17,12 +17,14 @@ def shared_log_paths() -> list[Path]:
 
 
 def shared_log_params():
-    """pytest params for every shared log; one skipped param when the folder is absent."""
+    """pytest params for every shared log; one skipped param when the folder is absent. The
+    telemetry logs of SITL (seconds each to decode) are marked slow."""
     paths = shared_log_paths()
     if not paths:
         return [pytest.param(None, marks=pytest.mark.skip(
             reason=f"real logs not found at {SHARED_LOGS} (they live beside the project, not in it)"))]
-    return [pytest.param(p, id=p.name) for p in paths]
+    return [pytest.param(p, id=p.name, marks=[pytest.mark.slow] if p.name.startswith("sitl-") and
+                         p.suffix == ".tlog" else []) for p in paths]
 
 
 def shared_log(name: str) -> Path:

@@ -171,6 +171,7 @@ def test_mahony_kernel_matches_the_vector_formulation(use_mag):
     np.testing.assert_allclose(q, ref, rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_live_figure_runs_and_reports(capsys):
     """``bench --live`` end to end on a short stream (the figures are not judged here: speed
     targets live in the benchmark, not in tests)."""

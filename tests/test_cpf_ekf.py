@@ -194,54 +194,6 @@ def test_registered_with_aiding_and_params():
                                        "pos_e", "innov_mag_x", "innov_gps_vel_n", "innov_baro"}
 
 
-def test_chunked_stepping_equals_one_batch(circle):
-    t, gyro, accel, mag = st.inputs(circle)
-    aid = from_sim(circle)
-    a = align(t, gyro, accel, mag, circle.declination_rad)
-    params = CpfEkfParams(gps_delay_s=0.15)  # the delay's history buffer carries over too
-    batch = create("cpf-ekf", params, declination=circle.declination_rad)
-    batch.initialize(a.q0, a.gyro_bias)
-    q_batch = batch.update(t, gyro, accel, mag, aiding=aid)
-    live = create("cpf-ekf", params, declination=circle.declination_rad)
-    live.initialize(a.q0, a.gyro_bias)
-    rng = np.random.default_rng(0)
-    cuts = np.sort(rng.choice(np.arange(1, len(t)), size=300, replace=False))
-    parts, diags = [], []
-    for s in (slice(a_, b_) for a_, b_ in zip(np.r_[0, cuts], np.r_[cuts, len(t)])):
-        parts.append(live.update(t[s], gyro[s], accel[s], mag[s], aiding=aid[s]))
-        diags.append(live.diagnostics["innov_gps_vel_n"].copy())
-    np.testing.assert_array_equal(np.vstack(parts), q_batch)
-    np.testing.assert_array_equal(np.concatenate(diags), batch.diagnostics["innov_gps_vel_n"])
-    np.testing.assert_array_equal(live.covariance, batch.covariance)
-
-
-def test_invariants_over_a_million_noisy_steps():
-    rng = np.random.default_rng(5)
-    n = 1_000_000
-    t = np.cumsum(rng.uniform(0.001, 0.02, n))
-    t[n // 2:] += 5.0  # a gap
-    gyro = rng.normal(0, 0.5, (n, 3))
-    accel = rng.normal([0, 0, -9.8], 3.0, (n, 3))
-    accel[::1000] = 0.0
-    mag = np.where(rng.random((n, 1)) < 0.1, rng.normal([2e-5, 0, 4e-5], 1e-5, (n, 3)), np.nan)
-    aid = Aiding.empty(n)
-    gps_rows = rng.random(n) < 0.02
-    aid.gps_pos[gps_rows] = rng.normal(0, 30.0, (np.count_nonzero(gps_rows), 3))
-    aid.gps_vel[gps_rows] = rng.normal(0, 5.0, (np.count_nonzero(gps_rows), 3))
-    baro_rows = rng.random(n) < 0.05
-    aid.baro_height[baro_rows] = rng.normal(10.0, 5.0, np.count_nonzero(baro_rows))
-    f = CpfEkf(CpfEkfParams(), declination=0.2)
-    f.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
-    for s in np.array_split(np.arange(n), 8):
-        q = f.update(t[s], gyro[s], accel[s], mag[s], aiding=aid[s.min():s.max() + 1])
-        assert np.isfinite(q).all()
-        np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
-        P = f.covariance
-        np.testing.assert_array_equal(P, P.T)
-        assert np.linalg.eigvalsh(P).min() > -1e-9 * max(1.0, np.abs(P).max())
-        assert all(np.isfinite(v).any() or k.startswith("innov") for k, v in f.diagnostics.items())
-
-
 # ---------------------------------------------------------------- paper 003's claims
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import simtruth as st
+from test_contract import hostile
 from filterpy.kalman import ExtendedKalmanFilter
 
 from mavattitude import quaternion as quat
@@ -203,47 +204,13 @@ def test_matches_filterpy_extended_kalman_filter_to_1e_9():
 # ---------------------------------------------------------------- invariants and interface
 
 
-def test_invariants_over_a_million_noisy_steps():
-    rng = np.random.default_rng(5)
-    n = 1_000_000
-    t = np.cumsum(rng.uniform(0.001, 0.02, n))
-    t[n // 2:] += 5.0  # a gap in the log
-    gyro = rng.normal(0, 0.5, (n, 3))
-    accel = rng.normal([0, 0, -GRAVITY], 3.0, (n, 3))
-    accel[::1000] = 0.0  # dropouts
-    accel[7::5000] = np.nan
-    mag = np.where(rng.random((n, 1)) < 0.1, rng.normal([2e-5, 0, 4e-5], 1e-5, (n, 3)), np.nan)
+def test_the_covariance_has_nothing_along_the_quaternion():
+    """The normalised quaternion's covariance is projected: rank 3, nothing along q itself
+    (what ``test_contract`` checks for every filter is not repeated here)."""
+    t, gyro, accel, mag, *_ = hostile(100_000)
     f = Ekf(EkfParams(r_accel=0.01, r_mag=1e-3), declination=0.2)
     f.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
-    qs = []
-    for chunk in np.array_split(np.arange(n), 10):
-        qs.append(f.update(t[chunk], gyro[chunk], accel[chunk], mag[chunk]))
-        P, x = f.covariance, qs[-1][-1]
-        assert np.isfinite(P).all()
-        np.testing.assert_array_equal(P, P.T)
-        assert np.linalg.eigvalsh(P).min() > -1e-15  # positive semi-definite: rank 3
-        np.testing.assert_allclose(P @ x, 0.0, atol=1e-12)  # nothing along the norm direction
-        assert np.isfinite(f.diagnostics["cov_trace"]).all() and (f.diagnostics["cov_trace"] > 0).all()
-    q = np.vstack(qs)
-    assert np.isfinite(q).all()
-    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
-    np.testing.assert_array_equal(q[n // 2], q[n // 2 - 1])  # not integrated across the gap
+    for s in np.array_split(np.arange(len(t)), 5):
+        x = f.update(t[s], gyro[s], accel[s], mag[s])[-1]
+        np.testing.assert_allclose(f.covariance @ x, 0.0, atol=1e-12)
 
-
-def test_chunked_stepping_equals_one_batch():
-    sim = st.figure8_120()
-    t, gyro, accel, mag = st.inputs(sim)
-    a = align(t, gyro, accel, mag, sim.declination_rad)
-    batch = Ekf(declination=sim.declination_rad)
-    batch.initialize(a.q0, a.gyro_bias)
-    q_batch = batch.update(t, gyro, accel, mag)
-    live = Ekf(declination=sim.declination_rad)
-    live.initialize(a.q0, a.gyro_bias)
-    cuts = np.sort(np.random.default_rng(0).choice(np.arange(1, len(t)), size=200, replace=False))
-    parts, traces = [], []
-    for s in (slice(a_, b_) for a_, b_ in zip(np.r_[0, cuts], np.r_[cuts, len(t)])):
-        parts.append(live.update(t[s], gyro[s], accel[s], mag[s]))
-        traces.append(live.diagnostics["cov_trace"])
-    np.testing.assert_array_equal(np.vstack(parts), q_batch)
-    np.testing.assert_array_equal(np.concatenate(traces), batch.diagnostics["cov_trace"])
-    np.testing.assert_array_equal(live.covariance, batch.covariance)

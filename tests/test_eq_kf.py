@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import simtruth
+from test_contract import hostile
 
 from mavattitude import quaternion as quat
 from mavattitude.estimators import ESTIMATORS, create
@@ -226,66 +227,19 @@ def test_mag_jacobian_against_finite_differences(seed):
 # ---------------------------------------------------------------- invariants and equivalence
 
 
-def test_invariants_over_a_million_noisy_steps():
-    rng = np.random.default_rng(5)
-    n = 1_000_000
-    t = np.cumsum(rng.uniform(0.001, 0.03, n))
-    t[n // 2:] += 5.0  # a gap in the log
-    gyro = rng.normal(0, 0.5, (n, 3))
-    gyro[::5000] = rng.normal(0, 8.0, (n // 5000, 3))  # spikes
-    accel = rng.normal([0, 0, -9.8], 3.0, (n, 3))
-    accel[::1000] = 0.0  # dropouts
-    accel[500::2000] = np.nan
-    mag = np.where(rng.random((n, 1)) < 0.1, rng.normal([2e-5, 0, 4e-5], 1e-5, (n, 3)), np.nan)
+def test_trust_stays_in_range_and_a_zero_reading_is_skipped():
+    """On hostile data (``test_contract`` checks the rest): the accelerometer weight stays in
+    [0, 1] and a zero reading (a sensor dropout) is never fused."""
+    t, gyro, accel, mag, *_ = hostile(200_000)
     f = EqKf(declination=0.2)
     f.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
     states = []
-    for s in np.array_split(np.arange(n), 10):
-        q = f.update(t[s], gyro[s], accel[s], mag[s])
-        assert np.isfinite(q).all()
-        np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
-        p = f.covariance
-        assert np.isfinite(p).all()
-        np.testing.assert_array_equal(p, p.T)
-        assert np.linalg.eigvalsh(p).min() > -1e-12 * np.abs(p).max()
+    for s in np.array_split(np.arange(len(t)), 5):
+        f.update(t[s], gyro[s], accel[s], mag[s])
         d = f.diagnostics
-        assert np.isfinite(d["cov_trace"]).all() and (d["cov_trace"] > 0).all()
         assert np.all((d["accel_weight"] >= 0) & (d["accel_weight"] <= 1))
         states.append(d["accel_state"])
-    states = np.concatenate(states)
-    assert set(np.unique(states)) <= {0, 1, 2}
-    assert np.all(states[::1000][1:] == 2)  # a zero reading is skipped
-    # across the gap the attitude is held, not integrated over 5 s
-    f2 = EqKf(EqKfParams(use_mag=False))
-    f2.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
-    q2 = f2.update(t[n // 2 - 10: n // 2 + 1], gyro[n // 2 - 10: n // 2 + 1],
-                   np.full((11, 3), np.nan), None)
-    np.testing.assert_array_equal(q2[-1], q2[-2])
-
-
-def test_chunked_stepping_equals_one_batch():
-    """Live use feeds small chunks; replay one big one: the same numbers."""
-    sim = simtruth.figure8_120()
-    t, gyro, accel, mag = simtruth.inputs(sim)
-    from mavattitude.estimators import align
-    a = align(t, gyro, accel, mag, sim.declination_rad)
-    batch = EqKf(declination=sim.declination_rad)
-    batch.initialize(a.q0, a.gyro_bias)
-    q_batch = batch.update(t, gyro, accel, mag)
-    live = EqKf(declination=sim.declination_rad)
-    live.initialize(a.q0, a.gyro_bias)
-    rng = np.random.default_rng(0)
-    cuts = np.sort(rng.choice(np.arange(1, len(t)), size=300, replace=False))
-    parts, diags = [], []
-    for s in (slice(a_, b_) for a_, b_ in zip(np.r_[0, cuts], np.r_[cuts, len(t)])):
-        parts.append(live.update(t[s], gyro[s], accel[s], mag[s]))
-        diags.append(dict(live.diagnostics))
-    np.testing.assert_array_equal(np.vstack(parts), q_batch)
-    for key in EqKf.DIAGNOSTICS:
-        np.testing.assert_array_equal(np.concatenate([d[key] for d in diags]), batch.diagnostics[key])
-    np.testing.assert_array_equal(live.covariance, batch.covariance)
-    np.testing.assert_array_equal(live.gyro_bias, batch.gyro_bias)
-
+    assert np.all(np.concatenate(states)[::1000][1:] == 2)
 
 def test_params_are_floats_and_bools():
     """The CLI sets parameters as --set eq-kf.<field>=value: floats and bools only."""

@@ -150,6 +150,7 @@ def flight():
 # ---------------------------------------------------------------- against the simulator
 
 
+@pytest.mark.slow
 def test_live_against_the_simulator_matches_replay_of_the_same_data(tmp_path, flight):
     port = free_udp_port()
     thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=4.0), flight)
@@ -172,6 +173,7 @@ def test_live_against_the_simulator_matches_replay_of_the_same_data(tmp_path, fl
     assert result.comparisons["cpf-ekf"].axes["roll"].mae < 0.3
 
 
+@pytest.mark.slow
 def test_corrupt_data_between_packets_is_counted_and_never_recorded(tmp_path, flight):
     port = free_udp_port()
     thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=4.0, t_to=20.0), flight, garbage_every=25)
@@ -183,6 +185,7 @@ def test_corrupt_data_between_packets_is_counted_and_never_recorded(tmp_path, fl
     assert result.comparisons["mahony"].axes["roll"].mae < 2.0
 
 
+@pytest.mark.slow
 def test_a_sender_that_stops_and_comes_back(tmp_path, flight):
     """The vehicle goes silent for 2 s of wall time, and 3 s of its clock pass meanwhile: the
     link is reported lost and back, and the estimators start again after the gap."""
@@ -203,6 +206,7 @@ def test_a_sender_that_stops_and_comes_back(tmp_path, flight):
     assert recorded_packets(tmp_path / "live.tlog") == tap.sent
 
 
+@pytest.mark.slow
 def test_a_vehicle_reboot_starts_a_new_clock_segment(tmp_path, flight):
     """The autopilot reboots: its clock starts again near zero and its sequence numbers too."""
     def plan(ap, tap):
@@ -220,6 +224,7 @@ def test_a_vehicle_reboot_starts_a_new_clock_segment(tmp_path, flight):
     assert recorded_packets(tmp_path / "live.tlog") == tap.sent
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_mid_stream_ends_cleanly_with_a_complete_recording(tmp_path, flight, signum):
     """``mavattitude live`` in its own process, interrupted (Ctrl-C, or a service manager's
@@ -262,6 +267,7 @@ def test_a_signal_mid_stream_ends_cleanly_with_a_complete_recording(tmp_path, fl
 # ---------------------------------------------------------------- against pymavlink's mavplayback.py
 
 
+@pytest.mark.slow
 def test_live_against_mavplayback_of_a_shared_sitl_log(tmp_path):
     log = SHARED / "sitl-quadplane-vtol.tlog"
     if not log.exists():
@@ -464,6 +470,7 @@ def _feed(est, path, edit=lambda msg: msg, every=7):
     return est
 
 
+@pytest.mark.slow
 def test_a_gps_that_loses_its_fix_does_not_look_like_a_reboot():
     """ArduPilot's GPS_RAW_INT carries the time of the last fix: without a fix it stops moving.
     Those samples are stale, not a clock that went back; one corrupt IMU time is no reboot
@@ -485,6 +492,7 @@ def test_a_gps_that_loses_its_fix_does_not_look_like_a_reboot():
     assert est.seg.gps.column(0)[-1] <= 30.0 + 1e-9
 
 
+@pytest.mark.slow
 def test_imu_choice_still_waits_for_the_compass_declination():
     from mavattitude.live.estimation import LiveEstimation
 
@@ -499,6 +507,7 @@ def test_imu_choice_still_waits_for_the_compass_declination():
     assert sum("no SCALED_IMU3 samples arrive" in e.text for e in missing.events) == 1
 
 
+@pytest.mark.slow
 def test_a_compass_in_the_wrong_unit_is_rescaled_live():
     """ArduPilot 4.7 sends HIGHRES_IMU's field 1e6 times too large; replay rescales it, and so
     does live, rather than dropping every sample as implausible."""
@@ -515,6 +524,7 @@ def test_a_compass_in_the_wrong_unit_is_rescaled_live():
     assert est.seg.mag_key == "HIGHRES_IMU" and est.has_heading["mahony"]
 
 
+@pytest.mark.slow
 def test_udpout_speaks_first_so_a_listening_vehicle_hears_it(tmp_path, flight):
     """An outgoing UDP link: the vehicle listens and sends only once it hears a ground station."""
     port = free_udp_port()
@@ -535,6 +545,7 @@ def test_udpout_speaks_first_so_a_listening_vehicle_hears_it(tmp_path, flight):
     assert result.vehicle == (1, 1) and result.estimation.samples > 100
 
 
+@pytest.mark.slow
 def test_a_tcp_peer_that_goes_away_and_comes_back(tmp_path, flight):
     """SITL restarted under a TCP link: the session reports the link lost, reconnects by itself,
     estimates again, and ends without a traceback."""

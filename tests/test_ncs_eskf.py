@@ -8,6 +8,7 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 import simtruth as st
+from test_contract import hostile
 
 from mavattitude import quaternion as quat
 from mavattitude.estimators import ESTIMATORS, align, create
@@ -366,52 +367,17 @@ def test_converges_from_a_10_degree_roll_offset_with_the_defaults():
 # ---------------------------------------------------------------- invariants, batch == live
 
 
-def test_chunked_stepping_equals_one_batch():
-    sim = st.figure8_120()
-    t, gyro, accel, mag = st.inputs(sim)
-    in_air = np.where(t < t[0] + 20.0, 0.0, 1.0)
-    in_air[len(t) // 2: len(t) // 2 + 500] = np.nan
-    a = align(t, gyro, accel, mag, sim.declination_rad)
-    for params in (NcsEskfParams(), NcsEskfParams(accel_lpf_hz=2.0, segmented=False)):
-        batch = NcsEskf(params)
-        batch.initialize(a.q0, a.gyro_bias)
-        q_batch = batch.update(t, gyro, accel, mag, in_air)
-        live = NcsEskf(params)
-        live.initialize(a.q0, a.gyro_bias)
-        cuts = np.sort(np.random.default_rng(0).choice(np.arange(1, len(t)), size=300, replace=False))
-        parts, diags = [], []
-        for s in (slice(i, j) for i, j in zip(np.r_[0, cuts], np.r_[cuts, len(t)])):
-            parts.append(live.update(t[s], gyro[s], accel[s], mag[s], in_air[s]))
-            diags.append(live.diagnostics)
-        np.testing.assert_array_equal(np.vstack(parts), q_batch)
-        for key, series in batch.diagnostics.items():
-            np.testing.assert_array_equal(np.concatenate([d[key] for d in diags]), series)
-        np.testing.assert_array_equal(live.covariance, batch.covariance)
-        np.testing.assert_array_equal(live.gyro_bias, batch.gyro_bias)
-
-
-def test_invariants_over_a_million_noisy_steps():
-    rng = np.random.default_rng(5)
-    n = 1_000_000
-    t = np.cumsum(rng.uniform(0.001, 0.05, n))
-    t[n // 2:] += 5.0  # a gap in the log
-    gyro = rng.normal(0, 1.0, (n, 3))
-    accel = rng.normal([0, 0, -9.8], 0.5, (n, 3))
-    accel[::1000] = 0.0  # dropouts
-    accel[5::1000] = np.nan
-    in_air = rng.choice([0.0, 1.0, np.nan], n)
+def test_the_heading_stays_decoupled_and_updates_run_on_hostile_data():
+    """With and without the documented additions (``test_contract`` checks the rest)."""
+    t, gyro, accel, _, in_air, _ = hostile(200_000, accel_noise=0.5)
     for params in (NcsEskfParams(p0_deg=20.0, accel_lpf_hz=5.0), NcsEskfParams(gate_sigma=0.0, taper=0.0)):
         f = NcsEskf(params)
         f.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
         used = 0
-        for s in np.array_split(np.arange(n), 10):
-            q = f.update(t[s], gyro[s], accel[s], None, in_air[s])
-            assert np.isfinite(q).all() and np.isfinite(f.diagnostics["cov_trace"]).all()
-            np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
-            P = f.covariance
-            np.testing.assert_array_equal(P, P.T)
-            assert np.linalg.eigvalsh(P).min() >= -1e-12 * np.abs(P).max()
-            assert np.all(P[2, [0, 1, 3, 4, 5]] == 0.0)  # the heading stays decoupled
+        for s in np.array_split(np.arange(len(t)), 5):
+            f.update(t[s], gyro[s], accel[s], None, in_air[s])
+            assert np.all(f.covariance[2, [0, 1, 3, 4, 5]] == 0.0)  # the heading stays decoupled
             used += np.count_nonzero(f.diagnostics["accel_state"] == 0)
         assert np.isfinite(f.gyro_bias).all()
         assert used > 1000  # the updates did run
+

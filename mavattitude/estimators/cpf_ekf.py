@@ -707,6 +707,8 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
         tp = ti
         g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
         a0, a1, a2 = accel[i, 0], accel[i, 1], accel[i, 2]
+        if not (a0 == a0 and a1 == a1 and a2 == a2):  # a missing reading drives the velocity: hold the last
+            a0, a1, a2 = aux[A_ACC], aux[A_ACC + 1], aux[A_ACC + 2]
         if dt > 0.0:
             w0 = 0.5 * (g0 + aux[A_GYRO])
             w1 = 0.5 * (g1 + aux[A_GYRO + 1])

@@ -1,0 +1,120 @@
+"""What every registered estimator promises (``estimators.base``), checked on each: chunked
+stepping equals one batch, unit quaternions, a symmetric positive semi-definite covariance,
+no NaN on hostile data, the documented diagnostics, ``aiding=None`` accepted, and no gyro
+integration across a gap. An estimator added to ``ESTIMATORS`` is checked without a line here.
+Each estimator's own file tests what is particular to it."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import simtruth as st
+from mavattitude.aiding import Aiding, from_sim
+from mavattitude.estimators import ESTIMATORS, align, create
+from mavattitude.flight import GRAVITY
+
+NAMES = list(ESTIMATORS)
+
+
+def hostile(n: int = 200_000, seed: int = 5, accel_noise: float = 3.0):
+    """Noisy inputs with a 5 s gap half-way, accelerometer dropouts (zeros) and NaN, a sparse
+    compass, a phase that jumps about, and random GPS and baro."""
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(0.001, 0.03, n))
+    t[n // 2:] += 5.0
+    gyro = rng.normal(0, 0.5, (n, 3))
+    gyro[::5000] = rng.normal(0, 8.0, (len(gyro[::5000]), 3))  # spikes
+    accel = rng.normal([0, 0, -GRAVITY], accel_noise, (n, 3))
+    accel[::1000] = 0.0
+    accel[500::2000] = np.nan
+    mag = np.where(rng.random((n, 1)) < 0.1, rng.normal([2e-5, 0, 4e-5], 1e-5, (n, 3)), np.nan)
+    in_air = rng.choice([0.0, 1.0, np.nan], n)
+    aiding = Aiding.empty(n)
+    gps = rng.random(n) < 0.02
+    aiding.gps_pos[gps] = rng.normal(0, 30.0, (np.count_nonzero(gps), 3))
+    aiding.gps_vel[gps] = rng.normal(0, 5.0, (np.count_nonzero(gps), 3))
+    baro = rng.random(n) < 0.05
+    aiding.baro_height[baro] = rng.normal(10.0, 5.0, np.count_nonzero(baro))
+    return t, gyro, accel, mag, in_air, aiding
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    return hostile()
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_invariants_on_hostile_data(name, noisy):
+    t, gyro, accel, mag, in_air, aiding = noisy
+    cls = ESTIMATORS[name]
+    f = create(name, declination=0.2)
+    f.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
+    for s in np.array_split(np.arange(len(t)), 10):
+        q = f.update(t[s], gyro[s], accel[s], mag[s], in_air[s], aiding=aiding[s.min():s.max() + 1])
+        assert np.isfinite(q).all()
+        np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+        P = f.covariance
+        if P is not None:
+            assert np.isfinite(P).all()
+            np.testing.assert_array_equal(P, P.T)
+            assert np.linalg.eigvalsh(P).min() >= -1e-9 * max(1.0, np.abs(P).max())
+        assert set(f.diagnostics) <= set(cls.DIAGNOSTICS), set(f.diagnostics) - set(cls.DIAGNOSTICS)
+        for key, series in f.diagnostics.items():
+            assert series.shape == (len(s),), key
+        if "cov_trace" in f.diagnostics:
+            assert np.isfinite(f.diagnostics["cov_trace"]).all() and (f.diagnostics["cov_trace"] > 0).all()
+        if "accel_state" in f.diagnostics:
+            assert set(np.unique(f.diagnostics["accel_state"])) <= set(range(len(cls.ACCEL_STATES)))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_no_gyro_integration_across_a_gap(name, noisy):
+    t, gyro, *_ = noisy
+    g = len(t) // 2
+    f = create(name)
+    f.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
+    s = slice(g - 10, g + 1)  # no accelerometer, no compass: only the gyro moves it
+    q = f.update(t[s], gyro[s], np.full((11, 3), np.nan), None)
+    np.testing.assert_array_equal(q[-1], q[-2])
+
+
+@pytest.fixture(scope="module")
+def figure8():
+    sim = st.figure8_120()
+    t, gyro, accel, mag = st.inputs(sim)
+    in_air = np.where(sim.t > 20.0, 1.0, 0.0)
+    return sim, t, gyro, accel, mag, in_air, from_sim(sim)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_chunked_stepping_equals_one_batch(name, figure8):
+    """Live feeds small chunks, replay one big one: the same numbers, bit for bit."""
+    sim, t, gyro, accel, mag, in_air, aiding = figure8
+    a = align(t, gyro, accel, mag, sim.declination_rad)
+    batch = create(name, declination=sim.declination_rad)
+    batch.initialize(a.q0, a.gyro_bias)
+    q_batch = batch.update(t, gyro, accel, mag, in_air, aiding=aiding)
+    live = create(name, declination=sim.declination_rad)
+    live.initialize(a.q0, a.gyro_bias)
+    cuts = np.sort(np.random.default_rng(0).choice(np.arange(1, len(t)), size=200, replace=False))
+    parts, diagnostics = [], []
+    for a_, b_ in zip(np.r_[0, cuts], np.r_[cuts, len(t)]):
+        s = slice(a_, b_)
+        parts.append(live.update(t[s], gyro[s], accel[s], mag[s], in_air[s], aiding=aiding[s]))
+        diagnostics.append(live.diagnostics)
+    np.testing.assert_array_equal(np.vstack(parts), q_batch)
+    for key, series in batch.diagnostics.items():
+        np.testing.assert_array_equal(np.concatenate([d[key] for d in diagnostics]), series, err_msg=key)
+    if batch.covariance is not None:
+        np.testing.assert_array_equal(live.covariance, batch.covariance)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_aiding_none_is_accepted(name, figure8):
+    sim, t, gyro, accel, mag, in_air, _ = figure8
+    outputs = []
+    for extra in ({}, {"aiding": None}):
+        f = create(name, declination=sim.declination_rad)
+        f.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
+        outputs.append(f.update(t[:500], gyro[:500], accel[:500], mag[:500], in_air[:500], **extra))
+    np.testing.assert_array_equal(*outputs)
