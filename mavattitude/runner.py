@@ -17,10 +17,14 @@ order), so the two give the same estimates to the last bit:
 Runs: the estimators start at the first IMU sample and again after a gap longer than
 ``REINIT_GAP_S``, from the alignment of the run's first samples (``estimators.align``). A
 run waits until its alignment is decided (``alignment_decided``: the still period at its start
-has ended, or reached ``alignment.MAX_STILL_S``), so a live session that starts on the ground
-shows its first estimates when the vehicle first moves, and replay aligns on exactly what
-live did. A run without a still period keeps the first run's gyro bias, and an estimator with
+has ended, or reached ``alignment.MAX_STILL_S``, 10 s), so live and replay align on the same
+samples. A run without a still period keeps the first run's gyro bias, and an estimator with
 no heading reference carries its yaw across the gap.
+
+Against the time-ordered replay of before (each measurement used from its timestamp, even
+where it arrived later), this changes nothing on a DataFlash log, whose records are written
+in time order, and on telemetry logs what a live link would have seen: a GPS_RAW_INT that
+arrives a second after its fix is fused then, not a second in the past.
 """
 from __future__ import annotations
 
