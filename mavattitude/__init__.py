@@ -1,3 +1,50 @@
 """mavattitude: replay MAVLink flight logs through attitude estimators and compare them
-with the autopilot's own attitude and simulator ground truth."""
+with the autopilot's own attitude and simulator ground truth.
+
+From Python::
+
+    import mavattitude
+    flight = mavattitude.load("flight.bin")          # SI arrays on the autopilot clock
+    result = mavattitude.replay(flight, estimators=["mahony", "ekf"])
+    result.metrics["estimators"]["ekf"]["roll"]["mae"]   # what --json writes
+    result.write_rrd("flight.rrd")
+
+Estimators on your own arrays: ``mavattitude.estimators.create``; your own estimator class,
+listed and run by the command too: ``mavattitude.estimators.register`` (or the entry point
+group ``mavattitude.estimators``).
+"""
+from __future__ import annotations
+
 __version__ = "0.1.0"
+
+
+def load(path, segment: int | None = None):
+    """A log (.bin or .tlog) as a ``flight.Flight``: SI arrays on the autopilot clock, with
+    what the reader fixed (``notes``) or had to leave out (``warnings``). ``segment``: the clock
+    segment to keep when the autopilot rebooted during the log (default the longest)."""
+    from .readers import read_log
+
+    return read_log(str(path), segment=segment)
+
+
+def replay(log, estimators=("mahony",), reference: str = "autopilot", params: dict | None = None,
+           imu: str | None = None, warmup: float = 10.0, declination: float | None = None,
+           use_mag: bool = True):
+    """Run ``estimators`` over a log (a path, or a flight from ``load``) and score them, as
+    ``mavattitude replay`` does: a ``pipeline.ReplayResult`` with ``metrics`` (the --json
+    dict), ``estimates`` (name -> series with ``t``, ``q``, ``euler``), ``reference``,
+    ``events``, and ``write_json``, ``write_csv``, ``write_rrd``.
+
+    ``params``: {estimator: {parameter: value}} (or a parameter dataclass), checked against
+    each parameter's valid range; ``declination`` in degrees (default the log's COMPASS_DEC).
+    """
+    from .params import build
+    from .pipeline import run_replay
+
+    flight = log if hasattr(log, "imu") else load(log)
+    names = list(estimators)
+    values = {n: v for n, v in (params or {}).items() if isinstance(v, dict)}
+    chosen = build(names, values, source="replay(params=...)")
+    chosen.update({n: v for n, v in (params or {}).items() if not isinstance(v, dict)})
+    return run_replay(flight, names, reference=reference, imu_source=imu, warmup_s=warmup,
+                      declination_deg=declination, params=chosen, use_mag=use_mag)

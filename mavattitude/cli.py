@@ -602,6 +602,9 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from .estimators import load_plugins
+    for problem in load_plugins():
+        _warn(problem)
     code = _run(args)
     from .sink import shutdown
     try:

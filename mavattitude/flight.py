@@ -70,6 +70,12 @@ class AttitudeSeries:
     t: np.ndarray
     q: np.ndarray  # (N, 4) unit quaternions [w, x, y, z], body -> NED
 
+    @property
+    def euler(self) -> np.ndarray:
+        """(N, 3) roll, pitch, yaw in radians (ZYX), yaw in [-pi, pi)."""
+        from .quaternion import to_euler
+        return to_euler(self.q)
+
 
 @dataclass
 class Flight:

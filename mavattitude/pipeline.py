@@ -39,6 +39,40 @@ class ReplayResult:
     params: dict = field(default_factory=dict)  # estimator name -> its parameter dataclass
     aiding: aid.Aiding | None = None  # GPS / baro on the IMU clock, when an estimator used them
 
+    @property
+    def metrics(self) -> dict:
+        """What ``replay --json`` writes: per estimator and axis the statistics, its events,
+        diagnostics and parameters."""
+        from .report import estimator_extras, to_json_dict
+        return to_json_dict(self.flight.path, self.reference.source if self.reference else "none",
+                            self.comparisons, estimator_extras(self))
+
+    def write_json(self, path) -> None:
+        """The metrics as JSON (``replay --json``)."""
+        from .outputs import Outputs
+        from .report import estimator_extras, write_json
+        with Outputs(inputs=[self.flight.path]) as outputs, outputs.file(path, "write_json", "json").writing() as to:
+            write_json(to, self.flight.path, self.reference.source if self.reference else "none",
+                       self.comparisons, estimator_extras(self))
+
+    def write_csv(self, folder) -> None:
+        """reference.csv and <estimator>.csv in ``folder`` (``replay --export``)."""
+        from .report import write_csv
+        if self.reference is None:
+            raise InputError(self.flight.path, "no reference attitude to write")
+        write_csv(folder, self.reference, self.estimates)
+
+    def write_rrd(self, path) -> None:
+        """The Rerun recording (``replay --rrd``)."""
+        from . import view
+        from .outputs import Outputs
+        from .sink import close_sink, open_sink, plan_sink
+        with Outputs(inputs=[self.flight.path]) as outputs:
+            sink = plan_sink("rrd", path, outputs)
+            rec = open_sink(sink, "mavattitude", str(self.flight.path))
+            view.log_replay(self, rec)
+            close_sink(rec, sink)
+
 
 def resolve_declination(flight: Flight, override_deg: float | None) -> tuple[float, str]:
     if override_deg is not None:

@@ -1,8 +1,13 @@
-"""The attitude estimators, by CLI name. Each module holds one, with its paper in the docstring."""
+"""The attitude estimators, by CLI name. Each module holds one, with its paper in the docstring.
+
+``create`` makes one to run on your own arrays; ``register`` adds your own estimator class
+(a subclass of ``Estimator``) so that the command lists and runs it too, as does a package
+that names it in the entry point group ``mavattitude.estimators``.
+"""
 from __future__ import annotations
 
 from .alignment import Alignment, align
-from .base import Estimator, params_table
+from .base import Estimator
 from .base import needs_compile as _needs_compile
 from .cpf_ekf import CpfEkf
 from .ekf import Ekf
@@ -30,8 +35,45 @@ def summary(cls) -> str:
     return doc.strip().splitlines()[0].rstrip(".") if doc.strip() else cls.name
 
 
-def create(name: str, params=None, declination: float = 0.0) -> Estimator:
+ENTRY_POINT_GROUP = "mavattitude.estimators"
+
+
+def create(name: str, params=None, declination: float = 0.0, **values) -> Estimator:
+    """An estimator by name: with ``params`` (its parameter dataclass), or with parameter
+    values by keyword (``create("mahony", kp=0.5)``), each checked against its valid range.
+    ``declination``: rad, east positive. Call ``initialize(q0, gyro_bias)``, then ``update``."""
+    if name not in ESTIMATORS:
+        raise KeyError(f"unknown estimator {name!r}; choose from: {', '.join(ESTIMATORS)}")
+    if values:
+        from ..params import build
+        params = build([name], {name: values}, source="create()")[name]
     return ESTIMATORS[name](params=params, declination=declination)
+
+
+def register(cls: type[Estimator]) -> type[Estimator]:
+    """Add an estimator class under its ``name`` (usable as a decorator). It needs ``name``,
+    ``Params`` (a dataclass, fields declared with ``params.param``) and ``initialize`` and
+    ``update`` as ``Estimator`` describes them."""
+    if not (isinstance(cls, type) and issubclass(cls, Estimator) and cls.name and cls.Params is not None):
+        raise TypeError(f"{cls!r}: an estimator is an Estimator subclass with a name and a Params dataclass")
+    if cls.name in ("autopilot", "all"):
+        raise ValueError(f"{cls.name!r} is a reserved name")
+    ESTIMATORS[cls.name] = cls
+    return cls
+
+
+def load_plugins() -> list[str]:
+    """Register the estimators that installed packages name in the entry point group
+    ``mavattitude.estimators``; returns what could not be loaded, a line each."""
+    from importlib.metadata import entry_points
+
+    problems = []
+    for point in entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            register(point.load())
+        except Exception as exc:  # a broken plugin must not stop the command
+            problems.append(f"estimator plugin {point.name} ({point.value}): {exc}")
+    return problems
 
 
 def needs_compile(names: list[str]) -> list[str]:
@@ -40,18 +82,19 @@ def needs_compile(names: list[str]) -> list[str]:
 
 
 def warm_up(names: list[str], params: dict | None = None) -> None:
-    """Run each estimator over a few synthetic samples, so its compiled kernel is loaded (or
-    compiled) now rather than on the first samples of a live link."""
+    """Run the estimation core over a second of synthetic samples (compass, GPS and baro
+    included), so every compiled kernel is loaded (or compiled) now rather than on the first
+    samples of a live link."""
     import numpy as np
 
-    from ..aiding import Aiding
-    n = 5
+    from ..runner import Runner
+    n = 100
     t = np.arange(n) * 0.01
-    gyro = np.zeros((n, 3))
-    accel = np.tile([0.0, 0.0, -9.80665], (n, 1))
-    mag = np.tile([2e-5, 0.0, 4e-5], (n, 1))
-    for name in names:
-        e = create(name, (params or {}).get(name))
-        e.initialize(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3))
-        extra = {"aiding": Aiding.empty(n)} if e.uses_aiding else {}
-        e.update(t, gyro, accel, mag, np.zeros(n), **extra)
+    arrival = np.arange(n) * 4.0
+    runner = Runner(names, params, imu_source="warm-up", mag_source="warm-up")
+    runner.add_imu(t, np.zeros((n, 3)), np.tile([0.0, 0.0, -9.80665], (n, 1)), arrival)
+    runner.add_mag(t, np.tile([2e-5, 0.0, 4e-5], (n, 1)), arrival + 1)
+    fix = [[47.0, 8.0, 500.0, 0.0, 0.0, 0.0, 3, 10, 1.0, 2.0]] * (n // 10)
+    runner.add_gps(np.column_stack([t[::10], fix, arrival[::10] + 2]))
+    runner.add_baro(np.column_stack([t, np.full(n, 95_000.0), arrival + 3]))
+    runner.step(final=True)

@@ -24,7 +24,6 @@ counts the accel states into the JSON events and the view shows them.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -87,10 +86,6 @@ def needs_compile(estimator_classes) -> list[str]:
                 pending.append(cls.name)
                 break
     return pending
-
-
-def params_table(params) -> dict:
-    return {f.name: getattr(params, f.name) for f in fields(params)}
 
 
 def as_chunk(t, gyro, accel, mag, in_air=None):
