@@ -404,6 +404,44 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
+def _estimation_args(p, source: str) -> None:
+    """The options replay and live share: what to run, with what, against what.
+    ``source``: "log" or "vehicle", for the help texts."""
+    p.add_argument("--estimators", default="mahony", metavar="LIST",
+                   help="comma-separated estimator names, or 'all' (default: mahony)")
+    p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
+                   help="score against the autopilot's attitude (ATT/ATTITUDE, default) or the "
+                        "simulator's ground truth (SIM/SIMSTATE); with truth the autopilot is "
+                        "scored too, as the row 'autopilot'")
+    p.add_argument("--imu", default=None, metavar="SOURCE",
+                   help="IMU source to estimate from, e.g. IMU[1], RAW_IMU, SCALED_IMU2, HIGHRES_IMU "
+                        "(default: the fastest, most precise" + ("; see 'mavattitude info')" if source == "log"
+                                                                 else " that arrives; live asks for it)"))
+    p.add_argument("--warmup", type=SECONDS, default=10.0, metavar="S",
+                   help="seconds at the start not scored while estimators converge (default 10)")
+    p.add_argument("--declination", type=DEGREES, default=None, metavar="DEG",
+                   help=f"magnetic declination in degrees, east positive, -180 to 180 (default: the "
+                        f"{source}'s COMPASS_DEC, else 0 with a warning)")
+    p.add_argument("--no-mag", action="store_true",
+                   help="ignore the magnetometer: yaw from the gyro only, compared after removing "
+                        "its initial offset")
+    p.add_argument("--set", action="append", metavar="NAME.PARAM=VALUE",
+                   help="override an estimator parameter, e.g. ncs-eskf.h_threshold_air=0.02 "
+                        "(repeatable; see 'mavattitude estimators')")
+    p.add_argument("--params", metavar="FILE",
+                   help="a TOML file of parameters, a [NAME] table per estimator; --set wins over it")
+
+
+def _viewer_args(group) -> None:
+    """Where the Rerun recording goes: one of these (a mutually exclusive group)."""
+    group.add_argument("--rrd", metavar="FILE", help="write the Rerun recording to FILE")
+    group.add_argument("--spawn", action="store_true", help="stream to a newly spawned Rerun viewer")
+    group.add_argument("--connect", metavar="URL",
+                       help="stream to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
+    group.add_argument("--web", action="store_true",
+                       help="serve Rerun's web viewer (ports 9090 and 9876, or the next free ones) until Ctrl-C")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="mavattitude", description=DESCRIPTION, epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -435,40 +473,14 @@ def build_parser() -> argparse.ArgumentParser:
                                    "to <log name>.rrd in the current folder.",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("log", help="a .bin (DataFlash) or .tlog (telemetry) file")
-    p.add_argument("--estimators", default="mahony", metavar="LIST",
-                   help="comma-separated estimator names, or 'all' (default: mahony)")
-    p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
-                   help="score against the autopilot's attitude (ATT/ATTITUDE, default) or the "
-                        "simulator's ground truth (SIM/SIMSTATE); with truth the autopilot is "
-                        "scored too, as the row 'autopilot'")
-    p.add_argument("--imu", default=None, metavar="SOURCE",
-                   help="IMU source to estimate from, e.g. IMU[1], RAW_IMU, SCALED_IMU2, HIGHRES_IMU "
-                        "(default: the fastest, most precise; see 'mavattitude info')")
-    p.add_argument("--warmup", type=SECONDS, default=10.0, metavar="S",
-                   help="seconds at the start not scored while estimators converge (default 10)")
-    p.add_argument("--declination", type=DEGREES, default=None, metavar="DEG",
-                   help="magnetic declination in degrees, east positive, -180 to 180 (default: "
-                        "the log's COMPASS_DEC, else 0 with a warning)")
-    p.add_argument("--no-mag", action="store_true",
-                   help="ignore the magnetometer: yaw from the gyro only, compared after removing "
-                        "its initial offset")
-    p.add_argument("--set", action="append", metavar="NAME.PARAM=VALUE",
-                   help="override an estimator parameter, e.g. ncs-eskf.h_threshold_air=0.02 "
-                        "(repeatable; see 'mavattitude estimators')")
-    p.add_argument("--params", metavar="FILE",
-                   help="a TOML file of parameters, a [NAME] table per estimator; --set wins over it")
+    _estimation_args(p, "log")
     segment_arg(p)
     out = p.add_argument_group("outputs")
     out.add_argument("--json", metavar="FILE", help="write the metrics as JSON")
     out.add_argument("--export", metavar="DIR",
                      help="write DIR/reference.csv and DIR/<estimator>.csv (time_s,roll_deg,pitch_deg,yaw_deg)")
     view = out.add_mutually_exclusive_group()
-    view.add_argument("--rrd", metavar="FILE", help="write the Rerun recording to FILE")
-    view.add_argument("--spawn", action="store_true", help="stream to a newly spawned Rerun viewer")
-    view.add_argument("--connect", metavar="URL",
-                      help="stream to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
-    view.add_argument("--web", action="store_true",
-                      help="serve the recording to Rerun's web viewer until Ctrl-C")
+    _viewer_args(view)
     view.add_argument("--no-view", action="store_true", help="no Rerun recording at all")
     force_arg(out)
     p.set_defaults(func=cmd_replay)
@@ -519,30 +531,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--baud", type=COUNT, default=115200, help="serial baud rate (default 115200)")
     p.add_argument("--sysid", type=_number(1, 255, whole=True), default=None, metavar="ID",
                    help="the vehicle's MAVLink system id (default: the first autopilot heard)")
-    p.add_argument("--estimators", default="mahony", metavar="LIST",
-                   help="comma-separated estimator names, or 'all' (default: mahony)")
+    _estimation_args(p, "vehicle")
     p.add_argument("--imu-rate", type=POSITIVE, default=50.0, metavar="HZ",
                    help="IMU rate to ask the vehicle for (default 50; ATTITUDE up to 50 Hz, GPS 5 Hz, "
                         "baro up to 10 Hz)")
     p.add_argument("--no-request", action="store_true",
                    help="do not ask for rates: leave the vehicle's streams as they are (listen-only links)")
-    p.add_argument("--imu", default=None, metavar="SOURCE",
-                   help="IMU message to estimate from (and ask for), e.g. RAW_IMU, SCALED_IMU2, HIGHRES_IMU "
-                        "(default: ask for RAW_IMU, use the best that arrives)")
     p.add_argument("--window", type=POSITIVE, default=10.0, metavar="S",
                    help="seconds of the rolling metrics (default 10)")
     p.add_argument("--timeout", type=POSITIVE, default=5.0, metavar="S",
                    help="seconds without packets before the link counts as lost (default 5)")
-    p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
-                   help="score against the vehicle's ATTITUDE (default) or SITL's SIMSTATE truth")
-    p.add_argument("--warmup", type=SECONDS, default=10.0, metavar="S",
-                   help="seconds not scored in the final metrics while estimators converge (default 10)")
-    p.add_argument("--declination", type=DEGREES, default=None, metavar="DEG",
-                   help="magnetic declination, degrees east (default: the vehicle's COMPASS_DEC, else 0)")
-    p.add_argument("--no-mag", action="store_true", help="ignore the magnetometer")
-    p.add_argument("--set", action="append", metavar="NAME.PARAM=VALUE",
-                   help="override an estimator parameter (repeatable; see 'mavattitude estimators')")
-    p.add_argument("--params", metavar="FILE", help="a TOML file of estimator parameters")
     p.add_argument("--duration", type=POSITIVE, default=None, metavar="S",
                    help="stop after this many seconds (default: run until Ctrl-C)")
     rec = p.add_argument_group("recording")
@@ -551,12 +549,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--no-record", action="store_true", help="do not record")
     rec.add_argument("--json", metavar="FILE", help="write the final metrics as JSON")
     force_arg(rec)
-    viewer = p.add_argument_group("viewer (one of)").add_mutually_exclusive_group()
-    viewer.add_argument("--spawn", action="store_true", help="stream to a newly spawned Rerun viewer")
-    viewer.add_argument("--connect", metavar="URL", help="stream to a running Rerun viewer "
-                                                         "(e.g. rerun+http://127.0.0.1:9876/proxy)")
-    viewer.add_argument("--web", action="store_true", help="serve Rerun's web viewer")
-    viewer.add_argument("--rrd", metavar="FILE", help="write the Rerun recording to FILE")
+    _viewer_args(p.add_argument_group("viewer (one of)").add_mutually_exclusive_group())
     p.set_defaults(func=cmd_live)
 
     p = sub.add_parser("bench", help="time every estimator on a simulated flight, against imufusion",

@@ -28,8 +28,7 @@ arrives a second after its fix is fused then, not a second in the past.
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -58,7 +58,7 @@ def main() -> int:
     if args.wide:
         print_wide(wide)
         return 0
-    print(f"| log | estimator | roll MAE ° | pitch MAE ° | yaw MAE ° |")
+    print("| log | estimator | roll MAE ° | pitch MAE ° | yaw MAE ° |")
     print("|---|---|---|---|---|")
     print("\n".join(rows))
     print("\n\\* yaw compared after removing its initial offset: no magnetometer in the log.")

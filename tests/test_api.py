@@ -2,7 +2,6 @@
 estimator plugins from the entry point group reach the command."""
 from __future__ import annotations
 
-import os
 import re
 from importlib.metadata import EntryPoint
 from pathlib import Path

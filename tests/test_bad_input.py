@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import SAMPLE_LOGS, SHARED_LOGS, shared_log
+from conftest import SAMPLE_LOGS, SHARED_LOGS
 from mavattitude.cli import main
 from mavattitude.errors import InputError
 from mavattitude.estimators import ESTIMATORS, create

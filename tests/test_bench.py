@@ -9,7 +9,6 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from mavattitude import bench
 from mavattitude import quaternion as quat
 from mavattitude.cli import main
 from mavattitude.estimators import ESTIMATORS, Estimator

@@ -11,8 +11,7 @@ import pytest
 import simtruth as st
 
 from mavattitude import quaternion as quat
-from mavattitude.aiding import Aiding, from_sim
-from mavattitude.estimators import ESTIMATORS, align, create
+from mavattitude.estimators import ESTIMATORS
 from mavattitude.estimators.cpf_ekf import (IA, IB, IM, IMB, IS, IV, NX, CpfEkf, CpfEkfParams,
                                             _reset_yaw_covariance, mag_jacobian, mag_model,
                                             predict_state, transition_matrix, yaw_model)

@@ -13,7 +13,6 @@ from mavattitude import quaternion as quat
 from mavattitude.estimators import ESTIMATORS, align, create
 from mavattitude.estimators.ekf import (Ekf, EkfParams, accel_model, heading_model, level_field,
                                         transition)
-from mavattitude.flight import GRAVITY
 from mavattitude.params import build
 
 

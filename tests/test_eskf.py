@@ -8,7 +8,7 @@ import simtruth as st
 
 from mavattitude import quaternion as quat
 from mavattitude.estimators import ESTIMATORS, align, create
-from mavattitude.estimators.eskf import (Eskf, EskfParams, eskf_accel_jacobian, eskf_accel_model,
+from mavattitude.estimators.eskf import (Eskf, eskf_accel_jacobian, eskf_accel_model,
                                          eskf_error_transition, kalman_update3)
 
 

@@ -9,7 +9,7 @@ import pytest
 from mavattitude import quaternion as quat
 from mavattitude.estimators import align, create
 from mavattitude.estimators.alignment import detect_still
-from mavattitude.estimators.mahony import Mahony, MahonyParams
+from mavattitude.estimators.mahony import Mahony
 from mavattitude.flight import AttitudeSeries, MagSeries
 from mavattitude.metrics import compare
 from mavattitude.runner import held_magnetometer

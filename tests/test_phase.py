@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from mavattitude.flight import BaroSeries, Flight, GpsSeries
 from mavattitude.phase import AIR_ABOVE_M, GROUND_BELOW_M, SMOOTH_S, detect_phase, pressure_height

@@ -17,6 +17,9 @@ from .mahony import Mahony
 from .mahony_ekf import MahonyEkf
 from .ncs_eskf import NcsEskf
 
+__all__ = ["ESTIMATORS", "Alignment", "Estimator", "align", "create", "load_plugins", "needs_compile", "register",
+           "summary", "warm_up"]
+
 ESTIMATORS: dict[str, type[Estimator]] = {
     Mahony.name: Mahony,
     MahonyEkf.name: MahonyEkf,

@@ -1,0 +1,125 @@
+"""Collected samples -> the ``Flight``'s series: one clock segment, plausible values, SI units.
+
+Shared by both readers (and, for its limits and compass-unit rule, by the live link).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import quaternion as quat
+from ..flight import AttitudeSeries, BaroSeries, Flight, GpsSeries, ImuSeries, MagSeries
+from .collect import Collector
+
+# Beyond what any autopilot IMU measures (ArduPilot: ±16 g, ±2000 °/s) or any magnetometer
+# reads on Earth: such samples are corrupt records.
+IMU_LIMITS = [(slice(0, 3), 50.0), (slice(3, 6), 50 * 9.81)]  # rad/s, m/s²
+MAG_LIMITS = [(slice(0, 3), 1e-3)]  # tesla (10 gauss)
+
+
+def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
+    """Fill the flight's series from one clock segment; returns why each IMU series that
+    holds data was not usable (none when every one was)."""
+    def columns(kind, key):
+        c = col.columns(kind, key, segment)
+        # a message that feeds two series (RAW_IMU: IMU and compass) has the same fixes in both
+        for text in ((f"{key}: dropped {c.duplicates} samples with repeated timestamps" if c.duplicates else None),
+                     (f"{key}: dropped {c.reordered} samples older than one before them (out of order)"
+                      if c.reordered else None)):
+            if text and text not in flight.notes:
+                flight.notes.append(text)
+        return c.t, c.values, c.arrival
+
+    def plausible(key, v, limits):
+        """Rows that are finite and within physical ranges; corrupt records decode as anything."""
+        ok = np.isfinite(v).all(axis=1)
+        finite = np.where(ok[:, None], v, 0.0)
+        for cols, limit in limits:
+            ok &= np.linalg.norm(finite[:, cols], axis=1) < limit
+        if np.count_nonzero(~ok):
+            flight.warnings.append(f"{key}: dropped {np.count_nonzero(~ok)} samples with impossible values")
+        return ok
+
+    unusable = []
+    for key in col.keys("imu"):
+        t, v, arrival = columns("imu", key)
+        fitted = np.any(v != 0, axis=1)  # an unfitted sensor sends all zeros
+        live = fitted & plausible(key, v, IMU_LIMITS)
+        if np.count_nonzero(live) >= 2:
+            flight.imu[key] = ImuSeries(key, t[live], v[live, :3], v[live, 3:6], arrival=arrival[live])
+        elif len(t):
+            why = ("all zeros (no sensor fitted?)" if not fitted.any() else
+                   "none within ±50 rad/s and ±50 g (saturated or corrupt)" if not live.any() else
+                   "fewer than two usable")
+            unusable.append(f"{key}: {len(t)} samples, {why}")
+    for key in col.keys("mag"):
+        t, v, arrival = columns("mag", key)
+        live = np.any(v != 0, axis=1) & np.isfinite(v).all(axis=1)
+        if np.count_nonzero(live) < 2:
+            continue
+        # Repair the unit before judging plausibility: a whole series off by 1e6 is a unit
+        # bug, not a series of corrupt records.
+        t, v, arrival = t[live], _earth_field_scale(flight, key, v[live]), arrival[live]
+        live = plausible(key, v, MAG_LIMITS)
+        if np.count_nonzero(live) >= 2:
+            flight.mag[key] = MagSeries(key, t[live], v[live], arrival=arrival[live])
+    for key in col.keys("gps"):
+        t, v, arrival = columns("gps", key)
+        if len(t):
+            flight.gps = GpsSeries(key, t, v[:, 0], v[:, 1], v[:, 2], v[:, 3:6], v[:, 6].astype(int),
+                                   v[:, 7].astype(int), v[:, 8], arrival=arrival)
+    for key in col.keys("baro"):
+        t, v, arrival = columns("baro", key)
+        if len(t):
+            flight.baro = BaroSeries(key, t, v[:, 0], v[:, 1], arrival=arrival)
+    flight.attitude = _attitude(col, "att", segment, columns)
+    flight.truth = _attitude(col, "truth", segment, columns)
+    return unusable
+
+
+def _earth_field_scale(flight: Flight, key: str, field: np.ndarray) -> np.ndarray:
+    """Fix a magnetometer whose unit is off by powers of 1000.
+
+    Earth's field is 0.25-0.65 gauss (25-65 µT) everywhere. ArduPilot 4.7 sends HIGHRES_IMU
+    xmag..zmag at 1e6 times the gauss the message defines (seen: 580000 for 0.58 G), so a
+    median strength far outside any plausible field is rescaled by the power of 1000 that
+    brings it back, and the note says so. Heading only needs the direction, but a field in
+    the wrong unit must not leave the reader.
+    """
+    power, strength = earth_field_power(field)
+    if power == 0:
+        return field
+    flight.notes.append(f"{key}: magnetometer strength {strength * 1e4:.4g} G is implausible; "
+                        f"rescaled by 1e{-3 * power} to {strength * 1e4 * 10.0 ** (-3 * power):.3g} G")
+    return field * 10.0 ** (-3 * power)
+
+
+def earth_field_power(field: np.ndarray) -> tuple[int, float]:
+    """(k, median strength in tesla): the field reads 1000^k times what the Earth's can be
+    (``_earth_field_scale``); k = 0 for a plausible one."""
+    strength = float(np.median(np.linalg.norm(field, axis=1)))
+    if not strength > 0:
+        return 0, strength
+    return int(round(np.log10(strength / 50e-6) / 3)), strength
+
+
+def _attitude(col: Collector, prefix: str, segment: int, columns) -> AttitudeSeries | None:
+    """The attitude series with most samples among the Euler and quaternion messages."""
+    best = None
+    for kind in (f"{prefix}_euler", f"{prefix}_quat"):
+        for key in col.keys(kind):
+            t, v, _ = columns(kind, key)
+            if not len(t):
+                continue
+            ok = np.isfinite(v).all(axis=1) & (np.abs(v).max(axis=1) < 10.0)  # rad or unit quaternion
+            t, v = t[ok], v[ok]
+            if kind.endswith("quat"):
+                ok = np.linalg.norm(v, axis=1) > 0.5
+                t, v = t[ok], v[ok]
+            if not len(t):
+                continue
+            q = quat.from_euler(v[:, 0], v[:, 1], v[:, 2]) if kind.endswith("euler") else quat.normalize(v)
+            if best is None or len(t) > len(best.t):
+                best = AttitudeSeries(key, t, q)
+    return best
+
+
