@@ -77,6 +77,17 @@ def _read(path: str, segment: int | None):
         progress.done()
 
 
+def _compile(names: list[str]):
+    """Start compiling what these estimators need and is not cached yet (said on stderr)."""
+    from .estimators import needs_compile, precompile
+
+    pending = needs_compile(names)
+    if pending:
+        print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
+              file=sys.stderr, flush=True)
+    return precompile(pending)
+
+
 def _warn(text: str) -> None:
     print(f"warning: {text}", file=sys.stderr)
 
@@ -124,7 +135,6 @@ def _plan_sink(args, outputs, default_rrd: str | None = None):
 
 
 def cmd_replay(args) -> int:
-    from .estimators import needs_compile
     from .params import build, load_file, log_defaults
     from .events import Event
     from .pipeline import run_replay
@@ -142,14 +152,12 @@ def cmd_replay(args) -> int:
                                 [csv_file_name(n) for n in ("reference", *names)], "csv")
         sink = None if args.no_view else _plan_sink(args, outputs, default_rrd=Path(args.log).stem + ".rrd")
         rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
+        compiling = _compile(names)  # in other processes, while the log is read
         flight = _read(args.log, args.segment)
         log_values, notes = log_defaults(flight, names, file_values, args.set or ())
         if log_values:
             params = build(names, file_values, args.set or (), source=source, log_values=log_values)
-        pending = needs_compile(names)
-        if pending:
-            print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
-                  file=sys.stderr, flush=True)
+        compiling.wait()
         result = run_replay(flight, names, reference=args.reference, imu_source=args.imu,
                             warmup_s=args.warmup, declination_deg=args.declination,
                             params=params, use_mag=not args.no_mag)
@@ -297,7 +305,7 @@ def _simulate_live(args) -> int:
 
 
 def cmd_live(args) -> int:
-    from .estimators import needs_compile, warm_up
+    from .estimators import warm_up
     from .live import LiveOptions, default_record_path, run_live
     from .live.session import check_ended_with_vehicle
     from .params import build, load_file
@@ -312,10 +320,7 @@ def cmd_live(args) -> int:
         record = None if args.no_record else outputs.new_file(args.record or default_record_path(), "--record")
         json_out = outputs.file(args.json, "--json", "json")
         sink = _plan_sink(args, outputs)
-        pending = needs_compile(names)
-        if pending:
-            print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
-                  file=sys.stderr, flush=True)
+        _compile(names).wait()
         warm_up(names, params)
         result = run_live(LiveOptions(
             url=args.url, baud=args.baud, sysid=args.sysid, names=names, params=params,

@@ -118,3 +118,22 @@ def test_aiding_none_is_accepted(name, figure8):
         f.initialize(np.array([1.0, 0, 0, 0]), np.zeros(3))
         outputs.append(f.update(t[:500], gyro[:500], accel[:500], mag[:500], in_air[:500], **extra))
     np.testing.assert_array_equal(*outputs)
+
+
+@pytest.mark.slow
+def test_a_second_process_loads_the_compiled_kernels_from_the_cache(tmp_path):
+    """``cache=True`` works: the first process compiles (and says so through needs_compile),
+    the next loads every kernel without compiling one."""
+    import subprocess
+    import sys
+
+    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    probe = ("import sys; from mavattitude.estimators import ESTIMATORS, compile_kernels, needs_compile; "
+             "names = ['mahony', 'eskf']; print(needs_compile(names)); compile_kernels(names); "
+             "misses = sum(sum(k.stats.cache_misses.values()) for n in names for k in ESTIMATORS[n].kernels); "
+             "print(misses)")
+    runs = [subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=300)
+            for _ in range(2)]
+    first, second = (r.stdout.split("\n") for r in runs)
+    assert first[0] == "['mahony', 'eskf']" and int(first[1]) > 0, runs[0].stderr
+    assert second[0] == "[]" and int(second[1]) == 0, runs[1].stderr

@@ -6,6 +6,8 @@ that names it in the entry point group ``mavattitude.estimators``.
 """
 from __future__ import annotations
 
+import os
+
 from .alignment import Alignment, align
 from .base import Estimator
 from .base import needs_compile as _needs_compile
@@ -17,8 +19,8 @@ from .mahony import Mahony
 from .mahony_ekf import MahonyEkf
 from .ncs_eskf import NcsEskf
 
-__all__ = ["ESTIMATORS", "Alignment", "Estimator", "align", "create", "load_plugins", "needs_compile", "register",
-           "summary", "warm_up"]
+__all__ = ["ESTIMATORS", "Alignment", "Estimator", "align", "create", "load_plugins", "needs_compile", "precompile",
+           "register", "summary", "warm_up"]
 
 ESTIMATORS: dict[str, type[Estimator]] = {
     Mahony.name: Mahony,
@@ -82,6 +84,64 @@ def load_plugins() -> list[str]:
 def needs_compile(names: list[str]) -> list[str]:
     """Which of these estimators will compile on first use (numba cache empty)."""
     return _needs_compile([ESTIMATORS[n] for n in names])
+
+
+# Seconds each estimator's kernels take to compile the first time (measured here, one core,
+# with ``warm_up``), to share the work out fairly between processes.
+COMPILE_SECONDS = {"mahony": 2.0, "mahony-ekf": 4.0, "ekf": 4.0, "eskf": 2.5, "ncs-eskf": 5.0, "eq-kf": 4.5,
+                   "cpf-ekf": 9.5}
+
+
+class Compiling:
+    """Kernels compiling in other processes (``precompile``); ``wait`` before using them."""
+
+    def __init__(self, processes=()):
+        self.processes = list(processes)
+
+    def wait(self) -> None:
+        if self.processes:
+            warm_up([])  # the estimation core's own kernels, here, meanwhile
+        for p in self.processes:
+            p.wait()  # a worker that failed leaves its kernels to compile here, on first use
+        self.processes = []
+
+
+def precompile(names: list[str]) -> Compiling:
+    """Start compiling the kernels of ``names`` that are not cached yet, in one process per
+    core, each with a fair share: a first run then waits for the longest share rather than
+    the sum (here, all seven: 33 s in one process). Returns at once; the caller reads its log
+    meanwhile and calls ``wait`` before it estimates. Estimators registered at run time (not
+    importable by a new process) compile on first use instead."""
+    import subprocess
+    import sys
+
+    pending = [n for n in needs_compile(names) if n in COMPILE_SECONDS]
+    workers = min(len(pending), os.cpu_count() or 1)
+    if workers < 2:
+        return Compiling()
+    shares: list[list[str]] = [[] for _ in range(workers)]
+    loads = [0.0] * workers
+    for name in sorted(pending, key=lambda n: -COMPILE_SECONDS[n]):  # longest first, to the lightest
+        k = loads.index(min(loads))
+        shares[k].append(name)
+        loads[k] += COMPILE_SECONDS[name]
+    code = "import sys; from mavattitude.estimators import compile_kernels; compile_kernels(sys.argv[1:])"
+    return Compiling(subprocess.Popen([sys.executable, "-c", code, *share], stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL) for share in shares)
+
+
+def compile_kernels(names: list[str]) -> None:
+    """Run each estimator alone over a few synthetic samples: its kernels compile (or load)."""
+    import numpy as np
+
+    from ..aiding import Aiding
+    n = 5
+    t = np.arange(n) * 0.01
+    for name in names:
+        e = create(name)
+        e.initialize(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3))
+        e.update(t, np.zeros((n, 3)), np.tile([0.0, 0.0, -9.80665], (n, 1)), np.tile([2e-5, 0.0, 4e-5], (n, 1)),
+                 np.zeros(n), aiding=Aiding.empty(n))
 
 
 def warm_up(names: list[str], params: dict | None = None) -> None:

@@ -550,7 +550,7 @@ def _state_update(x, P, k, innov, r, gate, pht, idx, val):
     """Scalar update of a directly measured state ``k``."""
     idx[0] = k
     val[0] = 1.0
-    return _scalar_update(x, P, idx, val, 1, innov, r, gate, pht)
+    return _scalar_update(x, P, idx, val, np.int64(1), innov, r, gate, pht)
 
 
 @njit(cache=True)
@@ -561,7 +561,7 @@ def _hold_heading(x, P, sigma, pht, idx, val, h_q):
         for k in range(4):
             idx[k] = k
             val[k] = h_q[k]
-        _scalar_update(x, P, idx, val, 4, 0.0, sigma * sigma, 0.0, pht)
+        _scalar_update(x, P, idx, val, np.int64(4), 0.0, sigma * sigma, 0.0, pht)
 
 
 @njit(cache=True)
@@ -886,7 +886,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                     val[7] = 1.0
                     z = mg0 if axis == 0 else (mg1 if axis == 1 else mg2)
                     innov = z - hval
-                    if _scalar_update(x, P, idx, val, 8, innov, r_mag, gate, pht) > 0.0:
+                    if _scalar_update(x, P, idx, val, np.int64(8), innov, r_mag, gate, pht) > 0.0:
                         diag[i, D_IM + axis] = innov * 1e3
                     _normalize_q(x)
                 ez[0], ez[1], ez[2] = 0.0, 0.0, 1.0
@@ -897,7 +897,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                     idx[0], idx[1] = IM, IM + 1
                     val[0], val[1] = -me_ / hh, mn_ / hh
                     innov = _wrap(declination - math.atan2(me_, mn_))
-                    _scalar_update(x, P, idx, val, 2, innov, r_dec, 0.0, pht)
+                    _scalar_update(x, P, idx, val, np.int64(2), innov, r_dec, 0.0, pht)
                     _normalize_q(x)
 
         # ------------------------------------------------ GPS and baro (eq 17-19)
