@@ -10,6 +10,8 @@ Two kinds of function live here:
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -227,3 +229,135 @@ def integrate_gyro_scalar(q0, q1, q2, q3, wx, wy, wz, dt):
     r3 = q0 * d3 + q1 * d2 - q2 * d1 + q3 * d0
     norm = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3)
     return r0 / norm, r1 / norm, r2 / norm, r3 / norm
+
+
+# ---------------------------------------------------------------- scalar kernels for the estimator loops
+# Allocation-free: scalars in and tuples out, or written into arrays the caller owns. Every
+# estimator's loop uses these, so a product or a rotation is written once.
+
+
+@njit(cache=True, inline="always")
+def qmul_s(a0, a1, a2, a3, b0, b1, b2, b3):
+    """Hamilton product a ⊗ b on scalars."""
+    return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
+            a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
+            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
+            a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
+
+
+@njit(cache=True, inline="always")
+def qmul_into(p, q, out):
+    """out = p ⊗ q (arrays of 4)."""
+    out[0], out[1], out[2], out[3] = qmul_s(p[0], p[1], p[2], p[3], q[0], q[1], q[2], q[3])
+
+
+@njit(cache=True, inline="always")
+def exp_s(vx, vy, vz):
+    """Exp(v): the unit quaternion of rotation vector v (rad)."""
+    a2 = vx * vx + vy * vy + vz * vz
+    if a2 < 1e-4:  # |v| < 0.01 rad: Taylor series, exact to rounding (next terms < 1e-17)
+        a4 = a2 * a2
+        s = 0.5 - a2 * (1.0 / 48.0) + a4 * (1.0 / 3840.0)
+        return 1.0 - a2 * 0.125 + a4 * (1.0 / 384.0), vx * s, vy * s, vz * s
+    angle = math.sqrt(a2)
+    s = math.sin(0.5 * angle) / angle
+    return math.cos(0.5 * angle), vx * s, vy * s, vz * s
+
+
+@njit(cache=True, inline="always")
+def normalize_into(q, w, x, y, z):
+    """q[:4] = [w, x, y, z] / norm."""
+    n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+    q[0], q[1], q[2], q[3] = w * n, x * n, y * n, z * n
+
+
+@njit(cache=True)
+def normalize_head(x):
+    """The quaternion in x[:4] to unit length, in place (a state vector's attitude part)."""
+    n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
+    for i in range(4):
+        x[i] /= n
+
+
+@njit(cache=True)
+def dcm_into(w, x, y, z, c):
+    """c = C(q), body -> navigation, for a unit quaternion q."""
+    c[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    c[0, 1] = 2.0 * (x * y - w * z)
+    c[0, 2] = 2.0 * (x * z + w * y)
+    c[1, 0] = 2.0 * (x * y + w * z)
+    c[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    c[1, 2] = 2.0 * (y * z - w * x)
+    c[2, 0] = 2.0 * (x * z - w * y)
+    c[2, 1] = 2.0 * (y * z + w * x)
+    c[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@njit(cache=True, inline="always")
+def dcm_transposed_into(w, x, y, z, M):
+    """M = C(q)ᵀ for a unit quaternion q."""
+    M[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    M[1, 0] = 2.0 * (x * y - w * z)
+    M[2, 0] = 2.0 * (x * z + w * y)
+    M[0, 1] = 2.0 * (x * y + w * z)
+    M[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    M[2, 1] = 2.0 * (y * z - w * x)
+    M[0, 2] = 2.0 * (x * z - w * y)
+    M[1, 2] = 2.0 * (y * z + w * x)
+    M[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@njit(cache=True)
+def rotate_into(q, a, out):
+    """out = C(q) a, C in the homogeneous quadratic form (= C(q) at |q| = 1; differentiable
+    in q without the unit constraint, as an EKF with q in its state needs)."""
+    q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
+    out[0] = ((q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3) * a[0] + 2 * (q1 * q2 - q0 * q3) * a[1]
+              + 2 * (q1 * q3 + q0 * q2) * a[2])
+    out[1] = (2 * (q1 * q2 + q0 * q3) * a[0] + (q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3) * a[1]
+              + 2 * (q2 * q3 - q0 * q1) * a[2])
+    out[2] = (2 * (q1 * q3 - q0 * q2) * a[0] + 2 * (q2 * q3 + q0 * q1) * a[1]
+              + (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3) * a[2])
+
+
+@njit(cache=True)
+def right_matrix_into(p, out):
+    """R(p), the 4×4 matrix with q ⊗ p = R(p) q."""
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = p[0], -p[1], -p[2], -p[3]
+    out[1, 0], out[1, 1], out[1, 2], out[1, 3] = p[1], p[0], p[3], -p[2]
+    out[2, 0], out[2, 1], out[2, 2], out[2, 3] = p[2], -p[3], p[0], p[1]
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = p[3], p[2], -p[1], p[0]
+
+
+@njit(cache=True)
+def left_matrix_into(q, out):
+    """L(q), the 4×4 matrix with q ⊗ p = L(q) p."""
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = q[0], -q[1], -q[2], -q[3]
+    out[1, 0], out[1, 1], out[1, 2], out[1, 3] = q[1], q[0], -q[3], q[2]
+    out[2, 0], out[2, 1], out[2, 2], out[2, 3] = q[2], q[3], q[0], -q[1]
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = q[3], -q[2], q[1], q[0]
+
+
+@njit(cache=True, inline="always")
+def cross_matrix_into(x, y, z, M):
+    """M = [v]×, the matrix with [v]× u = v × u."""
+    M[0, 0], M[0, 1], M[0, 2] = 0.0, -z, y
+    M[1, 0], M[1, 1], M[1, 2] = z, 0.0, -x
+    M[2, 0], M[2, 1], M[2, 2] = -y, x, 0.0
+
+
+@njit(cache=True)
+def euler_s(q0, q1, q2, q3):
+    """ZYX Euler angles (roll, pitch, yaw; radians) of a unit quaternion, on scalars."""
+    roll = math.atan2(2 * (q0 * q1 + q2 * q3), 1 - 2 * (q1 * q1 + q2 * q2))
+    s = 2 * (q0 * q2 - q3 * q1)
+    s = 1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)
+    pitch = math.asin(s)
+    yaw = math.atan2(2 * (q0 * q3 + q1 * q2), 1 - 2 * (q2 * q2 + q3 * q3))
+    return roll, pitch, yaw
+
+
+@njit(cache=True)
+def wrap_pi_s(a):
+    """An angle to [-π, π), on a scalar."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi

@@ -122,6 +122,7 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..params import param
+from ..quaternion import euler_s, left_matrix_into, normalize_head, right_matrix_into, rotate_into, wrap_pi_s
 from .base import MAX_STEP_S, Estimator
 from .mahony import mahony_step
 
@@ -288,24 +289,6 @@ def exp_dexp_pair(v, e, d, eh, dh):
 
 
 @njit(cache=True)
-def rmat(p, out):
-    """R(p): q ⊗ p = R(p) q."""
-    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = p[0], -p[1], -p[2], -p[3]
-    out[1, 0], out[1, 1], out[1, 2], out[1, 3] = p[1], p[0], p[3], -p[2]
-    out[2, 0], out[2, 1], out[2, 2], out[2, 3] = p[2], -p[3], p[0], p[1]
-    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = p[3], p[2], -p[1], p[0]
-
-
-@njit(cache=True)
-def lmat(q, out):
-    """L(q): q ⊗ p = L(q) p."""
-    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = q[0], -q[1], -q[2], -q[3]
-    out[1, 0], out[1, 1], out[1, 2], out[1, 3] = q[1], q[0], -q[3], q[2]
-    out[2, 0], out[2, 1], out[2, 2], out[2, 3] = q[2], q[3], q[0], -q[1]
-    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = q[3], -q[2], q[1], q[0]
-
-
-@njit(cache=True)
 def rot_jacobian(q, a, out):
     """J = ∂(C(q) a)/∂q (3×4), C in the homogeneous quadratic form of eq 2."""
     q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
@@ -322,18 +305,6 @@ def rot_jacobian(q, a, out):
     out[2, 1] = 2 * (q3 * ax + q0 * ay - q1 * az)
     out[2, 2] = 2 * (-q0 * ax + q3 * ay - q2 * az)
     out[2, 3] = 2 * (q1 * ax + q2 * ay + q3 * az)
-
-
-@njit(cache=True)
-def rotate_h(q, a, out):
-    """C(q) a with C in the homogeneous quadratic form (= eq 2 at |q| = 1)."""
-    q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
-    out[0] = ((q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3) * a[0] + 2 * (q1 * q2 - q0 * q3) * a[1]
-              + 2 * (q1 * q3 + q0 * q2) * a[2])
-    out[1] = (2 * (q1 * q2 + q0 * q3) * a[0] + (q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3) * a[1]
-              + 2 * (q2 * q3 - q0 * q1) * a[2])
-    out[2] = (2 * (q1 * q3 - q0 * q2) * a[0] + 2 * (q2 * q3 + q0 * q1) * a[1]
-              + (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3) * a[2])
 
 
 @njit(cache=True)
@@ -378,7 +349,7 @@ def mag_jacobian(x, axis, H):
     c = np.empty(3)  # column ``axis`` of C(q): row ``axis`` of C(q)ᵀ
     e = np.zeros(3)
     e[axis] = 1.0
-    rotate_h(x[:4], e, c)
+    rotate_into(x[:4], e, c)
     for k in range(3):
         H[IM + k] = c[k]
     H[IMB + axis] = 1.0
@@ -413,7 +384,7 @@ def predict_state(x, w_mean, a_mean, dt, g, xn):
     d = np.empty((4, 3))
     exp_dexp(phi, e, d)
     rm = np.empty((4, 4))
-    rmat(e, rm)
+    right_matrix_into(e, rm)
     half = np.empty(3)
     for i in range(3):
         half[i] = 0.5 * phi[i]
@@ -421,7 +392,7 @@ def predict_state(x, w_mean, a_mean, dt, g, xn):
     dh = np.empty((4, 3))
     exp_dexp(half, eh, dh)
     rh = np.empty((4, 4))
-    rmat(eh, rh)
+    right_matrix_into(eh, rh)
     qm = np.zeros(4)
     for i in range(4):
         s = 0.0
@@ -434,7 +405,7 @@ def predict_state(x, w_mean, a_mean, dt, g, xn):
     ap = np.empty(3)
     ap[0], ap[1], ap[2] = a_mean[0], a_mean[1], a_mean[2] - x[IA]
     an = np.empty(3)
-    rotate_h(qm, ap, an)
+    rotate_into(qm, ap, an)
     an[2] += g
     for i in range(3):
         xn[IV + i] = x[IV + i] + an[i] * dt
@@ -452,9 +423,9 @@ def transition_blocks(x, w_mean, a_mean, dt, fqq, fqb, fvq, fvb, fva):
     e = np.empty(4)
     d = np.empty((4, 3))
     exp_dexp(phi, e, d)
-    rmat(e, fqq)
+    right_matrix_into(e, fqq)
     lq = np.empty((4, 4))
-    lmat(x[:4], lq)
+    left_matrix_into(x[:4], lq)
     for i in range(4):
         for j in range(3):
             s = 0.0
@@ -468,7 +439,7 @@ def transition_blocks(x, w_mean, a_mean, dt, fqq, fqb, fvq, fvb, fva):
     dh = np.empty((4, 3))
     exp_dexp(half, eh, dh)
     rh = np.empty((4, 4))
-    rmat(eh, rh)
+    right_matrix_into(eh, rh)
     qm = np.zeros(4)
     for i in range(4):
         for k in range(4):
@@ -480,7 +451,7 @@ def transition_blocks(x, w_mean, a_mean, dt, fqq, fqb, fvq, fvb, fva):
     ez = np.zeros(3)
     ez[2] = 1.0
     cz = np.empty(3)
-    rotate_h(qm, ez, cz)
+    rotate_into(qm, ez, cz)
     for i in range(3):
         for j in range(4):
             s = 0.0
@@ -568,7 +539,7 @@ def _hold_heading(x, P, sigma, pht, idx, val, h_q):
 def _reset_yaw_covariance(P, x, sigma, rq):
     """Forget what P says of the heading (the attitude's rotation about the vertical) and give
     it variance σ²: P ← T P Tᵀ + ¼σ² u uᵀ, T = I - u uᵀ on the q block, u = e_z ⊗ q."""
-    rmat(x, rq)  # column 3: e_z ⊗ q, unit
+    right_matrix_into(x, rq)  # column 3: e_z ⊗ q, unit
     u0, u1, u2, u3 = rq[0, 3], rq[1, 3], rq[2, 3], rq[3, 3]
     for c in range(NX):  # T P: remove the u component of each column's q part
         s = u0 * P[0, c] + u1 * P[1, c] + u2 * P[2, c] + u3 * P[3, c]
@@ -594,17 +565,10 @@ def _reset_yaw_covariance(P, x, sigma, rq):
 
 
 @njit(cache=True)
-def _normalize_q(x):
-    n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
-    for i in range(4):
-        x[i] /= n
-
-
-@njit(cache=True)
 def _init_attitude_cov(P, q, sig_tilt, sig_yaw):
     """P_qq = ¼ Σ_k σ_k² (e_k ⊗ q)(e_k ⊗ q)ᵀ: navigation-frame tilt and yaw errors."""
     rq = np.empty((4, 4))
-    rmat(q, rq)  # column k of R(q) is e_k ⊗ q
+    right_matrix_into(q, rq)  # column k of R(q) is e_k ⊗ q
     for i in range(4):
         for j in range(4):
             s = 0.0
@@ -629,21 +593,6 @@ def init_covariance(P, x, prm, heading, bias_var):
         P[IM + i, IM + i] = bias_var[4]
         P[IMB + i, IMB + i] = bias_var[5]
     P[IA, IA] = bias_var[3]
-
-
-@njit(cache=True)
-def _euler(q0, q1, q2, q3):
-    roll = math.atan2(2 * (q0 * q1 + q2 * q3), 1 - 2 * (q1 * q1 + q2 * q2))
-    s = 2 * (q0 * q2 - q3 * q1)
-    s = 1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)
-    pitch = math.asin(s)
-    yaw = math.atan2(2 * (q0 * q3 + q1 * q2), 1 - 2 * (q2 * q2 + q3 * q3))
-    return roll, pitch, yaw
-
-
-@njit(cache=True)
-def _wrap(a):
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 @njit(cache=True)
@@ -737,21 +686,21 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
             phi[1] = (w1 - x[IB + 1]) * dt
             phi[2] = (w2 - x[IB + 2]) * dt
             exp_dexp_pair(phi, e, d, eh, dh)
-            rmat(e, fqq)
-            lmat(x, lq)
+            right_matrix_into(e, fqq)
+            left_matrix_into(x, lq)
             for r in range(4):
                 for c in range(3):
                     fqb[r, c] = -dt * (lq[r, 0] * d[0, c] + lq[r, 1] * d[1, c]
                                        + lq[r, 2] * d[2, c] + lq[r, 3] * d[3, c])
-            rmat(eh, rh)
+            right_matrix_into(eh, rh)
             for r in range(4):
                 qm[r] = rh[r, 0] * x[0] + rh[r, 1] * x[1] + rh[r, 2] * x[2] + rh[r, 3] * x[3]
                 qn[r] = fqq[r, 0] * x[0] + fqq[r, 1] * x[1] + fqq[r, 2] * x[2] + fqq[r, 3] * x[3]
             ap[0], ap[1], ap[2] = am0, am1, am2 - x[IA]
             rot_jacobian(qm, ap, jm)
-            rotate_h(qm, ap, an)
+            rotate_into(qm, ap, an)
             an[2] += g
-            rotate_h(qm, ez, cz)
+            rotate_into(qm, ez, cz)
             for r in range(4):
                 for c in range(3):
                     ldh[r, c] = (lq[r, 0] * dh[0, c] + lq[r, 1] * dh[1, c]
@@ -811,7 +760,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
             # state
             for r in range(4):
                 x[r] = qn[r]
-            _normalize_q(x)
+            normalize_head(x)
             for r in range(3):
                 vnew = x[IV + r] + an[r] * dt
                 dsr = 0.5 * (x[IV + r] + vnew) * dt
@@ -856,7 +805,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
             if aux[A_MAGINIT] < 0.5:
                 # M from this sample through the current attitude; P_M with no correlations
                 ap[0], ap[1], ap[2] = mg0 - x[IMB], mg1 - x[IMB + 1], mg2 - x[IMB + 2]
-                rotate_h(x, ap, an)
+                rotate_into(x, ap, an)
                 # its horizontal part along the declination: the heading's reference
                 hmag = math.sqrt(an[0] * an[0] + an[1] * an[1])
                 an[0], an[1] = hmag * north_x, hmag * north_y
@@ -875,7 +824,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                     hval = mag_model(x, axis, h_q)
                     ez[0], ez[1], ez[2] = 0.0, 0.0, 0.0
                     ez[axis] = 1.0
-                    rotate_h(x, ez, cz)
+                    rotate_into(x, ez, cz)
                     for k in range(4):
                         idx[k] = k
                         val[k] = h_q[k]
@@ -888,7 +837,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                     innov = z - hval
                     if _scalar_update(x, P, idx, val, np.int64(8), innov, r_mag, gate, pht) > 0.0:
                         diag[i, D_IM + axis] = innov * 1e3
-                    _normalize_q(x)
+                    normalize_head(x)
                 ez[0], ez[1], ez[2] = 0.0, 0.0, 1.0
                 # declination pseudo-measurement: atan2(M_E, M_N) = declination
                 mn_, me_ = x[IM], x[IM + 1]
@@ -896,9 +845,9 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                 if hh > 0.0:
                     idx[0], idx[1] = IM, IM + 1
                     val[0], val[1] = -me_ / hh, mn_ / hh
-                    innov = _wrap(declination - math.atan2(me_, mn_))
+                    innov = wrap_pi_s(declination - math.atan2(me_, mn_))
                     _scalar_update(x, P, idx, val, np.int64(2), innov, r_dec, 0.0, pht)
-                    _normalize_q(x)
+                    normalize_head(x)
 
         # ------------------------------------------------ GPS and baro (eq 17-19)
         hold = not (use_mag and aux[A_MAGINIT] > 0.5)  # no heading reference: hold the yaw
@@ -909,7 +858,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
             innov = -baro[i] - x[IS + 2]
             if _state_update(x, P, IS + 2, innov, prm[P_BARON] ** 2, gate, pht, idx, val) > 0.0:
                 diag[i, D_IB] = innov
-            _normalize_q(x)
+            normalize_head(x)
         gps_active = aux[A_TGPS] == aux[A_TGPS] and ti - aux[A_TGPS] <= prm[P_GTO]
         has_pos = use_gps and gps_pos[i, 0] == gps_pos[i, 0]
         has_vel = use_gps and gps_vel[i, 0] == gps_vel[i, 0]
@@ -960,7 +909,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                             innov = zv - (x[IV + r] - (sv0 if r == 0 else (sv1 if r == 1 else sv2)))
                             if _state_update(x, P, IV + r, innov, r_gv, gate, pht, idx, val) > 0.0:
                                 diag[i, D_IV + r] = innov
-                            _normalize_q(x)
+                            normalize_head(x)
                 if has_pos:
                     sp = gps_hacc[i] if gps_hacc[i] == gps_hacc[i] else prm[P_GPN]
                     sp = max(sp, prm[P_GPMIN])
@@ -972,7 +921,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                         innov = gps_pos[i, r] - (x[IS + r] - (ss0 if r == 0 else (ss1 if r == 1 else ss2)))
                         if _state_update(x, P, IS + r, innov, sp * sp, gate, pht, idx, val) > 0.0:
                             diag[i, D_IP + r] = innov
-                        _normalize_q(x)
+                        normalize_head(x)
             aux[A_TGPS] = ti
             if has_vel:
                 for r in range(3):
@@ -992,7 +941,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                 if r == 2 and baro_fresh:
                     break
                 _state_update(x, P, IV + r, -x[IV + r], r_syn, 0.0, pht, idx, val)
-                _normalize_q(x)
+                normalize_head(x)
 
         # ------------------------------------------------ watchdog (eq 21), once per cycle
         check = True
@@ -1003,12 +952,12 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
         heading = use_mag and aux[A_MAGINIT] > 0.5
         dist = 0.0
         if check:
-            er, ep, ey = _euler(x[0], x[1], x[2], x[3])
-            cr, cp, cy = _euler(qc[0], qc[1], qc[2], qc[3])
-            dr, dp_ = _wrap(er - cr), _wrap(ep - cp)
+            er, ep, ey = euler_s(x[0], x[1], x[2], x[3])
+            cr, cp, cy = euler_s(qc[0], qc[1], qc[2], qc[3])
+            dr, dp_ = wrap_pi_s(er - cr), wrap_pi_s(ep - cp)
             dist = dr * dr + dp_ * dp_
             if heading:
-                dy = _wrap(ey - cy)
+                dy = wrap_pi_s(ey - cy)
                 dist += dy * dy
             diag[i, D_WD] = dist
         if watchdog and check:
@@ -1049,7 +998,7 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                         ap[0] = lm0 * TESLA_TO_GAUSS - x[IMB]
                         ap[1] = aux[A_LASTMAG + 1] * TESLA_TO_GAUSS - x[IMB + 1]
                         ap[2] = aux[A_LASTMAG + 2] * TESLA_TO_GAUSS - x[IMB + 2]
-                        rotate_h(x, ap, an)
+                        rotate_into(x, ap, an)
                         hmag = math.sqrt(an[0] * an[0] + an[1] * an[1])
                         an[0], an[1] = hmag * north_x, hmag * north_y  # as at the start
                         for r in range(3):

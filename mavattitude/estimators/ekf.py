@@ -64,6 +64,7 @@ import numpy as np
 from numba import njit
 
 from ..params import param
+from ..quaternion import wrap_pi_s
 from .base import MAX_STEP_S, Estimator
 
 
@@ -157,12 +158,6 @@ def level_field(q, m0, m1, m2):
     d0, d1, d2 = f * (x * z - w * y), f * (y * z + w * x), 1.0 - f * (x * x + y * y)
     k = m0 * d0 + m1 * d1 + m2 * d2
     return m0 - k * d0, m1 - k * d1, m2 - k * d2
-
-
-@njit(cache=True)
-def wrap_pi(a):
-    """Angle to [-π, π)."""
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
 # ---------------------------------------------------------------- in-place filter steps (njit)
@@ -431,7 +426,7 @@ def ekf_run(t, gyro, accel, mag, x, P, t_prev, gyro_prev, bias, q_gyro, r_accel,
                 h, H0, H1, H2, H3 = heading_model_s(x[0], x[1], x[2], x[3], v0, v1, v2)
                 if H0 != 0.0 or H1 != 0.0 or H2 != 0.0 or H3 != 0.0:
                     # the levelled field points to magnetic north: azimuth = declination
-                    scalar_update(x, P, H0, H1, H2, H3, wrap_pi(declination - h), r_mag)
+                    scalar_update(x, P, H0, H1, H2, H3, wrap_pi_s(declination - h), r_mag)
             normalize_project(x, P)
         gyro_prev[0], gyro_prev[1], gyro_prev[2] = g0, g1, g2
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x[0], x[1], x[2], x[3]

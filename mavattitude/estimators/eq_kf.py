@@ -122,6 +122,7 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..params import param
+from ..quaternion import dcm_into, qmul_into
 from .base import MAX_STEP_S, Estimator
 
 
@@ -200,19 +201,6 @@ def picard_step(q, dtheta, out):
 
 
 @njit(cache=True)
-def _dcm_into(w, x, y, z, c):
-    c[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    c[0, 1] = 2.0 * (x * y - w * z)
-    c[0, 2] = 2.0 * (x * z + w * y)
-    c[1, 0] = 2.0 * (x * y + w * z)
-    c[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    c[1, 2] = 2.0 * (y * z - w * x)
-    c[2, 0] = 2.0 * (x * z - w * y)
-    c[2, 1] = 2.0 * (y * z + w * x)
-    c[2, 2] = 1.0 - 2.0 * (x * x + y * y)
-
-
-@njit(cache=True)
 def error_transition(dtheta, dt, a, b):
     """Φ's blocks for one step: a = C(p̂)ᵀ (∂e'/∂e), b = -½Δt (I - ½[Δθ]×) (∂e'/∂β)."""
     dx, dy, dz = dtheta[0], dtheta[1], dtheta[2]
@@ -241,14 +229,6 @@ def error_transition(dtheta, dt, a, b):
 
 
 @njit(cache=True)
-def _qmul_into(p, q, out):
-    out[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
-    out[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2]
-    out[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1]
-    out[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0]
-
-
-@njit(cache=True)
 def _error_quaternion(e):
     """Q_e = [√(1 - |e|²), e] from its vector part (allocates: tests and setup only)."""
     s = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
@@ -269,8 +249,8 @@ def error_propagate(e, beta, rate, dt, out):
     p1inv = np.array([p1[0], -p1[1], -p1[2], -p1[3]])
     tmp = np.empty(4)
     res = np.empty(4)
-    _qmul_into(p1inv, _error_quaternion(e), tmp)
-    _qmul_into(tmp, p2, res)
+    qmul_into(p1inv, _error_quaternion(e), tmp)
+    qmul_into(tmp, p2, res)
     if res[0] < 0.0:
         res = -res
     out[0], out[1], out[2] = res[1], res[2], res[3]
@@ -280,7 +260,7 @@ def error_propagate(e, beta, rate, dt, out):
 def accel_predict(qbar, e, out):
     """h(e) = C(Q̄ ⊗ Q_e)ᵀ [0, 0, -1]: the accelerometer direction the attitude predicts."""
     q = np.empty(4)
-    _qmul_into(qbar, _error_quaternion(e), q)
+    qmul_into(qbar, _error_quaternion(e), q)
     w, x, y, z = q[0], q[1], q[2], q[3]
     out[0] = -2.0 * (x * z - w * y)
     out[1] = -2.0 * (y * z + w * x)
@@ -321,9 +301,9 @@ def mag_predict(qbar, e, u):
     """h(e) = azimuth (rad) of C(Q̄ ⊗ Q_e) u, u the body-frame image of the field's
     horizontal part (see the module docstring)."""
     q = np.empty(4)
-    _qmul_into(qbar, _error_quaternion(e), q)
+    qmul_into(qbar, _error_quaternion(e), q)
     c = np.empty((3, 3))
-    _dcm_into(q[0], q[1], q[2], q[3], c)
+    dcm_into(q[0], q[1], q[2], q[3], c)
     vx = c[0, 0] * u[0] + c[0, 1] * u[1] + c[0, 2] * u[2]
     vy = c[1, 0] * u[0] + c[1, 1] * u[1] + c[1, 2] * u[2]
     return np.arctan2(vy, vx)

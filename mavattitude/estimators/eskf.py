@@ -50,6 +50,7 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..params import param
+from ..quaternion import cross_matrix_into, dcm_transposed_into, exp_s, normalize_into, qmul_s
 from .base import MAX_STEP_S, Estimator
 
 
@@ -62,35 +63,6 @@ class EskfParams:
 
 # ---------------------------------------------------------------- shared scalar kernels
 # Scalars in, tuples out: no heap allocation in the per-sample loops.
-
-
-@njit(cache=True, inline="always")
-def qmul_s(a0, a1, a2, a3, b0, b1, b2, b3):
-    """Hamilton product a ⊗ b on scalars."""
-    return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
-            a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
-            a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
-
-
-@njit(cache=True, inline="always")
-def exp_s(vx, vy, vz):
-    """Exp(v): the unit quaternion of rotation vector v (rad)."""
-    a2 = vx * vx + vy * vy + vz * vz
-    if a2 < 1e-4:  # |v| < 0.01 rad: Taylor series, exact to rounding (next terms < 1e-17)
-        a4 = a2 * a2
-        s = 0.5 - a2 * (1.0 / 48.0) + a4 * (1.0 / 3840.0)
-        return 1.0 - a2 * 0.125 + a4 * (1.0 / 384.0), vx * s, vy * s, vz * s
-    angle = math.sqrt(a2)
-    s = math.sin(0.5 * angle) / angle
-    return math.cos(0.5 * angle), vx * s, vy * s, vz * s
-
-
-@njit(cache=True, inline="always")
-def normalize_into(q, w, x, y, z):
-    """q[:] = [w, x, y, z] / norm."""
-    n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
-    q[0], q[1], q[2], q[3] = w * n, x * n, y * n, z * n
 
 
 @njit(cache=True, inline="always")
@@ -182,7 +154,7 @@ def eskf_accel_jacobian(q):
     """H = ∂h/∂δθ = [h]× with h = C(q)ᵀ(-g_n), the body-frame error convention q ⊗ Exp(δθ)."""
     h = eskf_accel_model(q, np.zeros(3))
     H = np.empty((3, 3))
-    _cross_matrix(h[0], h[1], h[2], H)
+    cross_matrix_into(h[0], h[1], h[2], H)
     return H
 
 
@@ -191,29 +163,8 @@ def eskf_error_transition(omega, dt):
     """F = ∂δθ⁺/∂δθ over one step at body rate ω: Exp(ω dt)ᵀ as a rotation matrix."""
     F = np.empty((3, 3))
     d0, d1, d2, d3 = exp_s(omega[0] * dt, omega[1] * dt, omega[2] * dt)
-    _dcm_transposed(d0, d1, d2, d3, F)
+    dcm_transposed_into(d0, d1, d2, d3, F)
     return F
-
-
-@njit(cache=True, inline="always")
-def _cross_matrix(x, y, z, M):
-    M[0, 0], M[0, 1], M[0, 2] = 0.0, -z, y
-    M[1, 0], M[1, 1], M[1, 2] = z, 0.0, -x
-    M[2, 0], M[2, 1], M[2, 2] = -y, x, 0.0
-
-
-@njit(cache=True, inline="always")
-def _dcm_transposed(w, x, y, z, M):
-    """M = C(q)ᵀ for a unit quaternion q."""
-    M[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    M[1, 0] = 2.0 * (x * y - w * z)
-    M[2, 0] = 2.0 * (x * z + w * y)
-    M[0, 1] = 2.0 * (x * y + w * z)
-    M[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    M[2, 1] = 2.0 * (y * z - w * x)
-    M[0, 2] = 2.0 * (x * z - w * y)
-    M[1, 2] = 2.0 * (y * z + w * x)
-    M[2, 2] = 1.0 - 2.0 * (x * x + y * y)
 
 
 # ---------------------------------------------------------------- the filter
@@ -246,7 +197,7 @@ def eskf_run(t, gyro, accel, q, P, t_prev, gyro_prev, bias, arw2, acc2, gravity,
             d0, d1, d2, d3 = exp_s(w0 * dt, w1 * dt, w2 * dt)
             a0, a1, a2, a3 = qmul_s(q[0], q[1], q[2], q[3], d0, d1, d2, d3)
             set_q(q, a0, a1, a2, a3)
-            _dcm_transposed(d0, d1, d2, d3, F)
+            dcm_transposed_into(d0, d1, d2, d3, F)
             for r in range(3):
                 for c in range(3):
                     T[r, c] = F[r, 0] * P[0, c] + F[r, 1] * P[1, c] + F[r, 2] * P[2, c]
@@ -264,7 +215,7 @@ def eskf_run(t, gyro, accel, q, P, t_prev, gyro_prev, bias, arw2, acc2, gravity,
                 h0 = -gravity * 2.0 * (x * z - w * y)
                 h1 = -gravity * 2.0 * (y * z + w * x)
                 h2 = -gravity * (1.0 - 2.0 * (x * x + y * y))
-                _cross_matrix(h0, h1, h2, H)
+                cross_matrix_into(h0, h1, h2, H)
                 e0, e1, e2 = kalman_update3(P, H, ax - h0, ay - h1, az - h2, acc2 / dt,
                                             PHt, K, A, T)
                 b0, b1, b2, b3 = exp_s(e0, e1, e2)

@@ -49,11 +49,12 @@ class MahonyParams:
 
 @njit(cache=True, inline="always")
 def mahony_step(q0, q1, q2, q3, bc0, bc1, bc2, r0, r1, r2, a0, a1, a2, m0, m1, m2, use_mag,
-                north_x, north_y, kp, ki, dt, step):
+                north_x, north_y, kp, ki, dt, step, accel_weight=1.0):
     """One sample of the filter on scalars (steps 1-3 of the module docstring): attitude
     (q0..q3), integral term (bc0..bc2), gyro rate r, accelerometer a, magnetometer m (NaN: none);
-    integrates only when ``step``. Returns the new (q0, q1, q2, q3, bc0, bc1, bc2). Shared with
-    cpf-ekf, whose watchdog runs this filter alongside."""
+    integrates only when ``step``. Returns the new (q0, q1, q2, q3, bc0, bc1, bc2). The gravity
+    error is multiplied by ``accel_weight`` (1: this filter exactly; mahony-ekf weighs it).
+    Shared with mahony-ekf, whose measurement it is, and cpf-ekf, whose watchdog runs it."""
     # third row of C(q): k = C(q)ᵀ [0, 0, -1] = -(c20, c21, c22)
     c20 = 2 * (q1 * q3 - q0 * q2)
     c21 = 2 * (q2 * q3 + q0 * q1)
@@ -63,9 +64,9 @@ def mahony_step(q0, q1, q2, q3, bc0, bc1, bc2, r0, r1, r2, a0, a1, a2, m0, m1, m
     if a_norm > 0.0:
         u0, u1, u2 = a0 / a_norm, a1 / a_norm, a2 / a_norm
         k0, k1, k2 = -c20, -c21, -c22
-        e0 += u1 * k2 - u2 * k1  # (a / |a|) × k
-        e1 += u2 * k0 - u0 * k2
-        e2 += u0 * k1 - u1 * k0
+        e0 += accel_weight * (u1 * k2 - u2 * k1)  # (a / |a|) × k
+        e1 += accel_weight * (u2 * k0 - u0 * k2)
+        e2 += accel_weight * (u0 * k1 - u1 * k0)
     if use_mag and m0 == m0:  # not NaN
         # horizontal part of m_n = C(q) m
         mn0 = ((1 - 2 * (q2 * q2 + q3 * q3)) * m0 + 2 * (q1 * q2 - q0 * q3) * m1

@@ -61,10 +61,10 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..quaternion import integrate_gyro_scalar
 from ..params import param
 from .base import MAX_STEP_S, Estimator
 from .ekf import predict
+from .mahony import mahony_step
 
 
 @dataclass
@@ -79,48 +79,6 @@ class MahonyEkfParams:
     accel_lp_s: float = param(0.5, "[0, inf)")  # time constant of ā, the low-passed ‖a‖ - g, s
     accel_ref_s: float = param(60.0, "[0, inf)")  # time constant of ā_ref, ā's slow baseline (0: none, ā_ref = 0), s
     weight_min_rate: float = param(20.0, "[0, inf)")  # IMU rate below which the weight stays 1, Hz
-
-
-@njit(cache=True, inline='always')
-def mahony_step(q, bias_correction, r0, r1, r2, a0, a1, a2, m0, m1, m2, use_m, kp, ki, cos_dec,
-                sin_dec, dt, accel_weight):
-    """One step of mahony's filter (``mahony.mahony_run``), in place on ``q`` (4,) and
-    ``bias_correction`` (3,): (r0, r1, r2) the trapezoidal gyro rate, (a0, a1, a2) the
-    accelerometer, (m0, m1, m2) the field when ``use_m``. The gravity error is multiplied by
-    ``accel_weight`` (1: mahony's filter exactly). Integrates only when dt > 0 (the caller
-    applies the gap limit)."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    c20 = 2 * (x * z - w * y)
-    c21 = 2 * (y * z + w * x)
-    c22 = 1 - 2 * (x * x + y * y)
-    e0 = e1 = e2 = 0.0
-    a_norm = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-    if a_norm > 0.0:
-        u0, u1, u2 = a0 / a_norm, a1 / a_norm, a2 / a_norm
-        k0, k1, k2 = -c20, -c21, -c22  # C(q)ᵀ [0, 0, -1]
-        e0 += accel_weight * (u1 * k2 - u2 * k1)  # (a / |a|) × k
-        e1 += accel_weight * (u2 * k0 - u0 * k2)
-        e2 += accel_weight * (u0 * k1 - u1 * k0)
-    if use_m:
-        # horizontal part of m_n = C(q) m
-        mn0 = ((1 - 2 * (y * y + z * z)) * m0 + 2 * (x * y - w * z) * m1
-               + 2 * (x * z + w * y) * m2)
-        mn1 = (2 * (x * y + w * z) * m0 + (1 - 2 * (x * x + z * z)) * m1
-               + 2 * (y * z - w * x) * m2)
-        h_norm = np.sqrt(mn0 * mn0 + mn1 * mn1)
-        if h_norm > 0.0:
-            # signed angle from h to magnetic north, about the navigation z axis
-            gamma = np.arctan2(mn0 * sin_dec - mn1 * cos_dec, mn0 * cos_dec + mn1 * sin_dec)
-            e0 += gamma * c20  # C(q)ᵀ [0, 0, γ]
-            e1 += gamma * c21
-            e2 += gamma * c22
-    if dt > 0.0:
-        bc0 = bias_correction[0] + ki * e0 * dt
-        bc1 = bias_correction[1] + ki * e1 * dt
-        bc2 = bias_correction[2] + ki * e2 * dt
-        bias_correction[0], bias_correction[1], bias_correction[2] = bc0, bc1, bc2
-        q[0], q[1], q[2], q[3] = integrate_gyro_scalar(w, x, y, z, r0 + kp * e0 + bc0,
-                                                       r1 + kp * e1 + bc1, r2 + kp * e2 + bc2, dt)
 
 
 @njit(cache=True, inline='always')
@@ -261,9 +219,9 @@ def mahony_ekf_run(t, gyro, accel, mag, x, P, qm, bias_correction, t_prev, gyro_
         if k_mahony > 0.0 and lp == lp and not mean_dt * weight_min_rate > 1.0:
             weight = 1.0 / (1.0 + k_mahony * abs(lp - (ref if accel_ref_s > 0.0 else 0.0)))
 
-        mahony_step(qm, bias_correction, w0, w1, w2, a0, a1, a2, mag[i, 0], mag[i, 1], mag[i, 2],
-                    use_mag and mag[i, 0] == mag[i, 0], kp, ki, cos_dec, sin_dec,
-                    dt if step else 0.0, weight)
+        qm[0], qm[1], qm[2], qm[3], bias_correction[0], bias_correction[1], bias_correction[2] = mahony_step(
+            qm[0], qm[1], qm[2], qm[3], bias_correction[0], bias_correction[1], bias_correction[2], w0, w1, w2,
+            a0, a1, a2, mag[i, 0], mag[i, 1], mag[i, 2], use_mag, cos_dec, sin_dec, kp, ki, dt, step, weight)
         if step:
             predict(x, P, w0 - bias[0], w1 - bias[1], w2 - bias[2], dt, q_gyro)
             # q_M and -q_M are one attitude: measure the one on X⁻'s side

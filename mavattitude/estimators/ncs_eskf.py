@@ -112,8 +112,9 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..params import param
+from ..quaternion import exp_s, normalize_into, qmul_s
 from .base import MAX_STEP_S, Estimator
-from .eskf import exp_s, normalize_into, qmul_s, set_q, step_dt
+from .eskf import set_q, step_dt
 
 
 @dataclass
