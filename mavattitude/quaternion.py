@@ -295,16 +295,17 @@ def dcm_into(w, x, y, z, c):
 
 @njit(cache=True, inline="always")
 def dcm_transposed_into(w, x, y, z, M):
-    """M = C(q)ᵀ for a unit quaternion q."""
-    M[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    M[1, 0] = 2.0 * (x * y - w * z)
-    M[2, 0] = 2.0 * (x * z + w * y)
-    M[0, 1] = 2.0 * (x * y + w * z)
-    M[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    M[2, 1] = 2.0 * (y * z - w * x)
-    M[0, 2] = 2.0 * (x * z - w * y)
-    M[1, 2] = 2.0 * (y * z + w * x)
-    M[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    """M = C(q)ᵀ = C(q*) for a unit quaternion q."""
+    dcm_into(w, -x, -y, -z, M)
+
+
+@njit(cache=True, inline="always")
+def gravity_in_body_s(w, x, y, z, g):
+    """C(q)ᵀ [0, 0, -g]: what an accelerometer reads at rest at attitude q (not necessarily
+    unit: divided by |q|²), as a tuple."""
+    n2 = w * w + x * x + y * y + z * z
+    return (-g * 2.0 * (x * z - w * y) / n2, -g * 2.0 * (y * z + w * x) / n2,
+            -g * (1.0 - 2.0 * (x * x + y * y) / n2))
 
 
 @njit(cache=True)

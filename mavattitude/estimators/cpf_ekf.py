@@ -148,9 +148,9 @@ D_TRACE, D_RESET, D_WD, D_BG, D_BA, D_MB, D_M, D_V, D_S, D_IM, D_IV, D_IP, D_IB 
 NDIAG = len(DIAG_KEYS)
 
 # aux: the filter's scalar memory between chunks
-A_TPREV, A_GYRO, A_ACC, A_MAG, A_COUNT, A_MAGINIT, A_TGPS, A_TBARO, A_TSYNTH, A_GVEL, A_GPOS, \
-    A_HEAD, A_FILL, A_RESETS, A_LASTMAG, A_WDBIN = 0, 1, 4, 7, 10, 11, 12, 13, 14, 15, 18, 21, 22, 23, 24, 27
-NAUX = 28
+A_TPREV, A_GYRO, A_ACC, A_COUNT, A_MAGINIT, A_TGPS, A_TBARO, A_TSYNTH, A_GVEL, A_GPOS, \
+    A_HEAD, A_FILL, A_RESETS, A_LASTMAG, A_WDBIN = 0, 1, 4, 7, 8, 9, 10, 11, 12, 15, 18, 19, 20, 21, 24
+NAUX = 25
 
 
 @dataclass

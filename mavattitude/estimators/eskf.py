@@ -50,7 +50,14 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..params import param
-from ..quaternion import cross_matrix_into, dcm_transposed_into, exp_s, normalize_into, qmul_s
+from ..quaternion import (
+    cross_matrix_into,
+    dcm_transposed_into,
+    exp_s,
+    gravity_in_body_s,
+    normalize_into,
+    qmul_s,
+)
 from .base import MAX_STEP_S, Estimator
 
 
@@ -140,12 +147,8 @@ def eskf_accel_model(q, dtheta):
     C(q ⊗ Exp(δθ))ᵀ (-g_n), m/s². ``eskf_accel_jacobian`` is its derivative at δθ = 0."""
     e0, e1, e2, e3 = exp_s(dtheta[0], dtheta[1], dtheta[2])
     w, x, y, z = qmul_s(q[0], q[1], q[2], q[3], e0, e1, e2, e3)
-    n2 = w * w + x * x + y * y + z * z
     out = np.empty(3)
-    # -g times the last row of C: C(q)ᵀ [0, 0, -g]
-    out[0] = -GRAVITY * 2.0 * (x * z - w * y) / n2
-    out[1] = -GRAVITY * 2.0 * (y * z + w * x) / n2
-    out[2] = -GRAVITY * (1.0 - 2.0 * (x * x + y * y) / n2)
+    out[0], out[1], out[2] = gravity_in_body_s(w, x, y, z, GRAVITY)
     return out
 
 

@@ -112,7 +112,7 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..params import param
-from ..quaternion import exp_s, normalize_into, qmul_s
+from ..quaternion import exp_s, gravity_in_body_s, normalize_into, qmul_s
 from .base import MAX_STEP_S, Estimator
 from .eskf import set_q, step_dt
 
@@ -161,11 +161,8 @@ def ncs_accel_model(q, dtheta):
     Exp(δθ) ⊗ q (navigation-frame error): C(Exp(δθ) ⊗ q)ᵀ (-g_n), m/s²."""
     e0, e1, e2, e3 = exp_s(dtheta[0], dtheta[1], dtheta[2])
     w, x, y, z = qmul_s(e0, e1, e2, e3, q[0], q[1], q[2], q[3])
-    n2 = w * w + x * x + y * y + z * z
     out = np.empty(3)
-    out[0] = -GRAVITY * 2.0 * (x * z - w * y) / n2
-    out[1] = -GRAVITY * 2.0 * (y * z + w * x) / n2
-    out[2] = -GRAVITY * (1.0 - 2.0 * (x * x + y * y) / n2)
+    out[0], out[1], out[2] = gravity_in_body_s(w, x, y, z, GRAVITY)
     return out
 
 

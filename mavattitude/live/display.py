@@ -33,7 +33,6 @@ DIAGNOSTIC_HZ = 20.0
 # chunk in the recording, and small chunks cost more than their samples.
 DIAGNOSTIC_PERIOD_S = 2.0
 STATUS_PERIOD_S = 1.0  # rolling metrics and link figures
-RATE_NAMES = ("imu", "ATTITUDE", "GPS_RAW_INT", "SCALED_PRESSURE")
 
 
 class LiveView:
