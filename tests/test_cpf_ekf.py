@@ -144,9 +144,9 @@ def test_sparse_covariance_step_equals_dense_f_p_ft_plus_q():
     f.initialize(q0, [0.01, -0.02, 0.005])
     # a full, random, positive definite P₀ and state, to exercise every block
     A = rng.normal(size=(NX, NX)) * 0.05
-    f._P[:] = A @ A.T + 1e-4 * np.eye(NX)
-    f._x[IV:IS + 3] = rng.normal(size=6)
-    f._x[IA] = 0.05
+    f._state.P[:] = A @ A.T + 1e-4 * np.eye(NX)
+    f._state.x[IV:IS + 3] = rng.normal(size=6)
+    f._state.x[IA] = 0.05
     P0, x0 = f.covariance, f.state
     t = np.array([10.0, 10.02])
     gyro = np.array([[0.3, -0.2, 0.5], [0.35, -0.1, 0.45]])

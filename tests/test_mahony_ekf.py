@@ -195,7 +195,7 @@ def test_measurement_sign_follows_the_state():
         f = MahonyEkf(declination=sim.declination_rad)
         f.initialize(a.q0, a.gyro_bias)
         if flip:
-            f._qm *= -1.0
+            f._state.qm[:] *= -1.0
         runs.append(f.update(t, gyro, accel, mag))
     np.testing.assert_array_equal(runs[0], runs[1])
 

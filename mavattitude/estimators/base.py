@@ -24,6 +24,7 @@ counts the accel states into the JSON events and the view shows them.
 from __future__ import annotations
 
 import os
+from typing import NamedTuple
 
 import numpy as np
 
@@ -56,7 +57,7 @@ class Estimator:
         ``uses_aiding`` ignores it."""
         raise NotImplementedError
 
-    def _chunk(self, t, gyro, accel, mag, in_air=None):
+    def _chunk(self, t, gyro, accel, mag, in_air=None) -> Samples:
         """The inputs as the compiled kernels want them (``as_chunk``), once ``initialize``
         has given the filter a state to start from."""
         if not self.initialized:
@@ -88,7 +89,31 @@ def needs_compile(estimator_classes) -> list[str]:
     return pending
 
 
-def as_chunk(t, gyro, accel, mag, in_air=None):
+class FilterState(NamedTuple):
+    """What a Kalman filter carries from one chunk to the next (arrays, updated in place)."""
+    q: np.ndarray  # (4,) attitude, body -> NED
+    P: np.ndarray  # the state covariance
+    t_prev: np.ndarray  # (1,) the last sample's time, NaN before the first
+    gyro_prev: np.ndarray  # (3,) the last gyro sample, rad/s
+    bias: np.ndarray  # (3,) the still-period gyro bias, rad/s
+
+
+def filter_state(q0, P0: np.ndarray, gyro_bias) -> FilterState:
+    q0 = np.array(q0, dtype=np.float64)
+    return FilterState(q0 / np.linalg.norm(q0), np.array(P0, dtype=np.float64), np.array([np.nan]), np.zeros(3),
+                       np.array(gyro_bias, dtype=np.float64).reshape(3))
+
+
+class Samples(NamedTuple):
+    """A chunk of inputs as every compiled kernel takes them: contiguous float64, SI."""
+    t: np.ndarray  # (N,) s
+    gyro: np.ndarray  # (N, 3) rad/s
+    accel: np.ndarray  # (N, 3) m/s²
+    mag: np.ndarray  # (N, 3) tesla, NaN where none
+    in_air: np.ndarray  # (N,) 1.0 air, 0.0 ground, NaN unknown
+
+
+def as_chunk(t, gyro, accel, mag, in_air=None) -> Samples:
     """Contiguous float64 arrays, as the compiled kernels want them; absent inputs become NaN."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     n = len(t)
@@ -100,4 +125,4 @@ def as_chunk(t, gyro, accel, mag, in_air=None):
     if in_air is None:
         in_air = np.full(n, np.nan)
     in_air = np.ascontiguousarray(in_air, dtype=np.float64).reshape(n)
-    return t, gyro, accel, mag, in_air
+    return Samples(t, gyro, accel, mag, in_air)

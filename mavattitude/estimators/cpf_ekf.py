@@ -116,6 +116,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -196,32 +197,85 @@ class CpfEkfParams:
 
 
 # parameter vector layout for the kernel
-(P_GN, P_AN, P_BW, P_AW, P_MW, P_MBW, P_MAGN, P_DECN, P_GVN, P_GPN, P_GPMIN, P_GAN, P_GDEL,
- P_BARON, P_GTO, P_BTO, P_SYN, P_GATE, P_TILT0, P_YAW0, P_VEL0, P_POS0, P_NRESET,
- P_CYCLES, P_KP, P_KI, P_DEC, P_USEMAG, P_WATCHDOG, P_G, P_MAXSTEP, P_YAW0NOMAG, P_M0, P_WDPER,
- P_RESETBIAS, P_BG0, P_AB0, P_MB0, P_HOLD) = range(39)
-NPRM = 39
+class CpfEkfSettings(NamedTuple):
+    """The parameters as the kernel takes them (``CpfEkfParams``; angles in radians, flags as
+    1.0 / 0.0), and the declination."""
+    gyro_noise: float
+    accel_noise: float
+    gyro_bias_walk: float
+    accel_bias_walk: float
+    earth_field_walk: float
+    body_field_walk: float
+    mag_noise: float
+    declination_noise: float  # rad
+    gps_vel_noise: float
+    gps_pos_noise: float
+    gps_pos_noise_min: float
+    gps_alt_noise: float
+    gps_delay: float
+    baro_noise: float
+    gps_timeout: float
+    baro_timeout: float
+    synthetic_vel_noise: float
+    innovation_gate: float
+    tilt_sigma0: float  # rad
+    yaw_sigma0: float  # rad
+    vel_sigma0: float
+    pos_sigma0: float
+    reset_threshold: float
+    reset_cycles: float
+    kp: float
+    ki: float
+    declination: float  # rad
+    use_mag: float
+    watchdog: float
+    gravity: float
+    max_step: float
+    yaw_sigma0_nomag: float  # rad
+    earth_field_sigma0: float
+    watchdog_period: float
+    reset_bias: float
+    gyro_bias_sigma0: float  # rad/s
+    accel_bias_sigma0: float
+    body_field_sigma0: float
+    heading_hold_noise: float  # rad
+
+    @classmethod
+    def of(cls, p: CpfEkfParams, declination: float) -> CpfEkfSettings:
+        r = math.radians
+        return cls(
+            float(p.gyro_noise), float(p.accel_noise), float(p.gyro_bias_walk), float(p.accel_bias_walk),
+            float(p.earth_field_walk), float(p.body_field_walk), float(p.mag_noise), r(p.declination_noise_deg),
+            float(p.gps_vel_noise), float(p.gps_pos_noise), float(p.gps_pos_noise_min), float(p.gps_alt_noise),
+            float(p.gps_delay_s), float(p.baro_noise), float(p.gps_timeout_s), float(p.baro_timeout_s),
+            float(p.synthetic_vel_noise), float(p.innovation_gate), r(p.tilt_sigma0_deg), r(p.yaw_sigma0_deg),
+            float(p.vel_sigma0), float(p.pos_sigma0), float(p.reset_threshold), float(p.reset_cycles),
+            float(p.cpf_kp), float(p.cpf_ki), float(declination), float(p.use_mag), float(p.watchdog), GRAVITY,
+            MAX_STEP_S, r(p.yaw_sigma0_nomag_deg), float(p.earth_field_sigma0), float(p.watchdog_period_s),
+            float(p.reset_bias_covariance), r(p.gyro_bias_sigma0_dps), float(p.accel_bias_sigma0),
+            float(p.body_field_sigma0), r(p.heading_hold_noise_deg))
 
 
-def _param_vector(p: CpfEkfParams, declination: float) -> np.ndarray:
-    v = np.zeros(NPRM)
-    v[P_GN], v[P_AN], v[P_BW], v[P_AW] = p.gyro_noise, p.accel_noise, p.gyro_bias_walk, p.accel_bias_walk
-    v[P_MW], v[P_MBW], v[P_MAGN] = p.earth_field_walk, p.body_field_walk, p.mag_noise
-    v[P_DECN] = math.radians(p.declination_noise_deg)
-    v[P_GVN], v[P_GPN], v[P_GPMIN], v[P_GAN] = p.gps_vel_noise, p.gps_pos_noise, p.gps_pos_noise_min, p.gps_alt_noise
-    v[P_GDEL], v[P_BARON], v[P_GTO], v[P_BTO] = p.gps_delay_s, p.baro_noise, p.gps_timeout_s, p.baro_timeout_s
-    v[P_SYN], v[P_GATE] = p.synthetic_vel_noise, p.innovation_gate
-    v[P_TILT0], v[P_YAW0] = math.radians(p.tilt_sigma0_deg), math.radians(p.yaw_sigma0_deg)
-    v[P_YAW0NOMAG] = math.radians(p.yaw_sigma0_nomag_deg)
-    v[P_HOLD] = math.radians(p.heading_hold_noise_deg)
-    v[P_VEL0], v[P_POS0], v[P_M0] = p.vel_sigma0, p.pos_sigma0, p.earth_field_sigma0
-    v[P_NRESET], v[P_CYCLES], v[P_WDPER] = p.reset_threshold, p.reset_cycles, p.watchdog_period_s
-    v[P_KP], v[P_KI], v[P_DEC] = p.cpf_kp, p.cpf_ki, declination
-    v[P_USEMAG], v[P_WATCHDOG] = float(p.use_mag), float(p.watchdog)
-    v[P_RESETBIAS] = float(p.reset_bias_covariance)
-    v[P_BG0], v[P_AB0], v[P_MB0] = math.radians(p.gyro_bias_sigma0_dps), p.accel_bias_sigma0, p.body_field_sigma0
-    v[P_G], v[P_MAXSTEP] = GRAVITY, MAX_STEP_S
-    return v
+class CpfEkfState(NamedTuple):
+    """What the filter carries between chunks (arrays, updated in place)."""
+    x: np.ndarray  # (NX,) [q, V, S, ω_b, a_zb, M (gauss), m_b (gauss)]
+    P: np.ndarray  # (NX, NX)
+    qc: np.ndarray  # (4,) the complementary filter's attitude
+    bc: np.ndarray  # (3,) its integral term
+    aux: np.ndarray  # (NAUX,) scalar memory, see the A_* indices
+    ring: np.ndarray  # (RING, 7) predicted increments, for a delayed GPS fix
+
+
+class AidingRows(NamedTuple):
+    """A chunk's GPS and baro on the IMU clock (``aiding.Aiding``), NaN where none, and
+    whether to fuse them."""
+    gps_pos: np.ndarray  # (N, 3)
+    gps_vel: np.ndarray  # (N, 3)
+    gps_hacc: np.ndarray  # (N,)
+    gps_vacc: np.ndarray  # (N,)
+    baro: np.ndarray  # (N,)
+    use_gps: bool
+    use_baro: bool
 
 
 # ---------------------------------------------------------------- model functions (njit)
@@ -579,16 +633,16 @@ def _init_attitude_cov(P, q, sig_tilt, sig_yaw):
 
 
 @njit(cache=True)
-def init_covariance(P, x, prm, heading, bias_var):
+def init_covariance(P, x, cfg, heading, bias_var):
     """P₀: attitude, velocity and position from the parameters; the bias blocks get
     ``bias_var`` (7,: ω_b (3), a_zb, ...) on the diagonal; earth field and body field P₀."""
     for i in range(NX):
         for j in range(NX):
             P[i, j] = 0.0
-    _init_attitude_cov(P, x, prm[P_TILT0], prm[P_YAW0] if heading else prm[P_YAW0NOMAG])
+    _init_attitude_cov(P, x, cfg.tilt_sigma0, cfg.yaw_sigma0 if heading else cfg.yaw_sigma0_nomag)
     for i in range(3):
-        P[IV + i, IV + i] = prm[P_VEL0] ** 2
-        P[IS + i, IS + i] = prm[P_POS0] ** 2
+        P[IV + i, IV + i] = cfg.vel_sigma0 ** 2
+        P[IS + i, IS + i] = cfg.pos_sigma0 ** 2
         P[IB + i, IB + i] = bias_var[i]
         P[IM + i, IM + i] = bias_var[4]
         P[IMB + i, IMB + i] = bias_var[5]
@@ -596,28 +650,30 @@ def init_covariance(P, x, prm, heading, bias_var):
 
 
 @njit(cache=True)
-def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro, use_gps, use_baro,
-                x, P, qc, bc, aux, ring, prm, out, diag):
-    """Run the filter over a chunk. State (updated in place): ``x`` (20,), ``P`` (20×20), the
-    complementary filter's ``qc`` (4,) and integral term ``bc`` (3,), ``aux`` (scalar memory),
-    ``ring`` (RING×7 predicted increments). Writes the attitude to ``out`` (N×4) and the
-    diagnostics to ``diag`` (N×NDIAG)."""
+def cpf_ekf_run(s, aid, state, cfg, out, diag):
+    """Run the filter over a chunk of samples ``s`` (``base.Samples``) with its aiding ``aid``
+    (``AidingRows``); ``state`` (``CpfEkfState``) is updated in place. Writes the attitude to
+    ``out`` (N×4) and the diagnostics to ``diag`` (N×NDIAG)."""
+    t, gyro, accel, mag = s.t, s.gyro, s.accel, s.mag
+    gps_pos, gps_vel, gps_hacc, gps_vacc, baro = aid.gps_pos, aid.gps_vel, aid.gps_hacc, aid.gps_vacc, aid.baro
+    use_gps, use_baro = aid.use_gps, aid.use_baro
+    x, P, qc, bc, aux, ring = state.x, state.P, state.qc, state.bc, state.aux, state.ring
     n = len(t)
-    g = prm[P_G]
-    max_step = prm[P_MAXSTEP]
-    gn2, an2 = prm[P_GN] ** 2, prm[P_AN] ** 2
-    bw2, aw2, mw2, mbw2 = prm[P_BW] ** 2, prm[P_AW] ** 2, prm[P_MW] ** 2, prm[P_MBW] ** 2
-    r_mag = prm[P_MAGN] ** 2
-    r_dec = prm[P_DECN] ** 2
-    r_gv = prm[P_GVN] ** 2
-    gate = prm[P_GATE]
-    declination = prm[P_DEC]
-    use_mag = prm[P_USEMAG] > 0.5
-    watchdog = prm[P_WATCHDOG] > 0.5
-    kp, ki = prm[P_KP], prm[P_KI]
+    g = cfg.gravity
+    max_step = cfg.max_step
+    gn2, an2 = cfg.gyro_noise ** 2, cfg.accel_noise ** 2
+    bw2, aw2, mw2, mbw2 = cfg.gyro_bias_walk ** 2, cfg.accel_bias_walk ** 2, cfg.earth_field_walk ** 2, cfg.body_field_walk ** 2
+    r_mag = cfg.mag_noise ** 2
+    r_dec = cfg.declination_noise ** 2
+    r_gv = cfg.gps_vel_noise ** 2
+    gate = cfg.innovation_gate
+    declination = cfg.declination
+    use_mag = cfg.use_mag > 0.5
+    watchdog = cfg.watchdog > 0.5
+    kp, ki = cfg.kp, cfg.ki
     north_x, north_y = math.cos(declination), math.sin(declination)
-    gps_delay = prm[P_GDEL]
-    wd_period = prm[P_WDPER]
+    gps_delay = cfg.gps_delay
+    wd_period = cfg.watchdog_period
     # scratch, allocated once per chunk
     fqq = np.empty((4, 4))
     fqb = np.empty((4, 3))
@@ -814,10 +870,10 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                     for c in range(NX):
                         P[IM + r, c] = 0.0
                         P[c, IM + r] = 0.0
-                    P[IM + r, IM + r] = prm[P_M0] ** 2
+                    P[IM + r, IM + r] = cfg.earth_field_sigma0 ** 2
                 # the compass is the heading's reference from now: its uncertainty is σ₀ again,
                 # whatever a heading hold before this first sample made of it
-                _reset_yaw_covariance(P, x, prm[P_YAW0], lq)
+                _reset_yaw_covariance(P, x, cfg.yaw_sigma0, lq)
                 aux[A_MAGINIT] = 1.0
             else:
                 for axis in range(3):
@@ -851,19 +907,19 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
 
         # ------------------------------------------------ GPS and baro (eq 17-19)
         hold = not (use_mag and aux[A_MAGINIT] > 0.5)  # no heading reference: hold the yaw
-        baro_fresh = aux[A_TBARO] == aux[A_TBARO] and ti - aux[A_TBARO] <= prm[P_BTO]
+        baro_fresh = aux[A_TBARO] == aux[A_TBARO] and ti - aux[A_TBARO] <= cfg.baro_timeout
         if use_baro and baro[i] == baro[i]:
             aux[A_TBARO] = ti
             baro_fresh = True
             innov = -baro[i] - x[IS + 2]
-            if _state_update(x, P, IS + 2, innov, prm[P_BARON] ** 2, gate, pht, idx, val) > 0.0:
+            if _state_update(x, P, IS + 2, innov, cfg.baro_noise ** 2, gate, pht, idx, val) > 0.0:
                 diag[i, D_IB] = innov
             normalize_head(x)
-        gps_active = aux[A_TGPS] == aux[A_TGPS] and ti - aux[A_TGPS] <= prm[P_GTO]
+        gps_active = aux[A_TGPS] == aux[A_TGPS] and ti - aux[A_TGPS] <= cfg.gps_timeout
         has_pos = use_gps and gps_pos[i, 0] == gps_pos[i, 0]
         has_vel = use_gps and gps_vel[i, 0] == gps_vel[i, 0]
         if (has_pos or has_vel) and hold:
-            _hold_heading(x, P, prm[P_HOLD], pht, idx, val, h_q)
+            _hold_heading(x, P, cfg.heading_hold_noise, pht, idx, val, h_q)
         if has_pos or has_vel:
             # the state at the fix's time: now minus the predicted increments since
             sv0 = sv1 = sv2 = ss0 = ss1 = ss2 = 0.0
@@ -897,9 +953,9 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                         for c in range(NX):
                             P[IS + r, c] = 0.0
                             P[c, IS + r] = 0.0
-                        sp = gps_hacc[i] if (r < 2 and gps_hacc[i] == gps_hacc[i]) else prm[P_GPN]
+                        sp = gps_hacc[i] if (r < 2 and gps_hacc[i] == gps_hacc[i]) else cfg.gps_pos_noise
                         if r == 2:
-                            sp = gps_vacc[i] if gps_vacc[i] == gps_vacc[i] else prm[P_GAN]
+                            sp = gps_vacc[i] if gps_vacc[i] == gps_vacc[i] else cfg.gps_alt_noise
                         P[IS + r, IS + r] = sp * sp
             else:
                 if has_vel:
@@ -911,13 +967,13 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                                 diag[i, D_IV + r] = innov
                             normalize_head(x)
                 if has_pos:
-                    sp = gps_hacc[i] if gps_hacc[i] == gps_hacc[i] else prm[P_GPN]
-                    sp = max(sp, prm[P_GPMIN])
+                    sp = gps_hacc[i] if gps_hacc[i] == gps_hacc[i] else cfg.gps_pos_noise
+                    sp = max(sp, cfg.gps_pos_noise_min)
                     for r in range(3):
                         if r == 2:
                             if baro_fresh:
                                 break
-                            sp = gps_vacc[i] if gps_vacc[i] == gps_vacc[i] else prm[P_GAN]
+                            sp = gps_vacc[i] if gps_vacc[i] == gps_vacc[i] else cfg.gps_alt_noise
                         innov = gps_pos[i, r] - (x[IS + r] - (ss0 if r == 0 else (ss1 if r == 1 else ss2)))
                         if _state_update(x, P, IS + r, innov, sp * sp, gate, pht, idx, val) > 0.0:
                             diag[i, D_IP + r] = innov
@@ -930,13 +986,13 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                 for r in range(3):
                     aux[A_GPOS + r] = gps_pos[i, r]
             gps_active = True
-        if not gps_active and step_ok and prm[P_SYN] > 0.0 and not (aux[A_TSYNTH] == aux[A_TSYNTH]
+        if not gps_active and step_ok and cfg.synthetic_vel_noise > 0.0 and not (aux[A_TSYNTH] == aux[A_TSYNTH]
                                                and ti - aux[A_TSYNTH] < SYNTH_PERIOD_S):
             # non-aiding mode: a synthetic zero velocity keeps tilt observable
             aux[A_TSYNTH] = ti
-            r_syn = prm[P_SYN] ** 2
+            r_syn = cfg.synthetic_vel_noise ** 2
             if hold:
-                _hold_heading(x, P, prm[P_HOLD], pht, idx, val, h_q)
+                _hold_heading(x, P, cfg.heading_hold_noise, pht, idx, val, h_q)
             for r in range(3):
                 if r == 2 and baro_fresh:
                     break
@@ -961,25 +1017,25 @@ def cpf_ekf_run(t, gyro, accel, mag, gps_pos, gps_vel, gps_hacc, gps_vacc, baro,
                 dist += dy * dy
             diag[i, D_WD] = dist
         if watchdog and check:
-            if dist > prm[P_NRESET]:
+            if dist > cfg.reset_threshold:
                 aux[A_COUNT] += 1.0
             else:
                 aux[A_COUNT] = 0.0
-            if aux[A_COUNT] >= prm[P_CYCLES]:
+            if aux[A_COUNT] >= cfg.reset_cycles:
                 # reset: attitude from the CPF, P and V/S re-initialised, biases kept
                 aux[A_COUNT] = 0.0
                 aux[A_RESETS] += 1.0
                 diag[i, D_RESET] = 1.0
-                reset_bias = prm[P_RESETBIAS] > 0.5
+                reset_bias = cfg.reset_bias > 0.5
                 for r in range(3):
-                    mbv[r] = prm[P_MB0] ** 2 if reset_bias else P[IMB + r, IMB + r]
-                    bias_var[r] = prm[P_BG0] ** 2 if reset_bias else P[IB + r, IB + r]
-                bias_var[3] = prm[P_AB0] ** 2 if reset_bias else P[IA, IA]
-                bias_var[4] = prm[P_M0] ** 2  # earth field: re-initialised below
+                    mbv[r] = cfg.body_field_sigma0 ** 2 if reset_bias else P[IMB + r, IMB + r]
+                    bias_var[r] = cfg.gyro_bias_sigma0 ** 2 if reset_bias else P[IB + r, IB + r]
+                bias_var[3] = cfg.accel_bias_sigma0 ** 2 if reset_bias else P[IA, IA]
+                bias_var[4] = cfg.earth_field_sigma0 ** 2  # earth field: re-initialised below
                 bias_var[5] = 0.0
                 for r in range(4):
                     x[r] = qc[r]
-                init_covariance(P, x, prm, heading, bias_var)
+                init_covariance(P, x, cfg, heading, bias_var)
                 for r in range(3):
                     P[IMB + r, IMB + r] = mbv[r]
                 if gps_active:
@@ -1065,28 +1121,28 @@ class CpfEkf(Estimator):
 
     def initialize(self, q0, gyro_bias) -> None:
         p = self.params
-        self._prm = _param_vector(p, self.declination)
-        self._x = np.zeros(NX)
-        self._x[:4] = np.asarray(q0, dtype=np.float64) / np.linalg.norm(q0)
-        self._x[IB:IB + 3] = np.asarray(gyro_bias, dtype=np.float64)
-        self._P = np.zeros((NX, NX))
+        self._settings = CpfEkfSettings.of(p, self.declination)
+        x = np.zeros(NX)
+        x[:4] = np.asarray(q0, dtype=np.float64) / np.linalg.norm(q0)
+        x[IB:IB + 3] = np.asarray(gyro_bias, dtype=np.float64)
+        P = np.zeros((NX, NX))
         bias_var = np.array([math.radians(p.gyro_bias_sigma0_dps) ** 2] * 3
                             + [p.accel_bias_sigma0 ** 2, p.earth_field_sigma0 ** 2,
                                p.body_field_sigma0 ** 2])
-        init_covariance(self._P, self._x, self._prm, p.use_mag, bias_var)
-        self._qc = np.array(q0, dtype=np.float64)  # as mahony takes it
-        self._bc = -np.asarray(gyro_bias, dtype=np.float64).copy()
-        self._aux = np.zeros(NAUX)
-        self._aux[[A_TPREV, A_TGPS, A_TBARO, A_TSYNTH, A_WDBIN]] = np.nan
-        self._aux[A_GVEL:A_GVEL + 3] = np.nan
-        self._aux[A_GPOS:A_GPOS + 3] = np.nan
-        self._aux[A_LASTMAG:A_LASTMAG + 3] = np.nan
-        self._ring = np.zeros((RING, 7))
+        init_covariance(P, x, self._settings, p.use_mag, bias_var)
+        aux = np.zeros(NAUX)
+        aux[[A_TPREV, A_TGPS, A_TBARO, A_TSYNTH, A_WDBIN]] = np.nan
+        aux[A_GVEL:A_GVEL + 3] = np.nan
+        aux[A_GPOS:A_GPOS + 3] = np.nan
+        aux[A_LASTMAG:A_LASTMAG + 3] = np.nan
+        # the complementary filter starts as mahony does
+        self._state = CpfEkfState(x, P, np.array(q0, dtype=np.float64), -np.asarray(gyro_bias, dtype=np.float64).copy(),
+                                  aux, np.zeros((RING, 7)))
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
-        n = len(t)
+        s = self._chunk(t, gyro, accel, mag)
+        n = len(s.t)
         if aiding is None:
             from ..aiding import Aiding
             aiding = Aiding.empty(n)
@@ -1096,26 +1152,25 @@ class CpfEkf(Estimator):
         def arr(a, shape):
             return np.ascontiguousarray(a, dtype=np.float64).reshape(shape)
 
+        aid = AidingRows(arr(aiding.gps_pos, (n, 3)), arr(aiding.gps_vel, (n, 3)), arr(aiding.gps_h_acc, n),
+                         arr(aiding.gps_v_acc, n), arr(aiding.baro_height, n), bool(self.params.use_gps),
+                         bool(self.params.use_baro))
         out = np.empty((n, 4))
         diag = np.empty((n, NDIAG))
-        p = self.params
-        cpf_ekf_run(t, gyro, accel, mag, arr(aiding.gps_pos, (n, 3)), arr(aiding.gps_vel, (n, 3)),
-                    arr(aiding.gps_h_acc, n), arr(aiding.gps_v_acc, n), arr(aiding.baro_height, n),
-                    bool(p.use_gps), bool(p.use_baro), self._x, self._P, self._qc, self._bc,
-                    self._aux, self._ring, self._prm, out, diag)
+        cpf_ekf_run(s, aid, self._state, self._settings, out, diag)
         self.diagnostics = {key: diag[:, k] for k, key in enumerate(DIAG_KEYS)}
         return out
 
     @property
     def covariance(self) -> np.ndarray:
-        return self._P.copy()
+        return self._state.P.copy()
 
     @property
     def state(self) -> np.ndarray:
         """The 20-element state [q, V, S, ω_b, a_zb, M (gauss), m_b (gauss)] (a copy)."""
-        return self._x.copy()
+        return self._state.x.copy()
 
     @property
     def resets(self) -> int:
         """Watchdog resets since ``initialize``."""
-        return int(self._aux[A_RESETS])
+        return int(self._state.aux[A_RESETS])

@@ -59,13 +59,14 @@ Choices the baseline leaves open, made here:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from ..params import param
 from ..quaternion import wrap_pi_s
-from .base import MAX_STEP_S, Estimator
+from .base import MAX_STEP_S, Estimator, filter_state
 
 
 @dataclass
@@ -403,12 +404,25 @@ def normalize_project(x, P):
     P[3, 3] = (p33 - v3 * q3 - q3 * v3 + s * q3 * q3) * inv
 
 
+class EkfSettings(NamedTuple):
+    """The parameters as the kernel takes them (see ``EkfParams``)."""
+    q_gyro: float
+    r_accel: float
+    r_mag: float
+    declination: float  # rad
+    use_mag: bool
+    max_step: float  # s
+
+
 @njit(cache=True)
-def ekf_run(t, gyro, accel, mag, x, P, t_prev, gyro_prev, bias, q_gyro, r_accel, r_mag,
-            declination, use_mag, max_step, out, cov_trace):
-    """Run the filter over a chunk. ``x`` (4,), ``P`` (4, 4), ``t_prev`` (1,) and ``gyro_prev``
-    (3,) are the state, updated in place; ``bias`` is the still-period gyro bias. Writes the
-    attitude after each sample to ``out`` and trace(P) to ``cov_trace``."""
+def ekf_run(s, state, cfg, out, cov_trace):
+    """Run the filter over a chunk of samples ``s`` (``base.Samples``); ``state``
+    (``base.FilterState``, the quaternion as ``q``) is updated in place. Writes the attitude
+    after each sample to ``out`` and trace(P) to ``cov_trace``."""
+    t, gyro, accel, mag = s.t, s.gyro, s.accel, s.mag
+    x, P, t_prev, gyro_prev, bias = state.q, state.P, state.t_prev, state.gyro_prev, state.bias
+    q_gyro, r_accel, r_mag, declination, use_mag, max_step = (cfg.q_gyro, cfg.r_accel, cfg.r_mag,
+                                                              cfg.declination, cfg.use_mag, cfg.max_step)
     for i in range(len(t)):
         dt = t[i] - t_prev[0] if t_prev[0] == t_prev[0] else 0.0  # NaN before the first sample
         t_prev[0] = t[i]
@@ -443,26 +457,19 @@ class Ekf(Estimator):
     DIAGNOSTICS = {"cov_trace": "trace of the 4×4 quaternion covariance P (dimensionless)"}
 
     def initialize(self, q0, gyro_bias) -> None:
-        q0 = np.array(q0, dtype=np.float64)
-        self._x = q0 / np.linalg.norm(q0)
-        self._P = np.eye(4)  # paper 000: P₀ = I₄
-        self._bias = np.array(gyro_bias, dtype=np.float64).reshape(3)
-        self._t_prev = np.array([np.nan])
-        self._gyro_prev = np.zeros(3)
+        self._state = filter_state(q0, np.eye(4), gyro_bias)  # paper 000: P₀ = I₄
+        p = self.params
+        self._settings = EkfSettings(float(p.q_gyro), float(p.r_accel), float(p.r_mag), self.declination,
+                                     bool(p.use_mag), MAX_STEP_S)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
-        n = len(t)
-        out = np.empty((n, 4))
-        cov_trace = np.empty(n)
-        p = self.params
-        ekf_run(t, gyro, accel, mag, self._x, self._P, self._t_prev, self._gyro_prev, self._bias,
-                float(p.q_gyro), float(p.r_accel), float(p.r_mag), self.declination,
-                bool(p.use_mag), MAX_STEP_S, out, cov_trace)
+        s = self._chunk(t, gyro, accel, mag)
+        out, cov_trace = np.empty((len(s.t), 4)), np.empty(len(s.t))
+        ekf_run(s, self._state, self._settings, out, cov_trace)
         self.diagnostics = {"cov_trace": cov_trace}
         return out
 
     @property
     def covariance(self) -> np.ndarray:
-        return self._P.copy()
+        return self._state.P.copy()

@@ -116,6 +116,7 @@ compensation removes most of that).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -160,10 +161,6 @@ class EqKfParams:
 ACCEL_STATES = ("used", "down-weighted", "skipped")
 G_LEARN_S = 5.0  # s, time constant of learning the accelerometer's reading of g while still
 
-# Indices into the float parameter vector the kernel takes.
-(_P_GYRO, _P_BIASW, _P_INT, _P_ACC, _P_MAG, _P_NLO, _P_NHI, _P_RLO, _P_RHI, _P_GN, _P_GLO, _P_GHI,
- _P_RISE, _P_LPF, _P_VIB, _P_SRATE, _P_SACC, _P_STIME, _P_CONS, _P_CNORM, _P_CTIME, _P_DECL,
- _P_AIRSPEED, _N_PRM) = range(24)
 # Indices into the kernel's auxiliary state vector.
 _A_LP = 0  # 0-2: low-passed accelerometer f̃, body frame (NaN before the first sample)
 _A_DIR = 3  # 3-5: previous accelerometer direction, for the direction-noise estimate
@@ -348,14 +345,63 @@ def _inject(q, bias, x, qtmp):
         bias[k] += x[3 + k]
 
 
+class EqKfState(NamedTuple):
+    """What the filter carries between chunks (arrays, updated in place)."""
+    q: np.ndarray  # (4,) Q̄, the attitude
+    bias: np.ndarray  # (3,) b̂, the gyro-bias estimate, rad/s
+    p: np.ndarray  # (6, 6) P of [e, β]
+    t_prev: np.ndarray  # (1,)
+    gyro_prev: np.ndarray  # (3,)
+    aux: np.ndarray  # (_N_AUX,) scalar memory, see the _A_* indices
+
+
+class EqKfSettings(NamedTuple):
+    """The parameters as the kernel takes them (see ``EqKfParams``). Noise levels and the rise
+    time are floored at a tiny positive value, so no setting can divide by zero in the kernel."""
+    gyro_noise: float
+    bias_walk: float
+    int_noise: float
+    accel_noise: float
+    mag_noise: float
+    norm_lo: float
+    norm_hi: float
+    rate_lo: float
+    rate_hi: float
+    gate_noise: float
+    gate_lo: float
+    gate_hi: float
+    trust_rise: float
+    trust_lpf: float
+    vib_time: float
+    still_rate: float
+    still_accel: float
+    still_time: float
+    cons_tol: float
+    cons_norm: float
+    cons_time: float
+    declination: float
+    airspeed: float
+    use_mag: bool
+    max_step: float
+
+
+class EqKfDiagnostics(NamedTuple):
+    """Per-sample outputs besides the attitude (keys of ``EqKf.DIAGNOSTICS``)."""
+    cov_trace: np.ndarray
+    accel_weight: np.ndarray
+    accel_state: np.ndarray  # int8
+
+
 @njit(cache=True)
-def eqkf_run(t, gyro, accel, mag, in_air, q, bias, p, t_prev, gyro_prev, aux, prm, use_mag,
-             max_step, out_q, out_trace, out_w, out_state):
-    """Run the filter over a chunk. State, updated in place: ``q`` (Q̄), ``bias`` (b̂), ``p``
-    (6×6 P), ``t_prev`` (1,), ``gyro_prev`` (3,), ``aux`` (see the _A_* indices). ``prm``: the
-    float parameters (see ``EqKf._prm``). ``in_air`` (1 air, 0 ground, NaN unknown) gates the
-    turn compensation only. Writes the attitude, trace(P), the trust w and the accel state
-    code of each sample to the ``out_*`` arrays."""
+def eqkf_run(s, state, cfg, out_q, diag):
+    """Run the filter over a chunk of samples ``s`` (``base.Samples``; ``in_air`` gates the
+    turn compensation only); ``state`` (``EqKfState``) is updated in place. Writes the
+    attitude to ``out_q`` and trace(P), the trust w and the accel state code of each sample to
+    ``diag``."""
+    t, gyro, accel, mag, in_air = s.t, s.gyro, s.accel, s.mag, s.in_air
+    q, bias, p, t_prev, gyro_prev, aux = state.q, state.bias, state.p, state.t_prev, state.gyro_prev, state.aux
+    use_mag, max_step = cfg.use_mag, cfg.max_step
+    out_trace, out_w, out_state = diag.cov_trace, diag.accel_weight, diag.accel_state
     # scratch, once per chunk
     a = np.empty((3, 3))
     b = np.empty((3, 3))
@@ -369,22 +415,22 @@ def eqkf_run(t, gyro, accel, mag, in_air, q, bias, p, t_prev, gyro_prev, aux, pr
     hm3 = np.empty(3)
     v6 = np.empty(6)
     x = np.empty(6)
-    qe_var = 0.25 * prm[_P_GYRO] * prm[_P_GYRO]
-    qb_var = prm[_P_BIASW] * prm[_P_BIASW]
-    acc_var = prm[_P_ACC] * prm[_P_ACC]
-    mag_var = prm[_P_MAG] * prm[_P_MAG]
-    gate_var = prm[_P_GN] * prm[_P_GN]
-    kint2 = prm[_P_INT] * prm[_P_INT]
-    norm_lo, norm_hi, rate_lo, rate_hi = prm[_P_NLO], prm[_P_NHI], prm[_P_RLO], prm[_P_RHI]
-    gate_lo, gate_hi = prm[_P_GLO], prm[_P_GHI]
-    tau, vib_tau, rise = prm[_P_LPF], prm[_P_VIB], prm[_P_RISE]
-    still_rate2 = prm[_P_SRATE] * prm[_P_SRATE]
-    still_acc2 = prm[_P_SACC] * prm[_P_SACC]
-    still_time = prm[_P_STIME]
-    cons_tol, cons_norm, cons_time = prm[_P_CONS], prm[_P_CNORM], prm[_P_CTIME]
+    qe_var = 0.25 * cfg.gyro_noise * cfg.gyro_noise
+    qb_var = cfg.bias_walk * cfg.bias_walk
+    acc_var = cfg.accel_noise * cfg.accel_noise
+    mag_var = cfg.mag_noise * cfg.mag_noise
+    gate_var = cfg.gate_noise * cfg.gate_noise
+    kint2 = cfg.int_noise * cfg.int_noise
+    norm_lo, norm_hi, rate_lo, rate_hi = cfg.norm_lo, cfg.norm_hi, cfg.rate_lo, cfg.rate_hi
+    gate_lo, gate_hi = cfg.gate_lo, cfg.gate_hi
+    tau, vib_tau, rise = cfg.trust_lpf, cfg.vib_time, cfg.trust_rise
+    still_rate2 = cfg.still_rate * cfg.still_rate
+    still_acc2 = cfg.still_accel * cfg.still_accel
+    still_time = cfg.still_time
+    cons_tol, cons_norm, cons_time = cfg.cons_tol, cfg.cons_norm, cfg.cons_time
     cos_tol, sin_tol = np.cos(cons_tol), np.sin(cons_tol)
-    cdec, sdec = np.cos(prm[_P_DECL]), np.sin(prm[_P_DECL])
-    airspeed = prm[_P_AIRSPEED]
+    cdec, sdec = np.cos(cfg.declination), np.sin(cfg.declination)
+    airspeed = cfg.airspeed
     # the auxiliary state, in locals for the loop
     lp0, lp1, lp2 = aux[_A_LP], aux[_A_LP + 1], aux[_A_LP + 2]
     dir0, dir1, dir2 = aux[_A_DIR], aux[_A_DIR + 1], aux[_A_DIR + 2]
@@ -613,58 +659,41 @@ class EqKf(Estimator):
 
     def initialize(self, q0, gyro_bias) -> None:
         q0 = np.array(q0, dtype=np.float64).reshape(4)
-        self._q = q0 / np.linalg.norm(q0)
-        self._bias = np.array(gyro_bias, dtype=np.float64).reshape(3)
         p = self.params
-        self._p = np.diag([0.25 * p.init_att_sigma ** 2] * 3 + [p.init_bias_sigma ** 2] * 3)
-        self._t_prev = np.array([np.nan])
-        self._gyro_prev = np.zeros(3)
         aux = np.full(_N_AUX, np.nan)
         aux[_A_VIB] = 0.0
         aux[_A_STILL] = 0.0
         aux[_A_W] = 1.0
         aux[_A_G] = GRAVITY
         aux[_A_CONS] = 0.0
-        self._aux = aux
+        self._state = EqKfState(q0 / np.linalg.norm(q0), np.array(gyro_bias, dtype=np.float64).reshape(3),
+                                np.diag([0.25 * p.init_att_sigma ** 2] * 3 + [p.init_bias_sigma ** 2] * 3),
+                                np.array([np.nan]), np.zeros(3), aux)
+        tiny = 1e-12
+        self._settings = EqKfSettings(
+            float(p.gyro_noise), float(p.bias_walk), float(p.int_noise), max(p.accel_noise, tiny),
+            max(p.mag_noise, tiny), float(p.norm_lo), float(p.norm_hi), float(p.rate_lo), float(p.rate_hi),
+            max(p.gate_noise, tiny), float(p.gate_lo), float(p.gate_hi), max(p.trust_rise, tiny),
+            max(p.trust_lpf, 0.0), max(p.vib_time, 0.0), float(p.still_rate), float(p.still_accel),
+            float(p.still_time), float(p.cons_tol), float(p.cons_norm), float(p.cons_time), self.declination,
+            max(p.airspeed, 0.0), bool(p.use_mag), MAX_STEP_S)
         self.initialized = True
 
-    def _prm(self) -> np.ndarray:
-        """The parameters as the kernel's float vector. Noise levels and the rise time are
-        floored at a tiny positive value, so no setting can divide by zero in the kernel."""
-        p = self.params
-        tiny = 1e-12
-        prm = np.empty(_N_PRM)
-        prm[_P_GYRO], prm[_P_BIASW], prm[_P_INT] = p.gyro_noise, p.bias_walk, p.int_noise
-        prm[_P_ACC], prm[_P_MAG] = max(p.accel_noise, tiny), max(p.mag_noise, tiny)
-        prm[_P_NLO], prm[_P_NHI], prm[_P_RLO], prm[_P_RHI] = p.norm_lo, p.norm_hi, p.rate_lo, p.rate_hi
-        prm[_P_GN], prm[_P_GLO], prm[_P_GHI] = max(p.gate_noise, tiny), p.gate_lo, p.gate_hi
-        prm[_P_RISE] = max(p.trust_rise, tiny)
-        prm[_P_LPF], prm[_P_VIB] = max(p.trust_lpf, 0.0), max(p.vib_time, 0.0)
-        prm[_P_SRATE], prm[_P_SACC], prm[_P_STIME] = p.still_rate, p.still_accel, p.still_time
-        prm[_P_CONS], prm[_P_CNORM], prm[_P_CTIME] = p.cons_tol, p.cons_norm, p.cons_time
-        prm[_P_DECL] = self.declination
-        prm[_P_AIRSPEED] = max(p.airspeed, 0.0)
-        return prm
-
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        t, gyro, accel, mag, in_air = self._chunk(t, gyro, accel, mag, in_air)
-        n = len(t)
+        s = self._chunk(t, gyro, accel, mag, in_air)
+        n = len(s.t)
         out = np.empty((n, 4))
-        trace = np.empty(n)
-        weight = np.empty(n)
-        state = np.empty(n, dtype=np.int8)
-        eqkf_run(t, gyro, accel, mag, in_air, self._q, self._bias, self._p, self._t_prev, self._gyro_prev,
-                 self._aux, self._prm(), bool(self.params.use_mag), MAX_STEP_S,
-                 out, trace, weight, state)
-        self.diagnostics = {"cov_trace": trace, "accel_weight": weight, "accel_state": state}
+        diag = EqKfDiagnostics(np.empty(n), np.empty(n), np.empty(n, dtype=np.int8))
+        eqkf_run(s, self._state, self._settings, out, diag)
+        self.diagnostics = diag._asdict()
         return out
 
     @property
     def covariance(self) -> np.ndarray:
         """P of [e (3), β (3)], a copy."""
-        return self._p.copy()
+        return self._state.p.copy()
 
     @property
     def gyro_bias(self) -> np.ndarray:
         """The filter's current gyro-bias estimate b̂, rad/s."""
-        return self._bias.copy()
+        return self._state.bias.copy()

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -58,7 +59,7 @@ from ..quaternion import (
     normalize_into,
     qmul_s,
 )
-from .base import MAX_STEP_S, Estimator
+from .base import MAX_STEP_S, Estimator, filter_state
 
 
 @dataclass
@@ -173,12 +174,22 @@ def eskf_error_transition(omega, dt):
 # ---------------------------------------------------------------- the filter
 
 
+class EskfSettings(NamedTuple):
+    """The parameters as the kernel takes them (see ``EskfParams``)."""
+    arw2: float  # gyro noise density², (rad/s)²/Hz
+    acc2: float  # accelerometer noise density², (m/s²)²/Hz
+    gravity: float  # m/s²
+    max_step: float  # s
+
+
 @njit(cache=True)
-def eskf_run(t, gyro, accel, q, P, t_prev, gyro_prev, bias, arw2, acc2, gravity, max_step,
-             out, cov_trace):
-    """Run the body-frame ESKF over a chunk. ``q`` (4), ``P`` (3x3), ``t_prev`` (1) and
-    ``gyro_prev`` (3) are the state, updated in place; ``bias`` is subtracted from the gyro.
+def eskf_run(s, state, cfg, out, cov_trace):
+    """Run the body-frame ESKF over a chunk of samples ``s`` (``base.Samples``); ``state``
+    (``base.FilterState``) is updated in place; its ``bias`` is subtracted from the gyro.
     Writes the attitude after each sample to ``out`` and trace(P) to ``cov_trace``."""
+    t, gyro, accel = s.t, s.gyro, s.accel
+    q, P, t_prev, gyro_prev, bias = state.q, state.P, state.t_prev, state.gyro_prev, state.bias
+    arw2, acc2, gravity, max_step = cfg.arw2, cfg.acc2, cfg.gravity, cfg.max_step
     F = np.empty((3, 3))
     H = np.empty((3, 3))
     PHt = np.empty((3, 3))
@@ -239,25 +250,18 @@ class Eskf(Estimator):
     DIAGNOSTICS = {"cov_trace": "trace of the attitude-error covariance P, rad²"}
 
     def initialize(self, q0, gyro_bias) -> None:
-        q0 = np.array(q0, dtype=np.float64)
-        self._q = q0 / np.linalg.norm(q0)
-        self._P = np.eye(3) * np.radians(self.params.p0_deg) ** 2
-        self._bias = np.array(gyro_bias, dtype=np.float64)
-        self._t_prev = np.array([np.nan])
-        self._gyro_prev = np.zeros(3)
+        p = self.params
+        self._state = filter_state(q0, np.eye(3) * np.radians(p.p0_deg) ** 2, gyro_bias)
+        self._settings = EskfSettings(p.gyro_arw ** 2, p.accel_noise ** 2, GRAVITY, MAX_STEP_S)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        t, gyro, accel, _, _ = self._chunk(t, gyro, accel, None)
-        n = len(t)
-        out = np.empty((n, 4))
-        cov_trace = np.empty(n)
-        p = self.params
-        eskf_run(t, gyro, accel, self._q, self._P, self._t_prev, self._gyro_prev, self._bias,
-                 p.gyro_arw ** 2, p.accel_noise ** 2, GRAVITY, MAX_STEP_S, out, cov_trace)
+        s = self._chunk(t, gyro, accel, None)
+        out, cov_trace = np.empty((len(s.t), 4)), np.empty(len(s.t))
+        eskf_run(s, self._state, self._settings, out, cov_trace)
         self.diagnostics = {"cov_trace": cov_trace}
         return out
 
     @property
     def covariance(self) -> np.ndarray:
-        return self._P.copy()
+        return self._state.P.copy()

@@ -30,7 +30,9 @@ Choices the paper leaves open, made here:
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -89,20 +91,37 @@ def mahony_step(q0, q1, q2, q3, bc0, bc1, bc2, r0, r1, r2, a0, a1, a2, m0, m1, m
     return q0, q1, q2, q3, bc0, bc1, bc2
 
 
+class MahonyState(NamedTuple):
+    """What the filter carries from one chunk to the next (arrays, updated in place)."""
+    q: np.ndarray  # (4,) attitude, body -> NED
+    bias_correction: np.ndarray  # (3,) the integral term: minus the gyro bias, rad/s
+    t_prev: np.ndarray  # (1,) time of the last sample, NaN before the first
+    gyro_prev: np.ndarray  # (3,) the last gyro sample, rad/s
+
+
+class MahonySettings(NamedTuple):
+    """The parameters as the kernel takes them."""
+    kp: float
+    ki: float
+    north_x: float  # cos(declination): magnetic north in the NED frame
+    north_y: float  # sin(declination)
+    use_mag: bool
+    max_step: float  # s: a longer step is a gap, not integrated
+
+
 @njit(cache=True)
-def mahony_run(t, gyro, accel, mag, q, bias_correction, t_prev, gyro_prev, kp, ki, declination,
-               use_mag, max_step, out):
-    """Run the filter over a chunk; ``q``, ``bias_correction``, ``t_prev`` (1-element array)
-    and ``gyro_prev`` are the state, updated in place. Writes the attitude after each sample
-    to ``out``.
+def mahony_run(s, state, cfg, out):
+    """Run the filter over a chunk of samples ``s`` (``base.Samples``); ``state``
+    (``MahonyState``) is updated in place. Writes the attitude after each sample to ``out``.
 
     The loop allocates nothing: the state lives in scalars while it runs (C(q) is formed
     element by element, only the entries used) and goes back to the arrays at the end."""
-    north_x, north_y = np.cos(declination), np.sin(declination)
+    t, gyro, accel, mag = s.t, s.gyro, s.accel, s.mag
+    q, bias_correction = state.q, state.bias_correction
     q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
     bc0, bc1, bc2 = bias_correction[0], bias_correction[1], bias_correction[2]
-    gp0, gp1, gp2 = gyro_prev[0], gyro_prev[1], gyro_prev[2]
-    tp = t_prev[0]
+    gp0, gp1, gp2 = state.gyro_prev[0], state.gyro_prev[1], state.gyro_prev[2]
+    tp = state.t_prev[0]
     for i in range(len(t)):
         dt = t[i] - tp if tp == tp else 0.0  # NaN before the first sample
         tp = t[i]
@@ -114,13 +133,13 @@ def mahony_run(t, gyro, accel, mag, q, bias_correction, t_prev, gyro_prev, kp, k
         gp0, gp1, gp2 = g0, g1, g2
         q0, q1, q2, q3, bc0, bc1, bc2 = mahony_step(
             q0, q1, q2, q3, bc0, bc1, bc2, r0, r1, r2, accel[i, 0], accel[i, 1], accel[i, 2],
-            mag[i, 0], mag[i, 1], mag[i, 2], use_mag, north_x, north_y, kp, ki, dt,
-            0.0 < dt <= max_step)
+            mag[i, 0], mag[i, 1], mag[i, 2], cfg.use_mag, cfg.north_x, cfg.north_y, cfg.kp, cfg.ki, dt,
+            0.0 < dt <= cfg.max_step)
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q0, q1, q2, q3
     q[0], q[1], q[2], q[3] = q0, q1, q2, q3
     bias_correction[0], bias_correction[1], bias_correction[2] = bc0, bc1, bc2
-    gyro_prev[0], gyro_prev[1], gyro_prev[2] = gp0, gp1, gp2
-    t_prev[0] = tp
+    state.gyro_prev[0], state.gyro_prev[1], state.gyro_prev[2] = gp0, gp1, gp2
+    state.t_prev[0] = tp
     return out
 
 
@@ -132,20 +151,18 @@ class Mahony(Estimator):
     kernels = (mahony_run,)
 
     def initialize(self, q0, gyro_bias) -> None:
-        self._q = np.array(q0, dtype=np.float64)
-        self._bias_correction = -np.array(gyro_bias, dtype=np.float64)
-        self._t_prev = np.array([np.nan])
-        self._gyro_prev = np.zeros(3)
+        p = self.params
+        self._state = MahonyState(np.array(q0, dtype=np.float64), -np.array(gyro_bias, dtype=np.float64),
+                                  np.array([np.nan]), np.zeros(3))
+        self._settings = MahonySettings(float(p.kp), float(p.ki), math.cos(self.declination),
+                                        math.sin(self.declination), bool(p.use_mag), MAX_STEP_S)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
-        out = np.empty((len(t), 4))
-        p = self.params
-        return mahony_run(t, gyro, accel, mag, self._q, self._bias_correction, self._t_prev,
-                          self._gyro_prev, p.kp, p.ki, self.declination, p.use_mag, MAX_STEP_S, out)
+        s = self._chunk(t, gyro, accel, mag)
+        return mahony_run(s, self._state, self._settings, np.empty((len(s.t), 4)))
 
     @property
     def gyro_bias(self) -> np.ndarray:
         """The filter's current gyro bias estimate, rad/s."""
-        return -self._bias_correction.copy()
+        return -self._state.bias_correction.copy()

@@ -56,6 +56,7 @@ shared logs; the numbers are in the issue-3 report):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -175,17 +176,58 @@ def quaternion_update(x, P, z0, z1, z2, z3, r):
                 + r * (k03 * k03 + k13 * k13 + k23 * k23 + k33 * k33))
 
 
+class MahonyEkfState(NamedTuple):
+    """What the filter carries between chunks (arrays, updated in place)."""
+    x: np.ndarray  # (4,) the EKF's quaternion
+    P: np.ndarray  # (4, 4) its covariance
+    qm: np.ndarray  # (4,) the internal Mahony's attitude
+    bias_correction: np.ndarray  # (3,) the internal Mahony's integral term, rad/s
+    t_prev: np.ndarray  # (1,) the last sample's time, NaN before the first
+    gyro_prev: np.ndarray  # (3,) the last gyro sample
+    accel_filt: np.ndarray  # (4,) [ā, ā_ref, samples seen, mean step] of the Mahony weight (NaN at first)
+    bias: np.ndarray  # (3,) the still-period gyro bias (constant), rad/s
+
+
+class MahonyEkfSettings(NamedTuple):
+    """The parameters as the kernel takes them (see ``MahonyEkfParams``)."""
+    kp: float
+    ki: float
+    use_mag: bool
+    q_gyro: float
+    r0: float
+    k_accel: float
+    k_mahony: float
+    accel_lp_s: float
+    accel_ref_s: float
+    weight_min_rate: float
+    gravity: float
+    cos_dec: float
+    sin_dec: float
+    max_step: float
+
+
+class MahonyEkfDiagnostics(NamedTuple):
+    """Per-sample outputs besides the attitude (keys of ``MahonyEkf.DIAGNOSTICS``)."""
+    cov_trace: np.ndarray
+    adaptive_r: np.ndarray
+    mahony_weight: np.ndarray
+
+
 @njit(cache=True)
-def mahony_ekf_run(t, gyro, accel, mag, x, P, qm, bias_correction, t_prev, gyro_prev, accel_filt,
-                   bias, kp, ki, use_mag, q_gyro, r0, k_accel, k_mahony, accel_lp_s, accel_ref_s,
-                   weight_min_rate, gravity, cos_dec, sin_dec, max_step,
-                   out, keep_mahony, mahony_out, cov_trace, adaptive_r, mahony_weight):
-    """Run the filter over a chunk. State, updated in place: ``x`` (4,), ``P`` (4, 4), the
-    internal Mahony's ``qm`` (4,) and ``bias_correction`` (3,), ``t_prev`` (1,),
-    ``gyro_prev`` (3,), ``accel_filt`` (4,): [ā, ā_ref, samples seen, mean step] of the
-    Mahony weight (NaN before the first sample). ``bias`` is the still-period gyro bias.
-    Writes per sample: the attitude to ``out``, the Mahony quaternion to ``mahony_out`` when
-    ``keep_mahony``, trace(P), R's diagonal and the Mahony weight."""
+def mahony_ekf_run(s, state, cfg, out, diag, mahony_out):
+    """Run the filter over a chunk of samples ``s`` (``base.Samples``); ``state``
+    (``MahonyEkfState``) is updated in place. Writes per sample: the attitude to ``out``, the
+    internal Mahony quaternion to ``mahony_out`` (when it has a row per sample), and ``diag``:
+    trace(P), R's diagonal and the Mahony weight."""
+    t, gyro, accel, mag = s.t, s.gyro, s.accel, s.mag
+    x, P, qm, bias_correction = state.x, state.P, state.qm, state.bias_correction
+    t_prev, gyro_prev, accel_filt, bias = state.t_prev, state.gyro_prev, state.accel_filt, state.bias
+    kp, ki, use_mag, q_gyro, r0 = cfg.kp, cfg.ki, cfg.use_mag, cfg.q_gyro, cfg.r0
+    k_accel, k_mahony, accel_lp_s, accel_ref_s = cfg.k_accel, cfg.k_mahony, cfg.accel_lp_s, cfg.accel_ref_s
+    weight_min_rate, gravity, cos_dec, sin_dec, max_step = (cfg.weight_min_rate, cfg.gravity, cfg.cos_dec,
+                                                            cfg.sin_dec, cfg.max_step)
+    keep_mahony = mahony_out.shape[0] == len(t)
+    cov_trace, adaptive_r, mahony_weight = diag.cov_trace, diag.adaptive_r, diag.mahony_weight
     tp = t_prev[0]
     gp0, gp1, gp2 = gyro_prev[0], gyro_prev[1], gyro_prev[2]
     lp, ref, count, mean_dt = accel_filt[0], accel_filt[1], accel_filt[2], accel_filt[3]
@@ -258,36 +300,29 @@ class MahonyEkf(Estimator):
 
     def initialize(self, q0, gyro_bias) -> None:
         q0 = np.array(q0, dtype=np.float64)
-        self._x = q0 / np.linalg.norm(q0)
-        self._P = np.eye(4)  # paper 000: P₀ = I₄
-        self._qm = self._x.copy()
-        self._bias = np.array(gyro_bias, dtype=np.float64).reshape(3)
-        self._bias_correction = -self._bias.copy()  # as mahony: the integral starts at -bias
-        self._t_prev = np.array([np.nan])
-        self._gyro_prev = np.zeros(3)
-        self._accel_filt = np.full(4, np.nan)
+        x = q0 / np.linalg.norm(q0)
+        bias = np.array(gyro_bias, dtype=np.float64).reshape(3)
+        # paper 000: P₀ = I₄; the internal Mahony's integral starts at -bias, as mahony's
+        self._state = MahonyEkfState(x, np.eye(4), x.copy(), -bias.copy(), np.array([np.nan]), np.zeros(3),
+                                     np.full(4, np.nan), bias)
+        p = self.params
+        self._settings = MahonyEkfSettings(
+            float(p.kp), float(p.ki), bool(p.use_mag), float(p.q_gyro), float(p.r0), float(p.k_accel),
+            float(p.k_mahony), float(p.accel_lp_s), float(p.accel_ref_s), float(p.weight_min_rate), GRAVITY,
+            float(np.cos(self.declination)), float(np.sin(self.declination)), MAX_STEP_S)
         self.mahony_q = np.empty((0, 4))  # the internal Mahony attitude over the last chunk
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        t, gyro, accel, mag, _ = self._chunk(t, gyro, accel, mag)
-        n = len(t)
+        s = self._chunk(t, gyro, accel, mag)
+        n = len(s.t)
         out = np.empty((n, 4))
         self.mahony_q = np.empty((n if self.keep_mahony else 0, 4))
-        cov_trace = np.empty(n)
-        adaptive_r = np.empty(n)
-        weight = np.empty(n)
-        p = self.params
-        mahony_ekf_run(t, gyro, accel, mag, self._x, self._P, self._qm, self._bias_correction,
-                       self._t_prev, self._gyro_prev, self._accel_filt, self._bias, float(p.kp),
-                       float(p.ki), bool(p.use_mag), float(p.q_gyro), float(p.r0), float(p.k_accel),
-                       float(p.k_mahony), float(p.accel_lp_s), float(p.accel_ref_s),
-                       float(p.weight_min_rate), GRAVITY, np.cos(self.declination),
-                       np.sin(self.declination), MAX_STEP_S, out, self.keep_mahony, self.mahony_q,
-                       cov_trace, adaptive_r, weight)
-        self.diagnostics = {"cov_trace": cov_trace, "adaptive_r": adaptive_r, "mahony_weight": weight}
+        diag = MahonyEkfDiagnostics(np.empty(n), np.empty(n), np.empty(n))
+        mahony_ekf_run(s, self._state, self._settings, out, diag, self.mahony_q)
+        self.diagnostics = diag._asdict()
         return out
 
     @property
     def covariance(self) -> np.ndarray:
-        return self._P.copy()
+        return self._state.P.copy()

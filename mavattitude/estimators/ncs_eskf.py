@@ -106,6 +106,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -213,21 +214,62 @@ def ncs_error_propagate(q, dtheta, omega, dt):
 # ---------------------------------------------------------------- the filter
 
 
-@njit(cache=True)
-def ncs_eskf_run(t, gyro, accel, in_air, q, P, bias_est, t_prev, gyro_prev, accel_lp, bias,
-                 arw2, acc2, walk2, step_noise, gravity, total_threshold, h_threshold_air,
-                 h_threshold_ground, segmented, lpf_hz, gate_sigma, taper, max_step,
-                 cons, cons_tol, cons_norm, cons_rate, cons_time,
-                 out, cov_trace, accel_state, h_residual, h_gate):
-    """Run NCS-ESKF over a chunk.
+class NcsEskfState(NamedTuple):
+    """What the filter carries between chunks (arrays, updated in place)."""
+    q: np.ndarray  # (4,) attitude
+    P: np.ndarray  # (6, 6): navigation-frame error δθ, then the body-frame gyro-bias error
+    bias_est: np.ndarray  # (3,) rad/s: the bias learned beyond the alignment's ``bias``
+    t_prev: np.ndarray  # (1,)
+    gyro_prev: np.ndarray  # (3,)
+    accel_lp: np.ndarray  # (3,) the low-passed accelerometer, NaN before the first sample
+    bias: np.ndarray  # (3,) the alignment's gyro bias, rad/s
+    cons: np.ndarray  # (N_CONS,) the consistency test's memory (C_*)
 
-    State, updated in place: ``q`` (4), ``P`` (6x6: navigation-frame error δθ, then the
-    body-frame gyro-bias error), ``bias_est`` (3, rad/s: the bias learned beyond the
-    alignment's ``bias``), ``t_prev`` (1), ``gyro_prev`` (3), ``accel_lp`` (3, NaN before the
-    first sample), ``cons`` (5: see C_*). Thresholds in g. Writes the attitude after each
-    sample to ``out`` and the diagnostics to ``cov_trace``, ``accel_state``, ``h_residual`` (g)
-    and ``h_gate`` (g).
-    """
+
+class NcsEskfSettings(NamedTuple):
+    """The parameters as the kernel takes them (see ``NcsEskfParams``); thresholds in g."""
+    arw2: float
+    acc2: float
+    walk2: float  # bias random walk² (0: no bias learning)
+    step_noise: float
+    gravity: float
+    total_threshold: float
+    h_threshold_air: float
+    h_threshold_ground: float
+    segmented: bool
+    lpf_hz: float
+    gate_sigma: float
+    taper: float
+    max_step: float
+    cons_tol: float
+    cons_norm: float
+    cons_rate: float
+    cons_time: float
+
+
+class NcsEskfDiagnostics(NamedTuple):
+    """Per-sample outputs besides the attitude (keys of ``NcsEskf.DIAGNOSTICS``)."""
+    cov_trace: np.ndarray
+    accel_state: np.ndarray  # int8 codes into ACCEL_STATES
+    h_residual: np.ndarray  # g
+    h_gate: np.ndarray  # g
+
+
+@njit(cache=True)
+def ncs_eskf_run(s, state, cfg, out, diag):
+    """Run NCS-ESKF over a chunk of samples ``s`` (``base.Samples``, the phase in
+    ``in_air``); ``state`` (``NcsEskfState``) is updated in place. Writes the attitude after
+    each sample to ``out`` and the diagnostics to ``diag``."""
+    t, gyro, accel, in_air = s.t, s.gyro, s.accel, s.in_air
+    q, P, bias_est, t_prev, gyro_prev = state.q, state.P, state.bias_est, state.t_prev, state.gyro_prev
+    accel_lp, bias, cons = state.accel_lp, state.bias, state.cons
+    arw2, acc2, walk2, step_noise, gravity = cfg.arw2, cfg.acc2, cfg.walk2, cfg.step_noise, cfg.gravity
+    total_threshold, h_threshold_air, h_threshold_ground = (cfg.total_threshold, cfg.h_threshold_air,
+                                                            cfg.h_threshold_ground)
+    segmented, lpf_hz, gate_sigma, taper, max_step = (cfg.segmented, cfg.lpf_hz, cfg.gate_sigma, cfg.taper,
+                                                      cfg.max_step)
+    cons_tol, cons_norm, cons_rate, cons_time = cfg.cons_tol, cfg.cons_norm, cfg.cons_rate, cfg.cons_time
+    cov_trace, accel_state, h_residual, h_gate = diag.cov_trace, diag.accel_state, diag.h_residual, diag.h_gate
     two_pi_fc = 2.0 * math.pi * lpf_hz
     cos_tol, sin_tol = math.cos(cons_tol), math.sin(cons_tol)
     for i in range(len(t)):
@@ -544,42 +586,35 @@ class NcsEskf(Estimator):
     def initialize(self, q0, gyro_bias) -> None:
         p = self.params
         q0 = np.array(q0, dtype=np.float64)
-        self._q = q0 / np.linalg.norm(q0)
-        self._P = np.zeros((6, 6))
-        self._P[:3, :3] = np.eye(3) * np.radians(p.p0_deg) ** 2
+        P = np.zeros((6, 6))
+        P[:3, :3] = np.eye(3) * np.radians(p.p0_deg) ** 2
         if p.estimate_bias:
-            self._P[3:, 3:] = np.eye(3) * np.radians(p.bias_p0_dps) ** 2
-        self._bias = np.array(gyro_bias, dtype=np.float64)
-        self._bias_est = np.zeros(3)
-        self._t_prev = np.array([np.nan])
-        self._gyro_prev = np.zeros(3)
-        self._accel_lp = np.full(3, np.nan)
-        self._cons = np.full(N_CONS, np.nan)
-        self._cons[C_T], self._cons[C_G], self._cons[C_STILL] = 0.0, GRAVITY, 0.0
+            P[3:, 3:] = np.eye(3) * np.radians(p.bias_p0_dps) ** 2
+        cons = np.full(N_CONS, np.nan)
+        cons[C_T], cons[C_G], cons[C_STILL] = 0.0, GRAVITY, 0.0
+        self._state = NcsEskfState(q0 / np.linalg.norm(q0), P, np.zeros(3), np.array([np.nan]), np.zeros(3),
+                                   np.full(3, np.nan), np.array(gyro_bias, dtype=np.float64), cons)
+        self._settings = NcsEskfSettings(
+            p.gyro_arw ** 2, p.accel_noise ** 2, p.bias_walk ** 2 if p.estimate_bias else 0.0, p.step_noise,
+            GRAVITY, p.total_threshold, p.h_threshold_air, p.h_threshold_ground, bool(p.segmented),
+            p.accel_lpf_hz, p.gate_sigma, p.taper, MAX_STEP_S, p.cons_tol, p.cons_norm, p.cons_rate,
+            p.cons_time)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        t, gyro, accel, _, in_air = self._chunk(t, gyro, accel, None, in_air)
-        n = len(t)
+        s = self._chunk(t, gyro, accel, None, in_air)
+        n = len(s.t)
         out = np.empty((n, 4))
-        diag = {"cov_trace": np.empty(n), "accel_state": np.empty(n, dtype=np.int8),
-                "h_residual": np.empty(n), "h_gate": np.empty(n)}
-        p = self.params
-        ncs_eskf_run(t, gyro, accel, in_air, self._q, self._P, self._bias_est, self._t_prev,
-                     self._gyro_prev, self._accel_lp, self._bias, p.gyro_arw ** 2,
-                     p.accel_noise ** 2, p.bias_walk ** 2 if p.estimate_bias else 0.0,
-                     p.step_noise, GRAVITY, p.total_threshold, p.h_threshold_air,
-                     p.h_threshold_ground, bool(p.segmented), p.accel_lpf_hz, p.gate_sigma, p.taper,
-                     MAX_STEP_S, self._cons, p.cons_tol, p.cons_norm, p.cons_rate, p.cons_time,
-                     out, diag["cov_trace"], diag["accel_state"], diag["h_residual"], diag["h_gate"])
-        self.diagnostics = diag
+        diag = NcsEskfDiagnostics(np.empty(n), np.empty(n, dtype=np.int8), np.empty(n), np.empty(n))
+        ncs_eskf_run(s, self._state, self._settings, out, diag)
+        self.diagnostics = diag._asdict()
         return out
 
     @property
     def gyro_bias(self) -> np.ndarray:
         """The gyro bias in use, rad/s: the alignment's plus the learned part."""
-        return self._bias + self._bias_est
+        return self._state.bias + self._state.bias_est
 
     @property
     def covariance(self) -> np.ndarray:
-        return self._P.copy()
+        return self._state.P.copy()
