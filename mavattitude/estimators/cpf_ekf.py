@@ -649,64 +649,372 @@ def init_covariance(P, x, cfg, heading, bias_var):
     P[IA, IA] = bias_var[3]
 
 
+class Work(NamedTuple):
+    """Scratch arrays of the measurement updates and the reset (allocated once per chunk)."""
+    vec: np.ndarray  # (3,) a body vector...
+    ned: np.ndarray  # (3,) ...turned to NED
+    col: np.ndarray  # (3,) a column of C(q)
+    unit: np.ndarray  # (3,) a unit vector
+    rq: np.ndarray  # (4, 4) R(q)
+    pht: np.ndarray  # (NX,) P Hᵀ of a scalar update, with H's nonzero entries idx, val
+    idx: np.ndarray
+    val: np.ndarray
+    h_q: np.ndarray  # (4,) ∂h/∂q of a scalar measurement
+    bias_var: np.ndarray  # (6,) P₀'s bias diagonal at a reset
+    body_field_var: np.ndarray  # (3,)
+
+
+@njit(cache=True)
+def _new_work():
+    return Work(np.empty(3), np.empty(3), np.empty(3), np.zeros(3), np.empty((4, 4)), np.empty(NX),
+                np.zeros(8, dtype=np.int64), np.zeros(8), np.empty(4), np.empty(6), np.empty(3))
+
+
+# ------------------------------------------------ prediction (eq 4-9)
+# F's blocks are formed in the kernel's loop itself: as a function of its own (30 scratch arrays
+# passed on every sample) the prediction ran at half the speed; these three are inlined.
+
+
+@njit(cache=True, inline="always")
+def _propagate_covariance(P, fp, fqq, fqb, fvq, fvb, fva, dt):
+    """P ← F P Fᵀ with F's sparsity: only its q, V and S rows differ from I (rows 0-9 of
+    F P into ``fp``, then against every column)."""
+    # F P, rows 0-9, over all columns, row by row (contiguous, vectorised over j)
+    for r in range(4):
+        f0, f1, f2, f3 = fqq[r, 0], fqq[r, 1], fqq[r, 2], fqq[r, 3]
+        fb0, fb1, fb2 = fqb[r, 0], fqb[r, 1], fqb[r, 2]
+        for j in range(NX):
+            fp[r, j] = (f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
+                        + fb0 * P[IB, j] + fb1 * P[IB + 1, j] + fb2 * P[IB + 2, j])
+    hdt = 0.5 * dt
+    for r in range(3):
+        f0, f1, f2, f3 = fvq[r, 0], fvq[r, 1], fvq[r, 2], fvq[r, 3]
+        fb0, fb1, fb2, fa = fvb[r, 0], fvb[r, 1], fvb[r, 2], fva[r]
+        for j in range(NX):
+            dvr = (f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
+                   + fb0 * P[IB, j] + fb1 * P[IB + 1, j] + fb2 * P[IB + 2, j] + fa * P[IA, j])
+            pv = P[IV + r, j]
+            fp[IV + r, j] = pv + dvr
+            fp[IS + r, j] = P[IS + r, j] + dt * pv + hdt * dvr
+    # P' = (F P) Fᵀ: rows 0-9 against every column; columns >= 10 are F P itself
+    for r in range(10):
+        for c in range(10, NX):
+            P[r, c] = fp[r, c]
+            P[c, r] = fp[r, c]
+    for r in range(10):
+        a0, a1, a2, a3 = fp[r, 0], fp[r, 1], fp[r, 2], fp[r, 3]
+        ab0, ab1, ab2, aa = fp[r, IB], fp[r, IB + 1], fp[r, IB + 2], fp[r, IA]
+        for c in range(4):
+            if c >= r:
+                v = (a0 * fqq[c, 0] + a1 * fqq[c, 1] + a2 * fqq[c, 2] + a3 * fqq[c, 3]
+                     + ab0 * fqb[c, 0] + ab1 * fqb[c, 1] + ab2 * fqb[c, 2])
+                P[r, c] = v
+                P[c, r] = v
+        for c in range(3):
+            dvc = (a0 * fvq[c, 0] + a1 * fvq[c, 1] + a2 * fvq[c, 2] + a3 * fvq[c, 3]
+                   + ab0 * fvb[c, 0] + ab1 * fvb[c, 1] + ab2 * fvb[c, 2] + aa * fva[c])
+            av = fp[r, IV + c]
+            if IV + c >= r:
+                v = av + dvc
+                P[r, IV + c] = v
+                P[IV + c, r] = v
+            if IS + c >= r:
+                v = fp[r, IS + c] + dt * av + 0.5 * dt * dvc
+                P[r, IS + c] = v
+                P[IS + c, r] = v
+
+
+@njit(cache=True, inline="always")
+def _step_state(x, q_new, acc_ned, dt, ring, aux, ti, delayed):
+    """Eq 5-7: the new attitude, and V, S from the NED acceleration (trapezoidal); with a GPS
+    delay, the increments go into the ring a delayed fix is compared through."""
+    for r in range(4):
+        x[r] = q_new[r]
+    normalize_head(x)
+    for r in range(3):
+        vnew = x[IV + r] + acc_ned[r] * dt
+        dsr = 0.5 * (x[IV + r] + vnew) * dt
+        if delayed:
+            h = int(aux[A_HEAD])
+            ring[h, 1 + r] = acc_ned[r] * dt
+            ring[h, 4 + r] = dsr
+        x[IS + r] += dsr
+        x[IV + r] = vnew
+    if delayed:
+        h = int(aux[A_HEAD])
+        ring[h, 0] = ti
+        aux[A_HEAD] = (h + 1) % RING
+        aux[A_FILL] = min(aux[A_FILL] + 1.0, RING)
+
+
+@njit(cache=True, inline="always")
+def _add_process_noise(x, P, dt, cfg):
+    """G Q Gᵀ (gyro noise on q, accelerometer noise on V) + Q_s (the random walks)."""
+    qg = 0.25 * cfg.gyro_noise ** 2 * dt
+    for r in range(4):
+        for c in range(r, 4):
+            v = -qg * x[r] * x[c]
+            if r == c:
+                v += qg
+            P[r, c] += v
+            if c != r:
+                P[c, r] += v
+    for r in range(3):
+        P[IV + r, IV + r] += cfg.accel_noise ** 2 * dt
+        P[IB + r, IB + r] += cfg.gyro_bias_walk ** 2 * dt
+        P[IM + r, IM + r] += cfg.earth_field_walk ** 2 * dt
+        P[IMB + r, IMB + r] += cfg.body_field_walk ** 2 * dt
+    P[IA, IA] += cfg.accel_bias_walk ** 2 * dt
+
+
+# ------------------------------------------------ measurement updates (eq 11-19)
+
+
+@njit(cache=True)
+def _start_earth_field(x, mg0, mg1, mg2, cfg, wk):
+    """M from a compass sample (gauss) through the current attitude, its horizontal part along
+    the declination (the heading's reference), with P_M = σ₀² I and no correlations."""
+    wk.vec[0], wk.vec[1], wk.vec[2] = mg0 - x[IMB], mg1 - x[IMB + 1], mg2 - x[IMB + 2]
+    rotate_into(x, wk.vec, wk.ned)
+    hmag = math.sqrt(wk.ned[0] * wk.ned[0] + wk.ned[1] * wk.ned[1])
+    wk.ned[0], wk.ned[1] = hmag * math.cos(cfg.declination), hmag * math.sin(cfg.declination)
+    for r in range(3):
+        x[IM + r] = wk.ned[r]
+
+
+@njit(cache=True)
+def _fuse_compass(x, P, aux, mg0, mg1, mg2, cfg, wk, drow):
+    """Eq 11-16: a fresh compass sample (gauss), one axis at a time, then the declination
+    pseudo-measurement. The first sample starts M instead."""
+    idx, val, pht, h_q = wk.idx, wk.val, wk.pht, wk.h_q
+    if aux[A_MAGINIT] < 0.5:
+        _start_earth_field(x, mg0, mg1, mg2, cfg, wk)
+        for r in range(3):
+            for c in range(NX):
+                P[IM + r, c] = 0.0
+                P[c, IM + r] = 0.0
+            P[IM + r, IM + r] = cfg.earth_field_sigma0 ** 2
+        # the compass is the heading's reference from now: its uncertainty is σ₀ again,
+        # whatever a heading hold before this first sample made of it
+        _reset_yaw_covariance(P, x, cfg.yaw_sigma0, wk.rq)
+        aux[A_MAGINIT] = 1.0
+        return
+    r_mag = cfg.mag_noise ** 2
+    for axis in range(3):
+        hval = mag_model(x, axis, h_q)
+        wk.unit[0], wk.unit[1], wk.unit[2] = 0.0, 0.0, 0.0
+        wk.unit[axis] = 1.0
+        rotate_into(x, wk.unit, wk.col)
+        for k in range(4):
+            idx[k] = k
+            val[k] = h_q[k]
+        for k in range(3):
+            idx[4 + k] = IM + k
+            val[4 + k] = wk.col[k]
+        idx[7] = IMB + axis
+        val[7] = 1.0
+        z = mg0 if axis == 0 else (mg1 if axis == 1 else mg2)
+        innov = z - hval
+        if _scalar_update(x, P, idx, val, np.int64(8), innov, r_mag, cfg.innovation_gate, pht) > 0.0:
+            drow[D_IM + axis] = innov * 1e3
+        normalize_head(x)
+    # declination pseudo-measurement: atan2(M_E, M_N) = declination
+    mn, me = x[IM], x[IM + 1]
+    hh = mn * mn + me * me
+    if hh > 0.0:
+        idx[0], idx[1] = IM, IM + 1
+        val[0], val[1] = -me / hh, mn / hh
+        innov = wrap_pi_s(cfg.declination - math.atan2(me, mn))
+        _scalar_update(x, P, idx, val, np.int64(2), innov, cfg.declination_noise ** 2, 0.0, pht)
+        normalize_head(x)
+
+
+@njit(cache=True)
+def _fuse_baro(x, P, ti, height, aux, cfg, wk, drow):
+    """Eq 19's height: baro height (m, up) on S_d."""
+    aux[A_TBARO] = ti
+    innov = -height - x[IS + 2]
+    if _state_update(x, P, IS + 2, innov, cfg.baro_noise ** 2, cfg.innovation_gate, wk.pht, wk.idx, wk.val) > 0.0:
+        drow[D_IB] = innov
+    normalize_head(x)
+
+
+@njit(cache=True)
+def _fuse_gps(x, P, ring, aux, ti, pos, vel, hacc, vacc, gps_active, baro_fresh, cfg, wk, drow):
+    """Eq 17-19: a GPS fix (NED position and velocity, NaN where the fix has none), compared
+    with the state ``gps_delay`` ago; on the first fix after a spell without GPS, V and S are
+    set to it instead."""
+    r_gv = cfg.gps_vel_noise ** 2
+    gate = cfg.innovation_gate
+    pht, idx, val = wk.pht, wk.idx, wk.val
+    has_pos, has_vel = pos[0] == pos[0], vel[0] == vel[0]
+    # the state at the fix's time: now minus the predicted increments since
+    sv0 = sv1 = sv2 = ss0 = ss1 = ss2 = 0.0
+    if cfg.gps_delay > 0.0:
+        h = int(aux[A_HEAD])
+        for k in range(int(aux[A_FILL])):
+            h = (h - 1) % RING
+            if ring[h, 0] <= ti - cfg.gps_delay:
+                break
+            sv0 += ring[h, 1]
+            sv1 += ring[h, 2]
+            sv2 += ring[h, 3]
+            ss0 += ring[h, 4]
+            ss1 += ring[h, 5]
+            ss2 += ring[h, 6]
+    if not gps_active:
+        # (re)start aiding: take the fix as it is
+        for r in range(3):
+            zv = vel[r] if has_vel else math.nan
+            zp = pos[r] if has_pos else math.nan
+            if r == 2 and baro_fresh:
+                zp = math.nan
+            if zv == zv:
+                x[IV + r] = zv + (sv0 if r == 0 else (sv1 if r == 1 else sv2))
+                for c in range(NX):
+                    P[IV + r, c] = 0.0
+                    P[c, IV + r] = 0.0
+                P[IV + r, IV + r] = r_gv
+            if zp == zp:
+                x[IS + r] = zp + (ss0 if r == 0 else (ss1 if r == 1 else ss2))
+                for c in range(NX):
+                    P[IS + r, c] = 0.0
+                    P[c, IS + r] = 0.0
+                sp = hacc if (r < 2 and hacc == hacc) else cfg.gps_pos_noise
+                if r == 2:
+                    sp = vacc if vacc == vacc else cfg.gps_alt_noise
+                P[IS + r, IS + r] = sp * sp
+    else:
+        if has_vel:
+            for r in range(3):
+                zv = vel[r]
+                if zv == zv:
+                    innov = zv - (x[IV + r] - (sv0 if r == 0 else (sv1 if r == 1 else sv2)))
+                    if _state_update(x, P, IV + r, innov, r_gv, gate, pht, idx, val) > 0.0:
+                        drow[D_IV + r] = innov
+                    normalize_head(x)
+        if has_pos:
+            sp = hacc if hacc == hacc else cfg.gps_pos_noise
+            sp = max(sp, cfg.gps_pos_noise_min)
+            for r in range(3):
+                if r == 2:
+                    if baro_fresh:
+                        break
+                    sp = vacc if vacc == vacc else cfg.gps_alt_noise
+                innov = pos[r] - (x[IS + r] - (ss0 if r == 0 else (ss1 if r == 1 else ss2)))
+                if _state_update(x, P, IS + r, innov, sp * sp, gate, pht, idx, val) > 0.0:
+                    drow[D_IP + r] = innov
+                normalize_head(x)
+    aux[A_TGPS] = ti
+    for r in range(3):
+        if has_vel:
+            aux[A_GVEL + r] = vel[r]
+        if has_pos:
+            aux[A_GPOS + r] = pos[r]
+
+
+@njit(cache=True)
+def _fuse_zero_velocity(x, P, baro_fresh, cfg, wk):
+    """Non-aiding mode: a synthetic zero velocity keeps the tilt observable without GPS
+    (vertically too when no height source is fresh)."""
+    r_syn = cfg.synthetic_vel_noise ** 2
+    for r in range(3):
+        if r == 2 and baro_fresh:
+            break
+        _state_update(x, P, IV + r, -x[IV + r], r_syn, 0.0, wk.pht, wk.idx, wk.val)
+        normalize_head(x)
+
+
+# ------------------------------------------------ the watchdog (eq 21)
+
+
+@njit(cache=True)
+def _watchdog_distance(x, qc, heading):
+    """Eq 21's (Δθ)² + (Δφ)² (+ (Δψ)² with a heading reference) between the EKF's and the
+    complementary filter's Euler angles, differences wrapped to ±π."""
+    er, ep, ey = euler_s(x[0], x[1], x[2], x[3])
+    cr, cp, cy = euler_s(qc[0], qc[1], qc[2], qc[3])
+    dr, dp = wrap_pi_s(er - cr), wrap_pi_s(ep - cp)
+    dist = dr * dr + dp * dp
+    if heading:
+        dy = wrap_pi_s(ey - cy)
+        dist += dy * dy
+    return dist
+
+
+@njit(cache=True)
+def _reset(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk):
+    """Eq 21's reset: attitude from the complementary filter, P, V and S re-initialised (V, S
+    to the last GPS fix when GPS is active), bias estimates kept, M from the last compass
+    sample."""
+    reset_bias = cfg.reset_bias > 0.5
+    bias_var, mbv = wk.bias_var, wk.body_field_var
+    for r in range(3):
+        mbv[r] = cfg.body_field_sigma0 ** 2 if reset_bias else P[IMB + r, IMB + r]
+        bias_var[r] = cfg.gyro_bias_sigma0 ** 2 if reset_bias else P[IB + r, IB + r]
+    bias_var[3] = cfg.accel_bias_sigma0 ** 2 if reset_bias else P[IA, IA]
+    bias_var[4] = cfg.earth_field_sigma0 ** 2  # earth field: re-initialised below
+    bias_var[5] = 0.0
+    for r in range(4):
+        x[r] = qc[r]
+    init_covariance(P, x, cfg, heading, bias_var)
+    for r in range(3):
+        P[IMB + r, IMB + r] = mbv[r]
+    if gps_active:
+        for r in range(3):
+            gv = aux[A_GVEL + r]
+            x[IV + r] = gv if gv == gv else 0.0
+            gp = aux[A_GPOS + r]
+            if gp == gp and not (r == 2 and baro_fresh):
+                x[IS + r] = gp
+    else:
+        for r in range(3):
+            x[IV + r] = 0.0
+    if heading and aux[A_LASTMAG] == aux[A_LASTMAG]:
+        _start_earth_field(x, aux[A_LASTMAG] * TESLA_TO_GAUSS, aux[A_LASTMAG + 1] * TESLA_TO_GAUSS,
+                           aux[A_LASTMAG + 2] * TESLA_TO_GAUSS, cfg, wk)
+
+
+@njit(cache=True, inline="always")
+def _write_row(x, P, out, drow):
+    """The attitude and the per-sample diagnostics (DIAG_KEYS' units)."""
+    out[0], out[1], out[2], out[3] = x[0], x[1], x[2], x[3]
+    tr = 0.0
+    for k in range(NX):
+        tr += P[k, k]
+    drow[D_TRACE] = tr
+    for r in range(3):
+        drow[D_BG + r] = x[IB + r] * 57.29577951308232
+        drow[D_MB + r] = x[IMB + r] * 1e3
+        drow[D_M + r] = x[IM + r] * 1e3
+        drow[D_V + r] = x[IV + r]
+        drow[D_S + r] = x[IS + r]
+    drow[D_BA] = x[IA]
+
+
 @njit(cache=True)
 def cpf_ekf_run(s, aid, state, cfg, out, diag):
     """Run the filter over a chunk of samples ``s`` (``base.Samples``) with its aiding ``aid``
     (``AidingRows``); ``state`` (``CpfEkfState``) is updated in place. Writes the attitude to
-    ``out`` (N×4) and the diagnostics to ``diag`` (N×NDIAG)."""
+    ``out`` (N×4) and the diagnostics to ``diag`` (N×NDIAG). Each sample: the complementary
+    filter, the prediction, the compass, baro and GPS updates (or a synthetic zero velocity),
+    the watchdog."""
     t, gyro, accel, mag = s.t, s.gyro, s.accel, s.mag
-    gps_pos, gps_vel, gps_hacc, gps_vacc, baro = aid.gps_pos, aid.gps_vel, aid.gps_hacc, aid.gps_vacc, aid.baro
-    use_gps, use_baro = aid.use_gps, aid.use_baro
     x, P, qc, bc, aux, ring = state.x, state.P, state.qc, state.bc, state.aux, state.ring
-    n = len(t)
-    g = cfg.gravity
-    max_step = cfg.max_step
-    gn2, an2 = cfg.gyro_noise ** 2, cfg.accel_noise ** 2
-    bw2, aw2, mw2, mbw2 = cfg.gyro_bias_walk ** 2, cfg.accel_bias_walk ** 2, cfg.earth_field_walk ** 2, cfg.body_field_walk ** 2
-    r_mag = cfg.mag_noise ** 2
-    r_dec = cfg.declination_noise ** 2
-    r_gv = cfg.gps_vel_noise ** 2
-    gate = cfg.innovation_gate
-    declination = cfg.declination
     use_mag = cfg.use_mag > 0.5
-    watchdog = cfg.watchdog > 0.5
-    kp, ki = cfg.kp, cfg.ki
-    north_x, north_y = math.cos(declination), math.sin(declination)
-    gps_delay = cfg.gps_delay
-    wd_period = cfg.watchdog_period
-    # scratch, allocated once per chunk
-    fqq = np.empty((4, 4))
-    fqb = np.empty((4, 3))
-    fvq = np.empty((3, 4))
-    fvb = np.empty((3, 3))
-    fva = np.empty(3)
-    A = np.empty((10, NX))
-    dv = np.empty((3, NX))
-    pht = np.empty(NX)
-    idx = np.zeros(8, dtype=np.int64)
-    val = np.zeros(8)
-    h_q = np.empty(4)
-    phi = np.empty(3)
-    e = np.empty(4)
-    d = np.empty((4, 3))
-    eh = np.empty(4)
-    dh = np.empty((4, 3))
-    rh = np.empty((4, 4))
-    lq = np.empty((4, 4))
-    qm = np.empty(4)
-    ap = np.empty(3)
-    an = np.empty(3)
-    cz = np.empty(3)
+    north_x, north_y = math.cos(cfg.declination), math.sin(cfg.declination)
+    delayed = cfg.gps_delay > 0.0
+    wk = _new_work()
+    # the prediction's scratch, local: the hot loop reads it without going through a tuple
+    fqq, fqb, fvq, fvb, fva = np.empty((4, 4)), np.empty((4, 3)), np.empty((3, 4)), np.empty((3, 3)), np.empty(3)
+    fp = np.empty((10, NX))  # rows q, V, S of F P
+    phi, e, d, eh, dh = np.empty(3), np.empty(4), np.empty((4, 3)), np.empty(4), np.empty((4, 3))
+    rh, lq, ldh, jm = np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 3)), np.empty((3, 4))
+    qm, qn, ap, an, cz = np.empty(4), np.empty(4), np.empty(3), np.empty(3), np.empty(3)
     ez = np.zeros(3)
     ez[2] = 1.0
-    jm = np.empty((3, 4))
-    ldh = np.empty((4, 3))
-    qn = np.empty(4)
-    bias_var = np.empty(6)
-    mbv = np.empty(3)
-
     tp = aux[A_TPREV]
-    for i in range(n):
+    for i in range(len(t)):
         ti = t[i]
         dt = ti - tp if tp == tp else 0.0
         tp = ti
@@ -714,7 +1022,7 @@ def cpf_ekf_run(s, aid, state, cfg, out, diag):
         a0, a1, a2 = accel[i, 0], accel[i, 1], accel[i, 2]
         if not (a0 == a0 and a1 == a1 and a2 == a2):  # a missing reading drives the velocity: hold the last
             a0, a1, a2 = aux[A_ACC], aux[A_ACC + 1], aux[A_ACC + 2]
-        if dt > 0.0:
+        if dt > 0.0:  # trapezoidal means over the step
             w0 = 0.5 * (g0 + aux[A_GYRO])
             w1 = 0.5 * (g1 + aux[A_GYRO + 1])
             w2 = 0.5 * (g2 + aux[A_GYRO + 2])
@@ -725,19 +1033,17 @@ def cpf_ekf_run(s, aid, state, cfg, out, diag):
             w0, w1, w2, am0, am1, am2 = g0, g1, g2, a0, a1, a2
         aux[A_GYRO], aux[A_GYRO + 1], aux[A_GYRO + 2] = g0, g1, g2
         aux[A_ACC], aux[A_ACC + 1], aux[A_ACC + 2] = a0, a1, a2
+        drow = diag[i]
         for k in range(NDIAG):
-            diag[i, k] = math.nan
-        diag[i, D_RESET] = 0.0
+            drow[k] = math.nan
+        drow[D_RESET] = 0.0
 
-        # ------------------------------------------------ complementary filter (mahony)
-        m0 = mag[i, 0]
-        step_ok = 0.0 < dt <= max_step
+        m0, m1, m2 = mag[i, 0], mag[i, 1], mag[i, 2]
+        step_ok = 0.0 < dt <= cfg.max_step
         qc[0], qc[1], qc[2], qc[3], bc[0], bc[1], bc[2] = mahony_step(
             qc[0], qc[1], qc[2], qc[3], bc[0], bc[1], bc[2], w0, w1, w2, a0, a1, a2,
-            m0, mag[i, 1], mag[i, 2], use_mag, north_x, north_y, kp, ki, dt, step_ok)
-
-        # ------------------------------------------------ EKF predict (eq 4-9)
-        if step_ok:
+            m0, m1, m2, use_mag, north_x, north_y, cfg.kp, cfg.ki, dt, step_ok)
+        if step_ok:  # the prediction (eq 4-9): F's blocks at this step, then P and the state
             phi[0] = (w0 - x[IB]) * dt
             phi[1] = (w1 - x[IB + 1]) * dt
             phi[2] = (w2 - x[IB + 2]) * dt
@@ -755,7 +1061,7 @@ def cpf_ekf_run(s, aid, state, cfg, out, diag):
             ap[0], ap[1], ap[2] = am0, am1, am2 - x[IA]
             rot_jacobian(qm, ap, jm)
             rotate_into(qm, ap, an)
-            an[2] += g
+            an[2] += cfg.gravity
             rotate_into(qm, ez, cz)
             for r in range(4):
                 for c in range(3):
@@ -769,310 +1075,54 @@ def cpf_ekf_run(s, aid, state, cfg, out, diag):
                     fvb[r, c] = -0.5 * dt * dt * (jm[r, 0] * ldh[0, c] + jm[r, 1] * ldh[1, c]
                                                   + jm[r, 2] * ldh[2, c] + jm[r, 3] * ldh[3, c])
                 fva[r] = -dt * cz[r]
-            # FP rows 0-9 (A) over all columns, row by row (contiguous, vectorised over j)
-            for r in range(4):
-                f0, f1, f2, f3 = fqq[r, 0], fqq[r, 1], fqq[r, 2], fqq[r, 3]
-                fb0, fb1, fb2 = fqb[r, 0], fqb[r, 1], fqb[r, 2]
-                for j in range(NX):
-                    A[r, j] = (f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
-                               + fb0 * P[IB, j] + fb1 * P[IB + 1, j] + fb2 * P[IB + 2, j])
-            for r in range(3):
-                f0, f1, f2, f3 = fvq[r, 0], fvq[r, 1], fvq[r, 2], fvq[r, 3]
-                fb0, fb1, fb2, fa = fvb[r, 0], fvb[r, 1], fvb[r, 2], fva[r]
-                hdt = 0.5 * dt
-                for j in range(NX):
-                    dvr = (f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
-                           + fb0 * P[IB, j] + fb1 * P[IB + 1, j] + fb2 * P[IB + 2, j] + fa * P[IA, j])
-                    dv[r, j] = dvr
-                    pv = P[IV + r, j]
-                    A[IV + r, j] = pv + dvr
-                    A[IS + r, j] = P[IS + r, j] + dt * pv + hdt * dvr
-            # P' = A Fᵀ: rows 0-9 against every column; columns >= 10 are A itself
-            for r in range(10):
-                for c in range(10, NX):
-                    P[r, c] = A[r, c]
-                    P[c, r] = A[r, c]
-            for r in range(10):
-                a0_, a1_, a2_, a3_ = A[r, 0], A[r, 1], A[r, 2], A[r, 3]
-                ab0, ab1, ab2, aa = A[r, IB], A[r, IB + 1], A[r, IB + 2], A[r, IA]
-                for c in range(4):
-                    if c >= r:
-                        v = (a0_ * fqq[c, 0] + a1_ * fqq[c, 1] + a2_ * fqq[c, 2] + a3_ * fqq[c, 3]
-                             + ab0 * fqb[c, 0] + ab1 * fqb[c, 1] + ab2 * fqb[c, 2])
-                        P[r, c] = v
-                        P[c, r] = v
-                for c in range(3):
-                    dvc = (a0_ * fvq[c, 0] + a1_ * fvq[c, 1] + a2_ * fvq[c, 2] + a3_ * fvq[c, 3]
-                           + ab0 * fvb[c, 0] + ab1 * fvb[c, 1] + ab2 * fvb[c, 2] + aa * fva[c])
-                    av = A[r, IV + c]
-                    if IV + c >= r:
-                        v = av + dvc
-                        P[r, IV + c] = v
-                        P[IV + c, r] = v
-                    if IS + c >= r:
-                        v = A[r, IS + c] + dt * av + 0.5 * dt * dvc
-                        P[r, IS + c] = v
-                        P[IS + c, r] = v
-            # state
-            for r in range(4):
-                x[r] = qn[r]
-            normalize_head(x)
-            for r in range(3):
-                vnew = x[IV + r] + an[r] * dt
-                dsr = 0.5 * (x[IV + r] + vnew) * dt
-                if gps_delay > 0.0:
-                    h = int(aux[A_HEAD])
-                    ring[h, 1 + r] = an[r] * dt
-                    ring[h, 4 + r] = dsr
-                x[IS + r] += dsr
-                x[IV + r] = vnew
-            if gps_delay > 0.0:
-                h = int(aux[A_HEAD])
-                ring[h, 0] = ti
-                aux[A_HEAD] = (h + 1) % RING
-                aux[A_FILL] = min(aux[A_FILL] + 1.0, RING)
-            # process noise: G Q Gᵀ + Q_s
-            qg = 0.25 * gn2 * dt
-            for r in range(4):
-                for c in range(r, 4):
-                    v = -qg * x[r] * x[c]
-                    if r == c:
-                        v += qg
-                    P[r, c] += v
-                    if c != r:
-                        P[c, r] += v
-            for r in range(3):
-                P[IV + r, IV + r] += an2 * dt
-                P[IB + r, IB + r] += bw2 * dt
-                P[IM + r, IM + r] += mw2 * dt
-                P[IMB + r, IMB + r] += mbw2 * dt
-            P[IA, IA] += aw2 * dt
+            _propagate_covariance(P, fp, fqq, fqb, fvq, fvb, fva, dt)
+            _step_state(x, qn, an, dt, ring, aux, ti, delayed)
+            _add_process_noise(x, P, dt, cfg)
 
-        # ------------------------------------------------ magnetometer (eq 11-16)
-        fresh = False
+        # the compass: each sample once (the interface holds the latest on every IMU row)
         if use_mag and m0 == m0:
-            fresh = (m0 != aux[A_LASTMAG] or mag[i, 1] != aux[A_LASTMAG + 1]
-                     or mag[i, 2] != aux[A_LASTMAG + 2])
-            aux[A_LASTMAG], aux[A_LASTMAG + 1], aux[A_LASTMAG + 2] = m0, mag[i, 1], mag[i, 2]
-        if fresh:
-            mg0 = m0 * TESLA_TO_GAUSS
-            mg1 = mag[i, 1] * TESLA_TO_GAUSS
-            mg2 = mag[i, 2] * TESLA_TO_GAUSS
-            if aux[A_MAGINIT] < 0.5:
-                # M from this sample through the current attitude; P_M with no correlations
-                ap[0], ap[1], ap[2] = mg0 - x[IMB], mg1 - x[IMB + 1], mg2 - x[IMB + 2]
-                rotate_into(x, ap, an)
-                # its horizontal part along the declination: the heading's reference
-                hmag = math.sqrt(an[0] * an[0] + an[1] * an[1])
-                an[0], an[1] = hmag * north_x, hmag * north_y
-                for r in range(3):
-                    x[IM + r] = an[r]
-                    for c in range(NX):
-                        P[IM + r, c] = 0.0
-                        P[c, IM + r] = 0.0
-                    P[IM + r, IM + r] = cfg.earth_field_sigma0 ** 2
-                # the compass is the heading's reference from now: its uncertainty is σ₀ again,
-                # whatever a heading hold before this first sample made of it
-                _reset_yaw_covariance(P, x, cfg.yaw_sigma0, lq)
-                aux[A_MAGINIT] = 1.0
-            else:
-                for axis in range(3):
-                    hval = mag_model(x, axis, h_q)
-                    ez[0], ez[1], ez[2] = 0.0, 0.0, 0.0
-                    ez[axis] = 1.0
-                    rotate_into(x, ez, cz)
-                    for k in range(4):
-                        idx[k] = k
-                        val[k] = h_q[k]
-                    for k in range(3):
-                        idx[4 + k] = IM + k
-                        val[4 + k] = cz[k]
-                    idx[7] = IMB + axis
-                    val[7] = 1.0
-                    z = mg0 if axis == 0 else (mg1 if axis == 1 else mg2)
-                    innov = z - hval
-                    if _scalar_update(x, P, idx, val, np.int64(8), innov, r_mag, gate, pht) > 0.0:
-                        diag[i, D_IM + axis] = innov * 1e3
-                    normalize_head(x)
-                ez[0], ez[1], ez[2] = 0.0, 0.0, 1.0
-                # declination pseudo-measurement: atan2(M_E, M_N) = declination
-                mn_, me_ = x[IM], x[IM + 1]
-                hh = mn_ * mn_ + me_ * me_
-                if hh > 0.0:
-                    idx[0], idx[1] = IM, IM + 1
-                    val[0], val[1] = -me_ / hh, mn_ / hh
-                    innov = wrap_pi_s(declination - math.atan2(me_, mn_))
-                    _scalar_update(x, P, idx, val, np.int64(2), innov, r_dec, 0.0, pht)
-                    normalize_head(x)
+            fresh = m0 != aux[A_LASTMAG] or m1 != aux[A_LASTMAG + 1] or m2 != aux[A_LASTMAG + 2]
+            aux[A_LASTMAG], aux[A_LASTMAG + 1], aux[A_LASTMAG + 2] = m0, m1, m2
+            if fresh:
+                _fuse_compass(x, P, aux, m0 * TESLA_TO_GAUSS, m1 * TESLA_TO_GAUSS, m2 * TESLA_TO_GAUSS,
+                              cfg, wk, drow)
+        heading = use_mag and aux[A_MAGINIT] > 0.5  # else no heading reference: hold the yaw
 
-        # ------------------------------------------------ GPS and baro (eq 17-19)
-        hold = not (use_mag and aux[A_MAGINIT] > 0.5)  # no heading reference: hold the yaw
         baro_fresh = aux[A_TBARO] == aux[A_TBARO] and ti - aux[A_TBARO] <= cfg.baro_timeout
-        if use_baro and baro[i] == baro[i]:
-            aux[A_TBARO] = ti
+        if aid.use_baro and aid.baro[i] == aid.baro[i]:
+            _fuse_baro(x, P, ti, aid.baro[i], aux, cfg, wk, drow)
             baro_fresh = True
-            innov = -baro[i] - x[IS + 2]
-            if _state_update(x, P, IS + 2, innov, cfg.baro_noise ** 2, gate, pht, idx, val) > 0.0:
-                diag[i, D_IB] = innov
-            normalize_head(x)
         gps_active = aux[A_TGPS] == aux[A_TGPS] and ti - aux[A_TGPS] <= cfg.gps_timeout
-        has_pos = use_gps and gps_pos[i, 0] == gps_pos[i, 0]
-        has_vel = use_gps and gps_vel[i, 0] == gps_vel[i, 0]
-        if (has_pos or has_vel) and hold:
-            _hold_heading(x, P, cfg.heading_hold_noise, pht, idx, val, h_q)
-        if has_pos or has_vel:
-            # the state at the fix's time: now minus the predicted increments since
-            sv0 = sv1 = sv2 = ss0 = ss1 = ss2 = 0.0
-            if gps_delay > 0.0:
-                h = int(aux[A_HEAD])
-                for k in range(int(aux[A_FILL])):
-                    h = (h - 1) % RING
-                    if ring[h, 0] <= ti - gps_delay:
-                        break
-                    sv0 += ring[h, 1]
-                    sv1 += ring[h, 2]
-                    sv2 += ring[h, 3]
-                    ss0 += ring[h, 4]
-                    ss1 += ring[h, 5]
-                    ss2 += ring[h, 6]
-            if not gps_active:
-                # (re)start aiding: take the fix as it is
-                for r in range(3):
-                    zv = gps_vel[i, r] if has_vel else math.nan
-                    zp = gps_pos[i, r] if has_pos else math.nan
-                    if r == 2 and baro_fresh:
-                        zp = math.nan
-                    if zv == zv:
-                        x[IV + r] = zv + (sv0 if r == 0 else (sv1 if r == 1 else sv2))
-                        for c in range(NX):
-                            P[IV + r, c] = 0.0
-                            P[c, IV + r] = 0.0
-                        P[IV + r, IV + r] = r_gv
-                    if zp == zp:
-                        x[IS + r] = zp + (ss0 if r == 0 else (ss1 if r == 1 else ss2))
-                        for c in range(NX):
-                            P[IS + r, c] = 0.0
-                            P[c, IS + r] = 0.0
-                        sp = gps_hacc[i] if (r < 2 and gps_hacc[i] == gps_hacc[i]) else cfg.gps_pos_noise
-                        if r == 2:
-                            sp = gps_vacc[i] if gps_vacc[i] == gps_vacc[i] else cfg.gps_alt_noise
-                        P[IS + r, IS + r] = sp * sp
-            else:
-                if has_vel:
-                    for r in range(3):
-                        zv = gps_vel[i, r]
-                        if zv == zv:
-                            innov = zv - (x[IV + r] - (sv0 if r == 0 else (sv1 if r == 1 else sv2)))
-                            if _state_update(x, P, IV + r, innov, r_gv, gate, pht, idx, val) > 0.0:
-                                diag[i, D_IV + r] = innov
-                            normalize_head(x)
-                if has_pos:
-                    sp = gps_hacc[i] if gps_hacc[i] == gps_hacc[i] else cfg.gps_pos_noise
-                    sp = max(sp, cfg.gps_pos_noise_min)
-                    for r in range(3):
-                        if r == 2:
-                            if baro_fresh:
-                                break
-                            sp = gps_vacc[i] if gps_vacc[i] == gps_vacc[i] else cfg.gps_alt_noise
-                        innov = gps_pos[i, r] - (x[IS + r] - (ss0 if r == 0 else (ss1 if r == 1 else ss2)))
-                        if _state_update(x, P, IS + r, innov, sp * sp, gate, pht, idx, val) > 0.0:
-                            diag[i, D_IP + r] = innov
-                        normalize_head(x)
-            aux[A_TGPS] = ti
-            if has_vel:
-                for r in range(3):
-                    aux[A_GVEL + r] = gps_vel[i, r]
-            if has_pos:
-                for r in range(3):
-                    aux[A_GPOS + r] = gps_pos[i, r]
+        if aid.use_gps and (aid.gps_pos[i, 0] == aid.gps_pos[i, 0] or aid.gps_vel[i, 0] == aid.gps_vel[i, 0]):
+            if not heading:
+                _hold_heading(x, P, cfg.heading_hold_noise, wk.pht, wk.idx, wk.val, wk.h_q)
+            _fuse_gps(x, P, ring, aux, ti, aid.gps_pos[i], aid.gps_vel[i], aid.gps_hacc[i], aid.gps_vacc[i],
+                      gps_active, baro_fresh, cfg, wk, drow)
             gps_active = True
-        if not gps_active and step_ok and cfg.synthetic_vel_noise > 0.0 and not (aux[A_TSYNTH] == aux[A_TSYNTH]
-                                               and ti - aux[A_TSYNTH] < SYNTH_PERIOD_S):
-            # non-aiding mode: a synthetic zero velocity keeps tilt observable
+        if (not gps_active and step_ok and cfg.synthetic_vel_noise > 0.0
+                and not (aux[A_TSYNTH] == aux[A_TSYNTH] and ti - aux[A_TSYNTH] < SYNTH_PERIOD_S)):
             aux[A_TSYNTH] = ti
-            r_syn = cfg.synthetic_vel_noise ** 2
-            if hold:
-                _hold_heading(x, P, cfg.heading_hold_noise, pht, idx, val, h_q)
-            for r in range(3):
-                if r == 2 and baro_fresh:
-                    break
-                _state_update(x, P, IV + r, -x[IV + r], r_syn, 0.0, pht, idx, val)
-                normalize_head(x)
+            if not heading:
+                _hold_heading(x, P, cfg.heading_hold_noise, wk.pht, wk.idx, wk.val, wk.h_q)
+            _fuse_zero_velocity(x, P, baro_fresh, cfg, wk)
 
-        # ------------------------------------------------ watchdog (eq 21), once per cycle
+        # the watchdog (eq 21), once per watchdog period
         check = True
-        if wd_period > 0.0:
-            wd_bin = math.floor(ti / wd_period)
+        if cfg.watchdog_period > 0.0:
+            wd_bin = math.floor(ti / cfg.watchdog_period)
             check = wd_bin != aux[A_WDBIN]
             aux[A_WDBIN] = wd_bin
-        heading = use_mag and aux[A_MAGINIT] > 0.5
-        dist = 0.0
         if check:
-            er, ep, ey = euler_s(x[0], x[1], x[2], x[3])
-            cr, cp, cy = euler_s(qc[0], qc[1], qc[2], qc[3])
-            dr, dp_ = wrap_pi_s(er - cr), wrap_pi_s(ep - cp)
-            dist = dr * dr + dp_ * dp_
-            if heading:
-                dy = wrap_pi_s(ey - cy)
-                dist += dy * dy
-            diag[i, D_WD] = dist
-        if watchdog and check:
-            if dist > cfg.reset_threshold:
-                aux[A_COUNT] += 1.0
-            else:
-                aux[A_COUNT] = 0.0
-            if aux[A_COUNT] >= cfg.reset_cycles:
-                # reset: attitude from the CPF, P and V/S re-initialised, biases kept
-                aux[A_COUNT] = 0.0
-                aux[A_RESETS] += 1.0
-                diag[i, D_RESET] = 1.0
-                reset_bias = cfg.reset_bias > 0.5
-                for r in range(3):
-                    mbv[r] = cfg.body_field_sigma0 ** 2 if reset_bias else P[IMB + r, IMB + r]
-                    bias_var[r] = cfg.gyro_bias_sigma0 ** 2 if reset_bias else P[IB + r, IB + r]
-                bias_var[3] = cfg.accel_bias_sigma0 ** 2 if reset_bias else P[IA, IA]
-                bias_var[4] = cfg.earth_field_sigma0 ** 2  # earth field: re-initialised below
-                bias_var[5] = 0.0
-                for r in range(4):
-                    x[r] = qc[r]
-                init_covariance(P, x, cfg, heading, bias_var)
-                for r in range(3):
-                    P[IMB + r, IMB + r] = mbv[r]
-                if gps_active:
-                    for r in range(3):
-                        gv = aux[A_GVEL + r]
-                        x[IV + r] = gv if gv == gv else 0.0
-                        gp = aux[A_GPOS + r]
-                        if gp == gp and not (r == 2 and baro_fresh):
-                            x[IS + r] = gp
-                else:
-                    for r in range(3):
-                        x[IV + r] = 0.0
-                if heading:
-                    lm0 = aux[A_LASTMAG]
-                    if lm0 == lm0:
-                        ap[0] = lm0 * TESLA_TO_GAUSS - x[IMB]
-                        ap[1] = aux[A_LASTMAG + 1] * TESLA_TO_GAUSS - x[IMB + 1]
-                        ap[2] = aux[A_LASTMAG + 2] * TESLA_TO_GAUSS - x[IMB + 2]
-                        rotate_into(x, ap, an)
-                        hmag = math.sqrt(an[0] * an[0] + an[1] * an[1])
-                        an[0], an[1] = hmag * north_x, hmag * north_y  # as at the start
-                        for r in range(3):
-                            x[IM + r] = an[r]
-
-        # ------------------------------------------------ outputs
-        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x[0], x[1], x[2], x[3]
-        tr = 0.0
-        for k in range(NX):
-            tr += P[k, k]
-        diag[i, D_TRACE] = tr
-        for r in range(3):
-            diag[i, D_BG + r] = x[IB + r] * 57.29577951308232
-            diag[i, D_MB + r] = x[IMB + r] * 1e3
-            diag[i, D_M + r] = x[IM + r] * 1e3
-            diag[i, D_V + r] = x[IV + r]
-            diag[i, D_S + r] = x[IS + r]
-        diag[i, D_BA] = x[IA]
+            dist = _watchdog_distance(x, qc, heading)
+            drow[D_WD] = dist
+            if cfg.watchdog > 0.5:
+                aux[A_COUNT] = aux[A_COUNT] + 1.0 if dist > cfg.reset_threshold else 0.0
+                if aux[A_COUNT] >= cfg.reset_cycles:
+                    aux[A_COUNT] = 0.0
+                    aux[A_RESETS] += 1.0
+                    drow[D_RESET] = 1.0
+                    _reset(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk)
+        _write_row(x, P, out[i], drow)
     aux[A_TPREV] = tp
     return out
 
