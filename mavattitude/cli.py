@@ -134,18 +134,28 @@ def _plan_sink(args, outputs, default_rrd: str | None = None):
     return plan_sink("rrd", default_rrd, outputs) if default_rrd else None
 
 
+def _replay_settings(args, names: list[str]):
+    """The checked ReplaySettings of replay's and evaluate's shared options."""
+    from .params import load_file
+    from .pipeline import ReplaySettings
+
+    settings = ReplaySettings(
+        names=tuple(names), reference=args.reference, imu=args.imu, warmup_s=args.warmup,
+        declination_deg=args.declination, use_mag=not args.no_mag, segment=args.segment,
+        file_values=load_file(args.params) if args.params else None,
+        assignments=tuple(args.set or ()), params_source=args.params or "--params")
+    settings.check()  # bad values fail before any log is read
+    return settings
+
+
 def cmd_replay(args) -> int:
-    from .params import build, load_file, log_defaults
-    from .events import Event
-    from .pipeline import run_replay
+    from .pipeline import replay_flight
     from .report import (csv_file_name, estimator_extras, format_events, format_table, nothing_scored,
                          write_csv, write_json)
     from .sink import open_sink
 
     names = _estimator_names(args.estimators)
-    file_values = load_file(args.params) if args.params else None
-    source = args.params or "--params"
-    params = build(names, file_values, args.set or (), source=source)  # bad values fail before reading
+    settings = _replay_settings(args, names)
     with Outputs(inputs=[args.log, args.params], force=args.force) as outputs:
         json_out = outputs.file(args.json, "--json", "json")
         export = outputs.folder(args.export, "--export",
@@ -154,14 +164,8 @@ def cmd_replay(args) -> int:
         rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
         compiling = _compile(names)  # in other processes, while the log is read
         flight = _read(args.log, args.segment)
-        log_values, notes = log_defaults(flight, names, file_values, args.set or ())
-        if log_values:
-            params = build(names, file_values, args.set or (), source=source, log_values=log_values)
         compiling.wait()
-        result = run_replay(flight, names, reference=args.reference, imu_source=args.imu,
-                            warmup_s=args.warmup, declination_deg=args.declination,
-                            params=params, use_mag=not args.no_mag)
-        result.events += [Event(flight.time_span[0], "info", note) for note in notes]
+        result, notes = replay_flight(flight, settings)
         for note in notes:
             print(f"note: {note}")
         for event in result.events:
@@ -189,6 +193,64 @@ def cmd_replay(args) -> int:
             print(f"CSV written to {export}/ ({', '.join(p.name for p in written.values())})")
         if rec is not None:
             _view(result, rec, sink)
+    return 0
+
+
+# ---------------------------------------------------------------- evaluate
+
+
+def cmd_evaluate(args) -> int:
+    from . import evalreport as er
+    from .evaluate import Progress, find_logs, run_logs
+
+    names = _estimator_names(args.estimators)
+    if args.ship_logs and not args.scheduler:
+        raise UsageError("--ship-logs goes with --scheduler (local workers read the logs themselves)")
+    if args.baseline not in names:
+        _estimator_names(args.baseline)  # a known estimator, or a usage error
+        names.append(args.baseline)
+        print(f"note: the baseline {args.baseline} is run too", file=sys.stderr)
+    settings = _replay_settings(args, names)
+    logs = find_logs(args.paths)
+    if not logs:
+        raise InputError(", ".join(args.paths), "holds no .bin or .tlog log")
+    with Outputs(inputs=[*logs, args.params], force=args.force) as outputs:
+        out = outputs.folder(args.out, "--out", ["results.csv"], "csv")
+        files = {name: outputs.file(out / name, "--out", kind) for name, kind in (
+            ("results.csv", "csv"), ("summary.json", "json"), ("report.md", "md"), ("tilt_error.svg", "svg"),
+            ("results.parquet", "parquet"))}
+        records_dir = out / "logs"
+        records_dir.mkdir(exist_ok=True)
+        if not args.scheduler:
+            _compile(names).wait()  # once here, not in every worker
+        where = f"on the Dask cluster at {args.scheduler}" if args.scheduler else \
+            f"in {min(args.jobs, len(logs))} process{'es' if min(args.jobs, len(logs)) > 1 else ''}"
+        print(f"evaluating {', '.join(names)} on {len(logs)} logs {where}; records in {records_dir}/",
+              file=sys.stderr)
+        progress = Progress(len(logs))
+        try:
+            records = run_logs(logs, settings, records_dir, args.jobs, scheduler=args.scheduler,
+                               ship_logs=args.ship_logs, force=args.force, progress=progress)
+        finally:
+            progress.close()
+        rows = er.result_rows(records)
+        summary = er.summarize(records, names, args.baseline, args.reference)
+        command = "mavattitude evaluate " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["evaluate"] else \
+            "mavattitude evaluate"
+        texts = {"results.csv": er.results_csv(rows), "summary.json": er.summary_json(summary),
+                 "report.md": er.report_markdown(summary, command, "tilt_error.svg"),
+                 "tilt_error.svg": er.strip_plot_svg(records, names)}
+        for name, text in texts.items():
+            with files[name].writing() as path:
+                Path(path).write_text(text)
+        parquet = er.has_parquet()
+        if parquet:
+            with files["results.parquet"].writing() as path:
+                er.write_parquet(rows, path)
+    print(er.ranking_text(summary))
+    print(f"{len(records)} logs: {summary['scored']} scored, {len(summary['failed'])} failed, "
+          f"{len(summary['skipped'])} skipped; written to {out}/ (report.md, summary.json, results.csv"
+          f"{', results.parquet' if parquet else ''}, tilt_error.svg)")
     return 0
 
 
@@ -489,6 +551,36 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--no-view", action="store_true", help="no Rerun recording at all")
     force_arg(out)
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser(
+        "evaluate", help="replay many logs and rank the estimators across them",
+        description="Replay every log (as 'replay' does, without a viewer) and rank the estimators "
+                    "by their tilt error (mean of roll and pitch MAE) across the logs. Writes, in --out: "
+                    "report.md (ranking, figure, paper checks, worst logs, failures), summary.json, "
+                    "results.csv (a row per log, estimator and axis; Parquet too with pyarrow), "
+                    "tilt_error.svg, and a record per log in logs/. A stopped run resumes: logs with a "
+                    "record made with the same options are not replayed again (--force redoes them). "
+                    "A log that fails is listed with its reason; the others go on.",
+        epilog="examples:\n  mavattitude evaluate ../logs --estimators all\n"
+               "  mavattitude evaluate 'flights/**/*.bin' --estimators mahony,ncs-eskf -j 8 --out eval/\n"
+               "  mavattitude evaluate /shared/logs --estimators all --scheduler tcp://10.0.0.5:8786",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("paths", nargs="+", metavar="PATH",
+                   help="log files, folders (searched recursively for .bin/.tlog logs) or glob patterns")
+    _estimation_args(p, "log")
+    p.add_argument("--baseline", default="mahony", metavar="NAME",
+                   help="the estimator ratios are taken to (default mahony; run too if not listed)")
+    p.add_argument("-j", "--jobs", type=COUNT, default=os.cpu_count() or 1, metavar="N",
+                   help=f"logs replayed at once, one process each (default: the CPUs, {os.cpu_count()})")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on a Dask distributed cluster, e.g. tcp://HOST:8786 (pip install "
+                        "'mavattitude[cluster]'); its workers read the logs at the same paths")
+    p.add_argument("--ship-logs", action="store_true",
+                   help="with --scheduler: send each log's bytes to the worker (workers without the files)")
+    p.add_argument("--out", default="evaluation", metavar="DIR", help="where the results go (default evaluation/)")
+    segment_arg(p)
+    force_arg(p)
+    p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("estimators", help="list the estimators with their parameters and defaults",
                        description="List every estimator: the paper it follows, whether it uses the "

@@ -26,8 +26,10 @@ from pathlib import Path
 from .errors import InputError
 
 KIND_NAMES = {"rrd": "Rerun recording", "json": "JSON file", "csv": "CSV file",
-              "sim": "log written by the simulator"}
-CSV_HEADER_START = b"time_s,"
+              "sim": "log written by the simulator", "md": "report of mavattitude evaluate",
+              "svg": "SVG image", "parquet": "Parquet file"}
+CSV_HEADER_STARTS = (b"time_s,", b"log,status,")  # replay --export's, evaluate's results
+REPORT_START = b"# Attitude estimators across logs"
 SIM_MARK = b"mavattitude-sim"  # in the firmware text of every simulated log, near its start
 
 
@@ -40,7 +42,13 @@ def is_kind(path: Path, kind: str) -> bool:
     if kind == "json":
         return head.lstrip()[:1] in (b"{", b"[")
     if kind == "csv":
-        return head.startswith(CSV_HEADER_START)
+        return head.startswith(CSV_HEADER_STARTS)
+    if kind == "md":
+        return head.startswith(REPORT_START)
+    if kind == "svg":
+        return head.lstrip().startswith((b"<svg", b"<?xml"))
+    if kind == "parquet":
+        return head.startswith(b"PAR1")
     if kind == "sim":  # a user's flight log is never "of the simulator's kind"
         return SIM_MARK in head
     raise ValueError(f"unknown output kind {kind!r}")

@@ -14,6 +14,7 @@ from .errors import InputError, UsageError
 from .events import Event
 from .flight import AttitudeSeries, Flight
 from .metrics import Comparison, compare
+from .params import build, log_defaults
 from .phase import PhaseSeries
 from .readers import best_imu_source, mag_for_imu
 from .runner import Runner
@@ -171,6 +172,40 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                         mag_source=runner.mag_source, alignment=runner.alignment, phase=runner.phase_series(),
                         diagnostics=diagnostics, estimator_events=estimator_events,
                         params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding())
+
+
+@dataclass(frozen=True)
+class ReplaySettings:
+    """How to replay a log, as the command line says it (``replay`` and ``evaluate`` alike):
+    the parameters still as the user gave them, so that each log can add its own defaults."""
+    names: tuple[str, ...]
+    reference: str = "autopilot"
+    imu: str | None = None
+    warmup_s: float = 10.0
+    declination_deg: float | None = None
+    use_mag: bool = True
+    segment: int | None = None
+    file_values: dict | None = None  # --params, as read from the file
+    assignments: tuple[str, ...] = ()  # --set
+    params_source: str = "--params"
+
+    def check(self) -> None:
+        """Raise UsageError / InputError for a bad parameter now, before any log is read."""
+        build(list(self.names), self.file_values, self.assignments, source=self.params_source)
+
+
+def replay_flight(flight: Flight, settings: ReplaySettings) -> tuple[ReplayResult, list[str]]:
+    """``run_replay`` with the parameters a log supplies itself where the user gave none
+    (``params.log_defaults``): the result, and a note per such value (also in its events)."""
+    names = list(settings.names)
+    log_values, notes = log_defaults(flight, names, settings.file_values, settings.assignments)
+    params = build(names, settings.file_values, settings.assignments, source=settings.params_source,
+                   log_values=log_values)
+    result = run_replay(flight, names, reference=settings.reference, imu_source=settings.imu,
+                        warmup_s=settings.warmup_s, declination_deg=settings.declination_deg,
+                        params=params, use_mag=settings.use_mag)
+    result.events += [Event(flight.time_span[0], "info", note) for note in notes]
+    return result, notes
 
 
 def _events(flight: Flight, runner: Runner, dec_source: str) -> list[Event]:

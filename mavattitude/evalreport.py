@@ -1,0 +1,305 @@
+"""What ``evaluate`` writes from its per-log records: the results table (CSV, Parquet), the
+summary (JSON), the report (Markdown) and its figure (SVG).
+
+A log's score for an estimator is its tilt error: the mean of its roll and pitch MAE (°)
+against the reference. Yaw is left out of the ranking: without a compass it is the gyro's
+alone and aligned at the start, and with one it depends on the declination the log gives.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+
+import numpy as np
+
+from .report import BUCKET_KEYS
+
+AXES = ("roll", "pitch", "yaw")
+METRIC_KEYS = ("n", "mae", "rmse", "mse", "r2", "max", "sigma1", "sigma3")
+FACT_KEYS = ("format", "vehicle", "firmware", "imu_source", "imu_rate_hz", "duration_s", "gps", "compass",
+             "baro", "clock_segments", "gaps")
+PAPER_001_CHAIN = ("ncs-eskf", "eskf", "ekf", "mahony")  # paper 001's ranking, best first
+
+
+def tilt_score(metrics: dict) -> float | None:
+    """The mean of roll and pitch MAE (°), None where either was not scored."""
+    roll, pitch = metrics.get("roll"), metrics.get("pitch")
+    if not roll or not pitch or roll.get("mae") is None or pitch.get("mae") is None:
+        return None
+    return 0.5 * (roll["mae"] + pitch["mae"])
+
+
+def scores(records: list[dict]) -> dict[str, dict[str, float]]:
+    """log -> estimator (and "autopilot" against truth) -> tilt score, for the logs that ran."""
+    out = {}
+    for r in records:
+        if r["status"] == "ok":
+            out[r["log"]] = {name: s for name, m in r["metrics"].items() if (s := tilt_score(m)) is not None}
+    return out
+
+
+# ---------------------------------------------------------------- results table
+
+
+def result_rows(records: list[dict]) -> list[dict]:
+    """One row per log × estimator × axis with every metric, and the log's facts; one row per
+    log that failed or was skipped."""
+    rows = []
+    for r in records:
+        base = {"log": r["log"], "status": r["status"], "error": r.get("error") or ""}
+        base.update({k: r.get("facts", {}).get(k) for k in FACT_KEYS})
+        if r["status"] != "ok":
+            rows.append(dict(base, estimator="", axis=""))
+            continue
+        for name, m in r["metrics"].items():
+            for axis in AXES:
+                row = dict(base, estimator=name, axis=axis)
+                values = m.get(axis) or {}
+                row.update({k: values.get(k) for k in METRIC_KEYS})
+                row["yaw_aligned"] = values.get("aligned") if axis == "yaw" else None
+                buckets = values.get("buckets") or {}
+                row.update({f"share_{k}": buckets.get(k) for k in BUCKET_KEYS})
+                rows.append(row)
+    return rows
+
+
+def columns() -> list[str]:
+    return (["log", "status", "error", *FACT_KEYS, "estimator", "axis", *METRIC_KEYS, "yaw_aligned"]
+            + [f"share_{k}" for k in BUCKET_KEYS])
+
+
+def results_csv(rows: list[dict]) -> str:
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=columns(), lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: "" if v is None else v for k, v in row.items()})
+    return out.getvalue()
+
+
+def has_parquet() -> bool:
+    """Whether pyarrow is installed (``pip install 'mavattitude[parquet]'``)."""
+    import importlib.util
+    return importlib.util.find_spec("pyarrow") is not None
+
+
+def write_parquet(rows: list[dict], path) -> None:
+    """The results table as Parquet (needs pyarrow)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.Table.from_pylist([{k: row.get(k) for k in columns()} for row in rows]), str(path))
+
+
+# ---------------------------------------------------------------- summary
+
+
+def summarize(records: list[dict], names: list[str], baseline: str, reference: str) -> dict:
+    """Per estimator: median, mean and 90th percentile of the tilt score over the logs, the
+    geometric mean of its ratio to ``baseline``, wins (best on a log), mean rank, the logs
+    where it is ≤ 0.8× and > 2× the baseline; the paper-001 check; the failures."""
+    by_log = scores(records)
+    estimators = {}
+    ranks = {name: [] for name in names}
+    wins = dict.fromkeys(names, 0)
+    for log, s in by_log.items():
+        ranked = sorted((v, n) for n, v in s.items() if n in names)
+        for place, (v, n) in enumerate(ranked, 1):
+            ranks[n].append(place)
+        if ranked:
+            wins[ranked[0][1]] += 1
+    for name in names:
+        values = np.array([s[name] for s in by_log.values() if name in s])
+        pairs = [(s[name], s[baseline]) for s in by_log.values()
+                 if name in s and baseline in s and s[baseline] > 0]
+        ratios = np.array([a / b for a, b in pairs if a > 0])
+        worst = sorted(((s[name], log) for log, s in by_log.items() if name in s), reverse=True)[:3]
+        estimators[name] = {
+            "logs": int(len(values)),
+            "median": _round(np.median(values)) if len(values) else None,
+            "mean": _round(values.mean()) if len(values) else None,
+            "p90": _round(np.percentile(values, 90)) if len(values) else None,
+            "ratio_to_baseline_geomean": _round(math.exp(np.log(ratios).mean())) if len(ratios) else None,
+            "wins": wins[name],
+            "mean_rank": _round(np.mean(ranks[name])) if ranks[name] else None,
+            "logs_at_most_0.8x_baseline": int(sum(a <= 0.8 * b for a, b in pairs)),
+            "logs_over_2x_baseline": int(sum(a > 2.0 * b for a, b in pairs)),
+            "worst_logs": [{"log": log, "score": _round(v)} for v, log in worst],
+        }
+    summary = {
+        "reference": reference, "baseline": baseline, "score": "mean of roll and pitch MAE, degrees",
+        "logs": len(records), "scored": len(by_log),
+        "failed": [{"log": r["log"], "error": r["error"]} for r in records if r["status"] == "failed"],
+        "skipped": [{"log": r["log"], "why": r["error"]} for r in records if r["status"] == "skipped"],
+        "estimators": estimators,
+    }
+    if all(n in names for n in PAPER_001_CHAIN):
+        summary["paper_001_ranking"] = paper_001_check(by_log)
+    if reference == "truth":
+        summary["against_autopilot"] = against_autopilot(by_log, names)
+    return summary
+
+
+def paper_001_check(by_log: dict) -> dict:
+    """Paper 001 ranks NCS-ESKF < ESKF < EKF < Mahony (tilt error): on how many logs each step
+    and the whole chain hold, of the logs where all four were scored."""
+    logs = [s for s in by_log.values() if all(n in s for n in PAPER_001_CHAIN)]
+    steps = {}
+    for better, worse in zip(PAPER_001_CHAIN, PAPER_001_CHAIN[1:]):
+        steps[f"{better} < {worse}"] = int(sum(s[better] < s[worse] for s in logs))
+    chain = int(sum(all(s[a] < s[b] for a, b in zip(PAPER_001_CHAIN, PAPER_001_CHAIN[1:])) for s in logs))
+    return {"logs": len(logs), "steps": steps, "whole_chain": chain}
+
+
+def against_autopilot(by_log: dict, names: list[str]) -> dict:
+    """Against ground truth, each estimator next to the autopilot's own EKF: logs where it is
+    better, and the median ratio of their scores."""
+    out = {}
+    for name in names:
+        pairs = [(s[name], s["autopilot"]) for s in by_log.values() if name in s and "autopilot" in s]
+        ratios = [a / b for a, b in pairs if b > 0]
+        out[name] = {"logs": len(pairs), "better": int(sum(a < b for a, b in pairs)),
+                     "median_ratio": _round(float(np.median(ratios))) if ratios else None}
+    return out
+
+
+def _round(x) -> float:
+    return round(float(x), 3)
+
+
+# ---------------------------------------------------------------- report
+
+
+def report_markdown(summary: dict, command: str, figure: str | None) -> str:
+    est = summary["estimators"]
+    order = sorted(est, key=lambda n: (est[n]["median"] is None, est[n]["median"] or 0.0))
+    ok = summary["scored"]
+    lines = [
+        "# Attitude estimators across logs", "",
+        f"`{command}`", "",
+        f"{summary['logs']} logs: {ok} scored, {len(summary['failed'])} failed, {len(summary['skipped'])} skipped. "
+        f"Score: the mean of roll and pitch MAE (°) against the {summary['reference']} reference, after the "
+        f"warm-up; ratios are to `{summary['baseline']}` on the same log.", "",
+        "## Ranking", "",
+        "| estimator | logs | median | mean | p90 | × baseline (geo-mean) | wins | mean rank "
+        "| ≤ 0.8× baseline | > 2× baseline |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name in order:
+        e = est[name]
+        lines.append(f"| {name} | {e['logs']} | {_f(e['median'])} | {_f(e['mean'])} | {_f(e['p90'])} "
+                     f"| {_f(e['ratio_to_baseline_geomean'])} | {e['wins']} | {_f(e['mean_rank'], 2)} "
+                     f"| {e['logs_at_most_0.8x_baseline']} | {e['logs_over_2x_baseline']} |")
+    if figure:
+        lines += ["", f"![tilt error per estimator across logs]({figure})", "",
+                  "Each dot is a log (its tilt score, log scale); the box spans the middle half, the bar "
+                  "is the median."]
+    check = summary.get("paper_001_ranking")
+    if check:
+        n = check["logs"]
+        lines += ["", "## Paper 001's ranking: NCS-ESKF < ESKF < EKF < Mahony", "",
+                  f"Of the {n} logs where all four were scored:", ""]
+        lines += [f"- {step}: holds on {count} of {n}" for step, count in check["steps"].items()]
+        lines.append(f"- the whole chain: holds on {check['whole_chain']} of {n}")
+    ap = summary.get("against_autopilot")
+    if ap:
+        lines += ["", "## Against the autopilot's own estimate (ground truth)", "",
+                  "| estimator | logs | better than the autopilot | median ratio to the autopilot |",
+                  "|---|---|---|---|"]
+        lines += [f"| {n} | {v['logs']} | {v['better']} | {_f(v['median_ratio'])} |" for n, v in ap.items()]
+    lines += ["", "## Worst logs per estimator", "", "| estimator | worst logs (score, °) |", "|---|---|"]
+    for name in order:
+        worst = ", ".join(f"`{_short(w['log'])}` {w['score']:.2f}" for w in est[name]["worst_logs"])
+        lines.append(f"| {name} | {worst or '-'} |")
+    if summary["failed"]:
+        lines += ["", "## Failed", ""] + [f"- {f['error']}" for f in summary["failed"]]
+    if summary["skipped"]:
+        lines += ["", "## Skipped", ""] + [f"- `{s['log']}`: {s['why']}" for s in summary["skipped"]]
+    return "\n".join(lines) + "\n"
+
+
+def ranking_text(summary: dict) -> str:
+    """The ranking for the terminal."""
+    est = summary["estimators"]
+    order = sorted(est, key=lambda n: (est[n]["median"] is None, est[n]["median"] or 0.0))
+    lines = [f"tilt error (mean of roll and pitch MAE, °) against the {summary['reference']} reference, "
+             f"over {summary['scored']} logs; ratio to {summary['baseline']}",
+             f"{'estimator':12s} {'logs':>5s} {'median':>7s} {'mean':>7s} {'p90':>7s} {'×base':>6s} "
+             f"{'wins':>5s} {'rank':>5s} {'≤0.8×':>6s} {'>2×':>4s}"]
+    for n in order:
+        e = est[n]
+        lines.append(f"{n:12s} {e['logs']:5d} {_f(e['median']):>7s} {_f(e['mean']):>7s} {_f(e['p90']):>7s} "
+                     f"{_f(e['ratio_to_baseline_geomean'], 2):>6s} {e['wins']:5d} {_f(e['mean_rank'], 2):>5s} "
+                     f"{e['logs_at_most_0.8x_baseline']:6d} {e['logs_over_2x_baseline']:4d}")
+    return "\n".join(lines)
+
+
+def _f(x, digits: int = 3) -> str:
+    return "-" if x is None else f"{x:.{digits}f}"
+
+
+def _short(path: str) -> str:
+    return path.replace("\\", "/").rsplit("/", 1)[-1]
+
+
+def summary_json(summary: dict) -> str:
+    return json.dumps(summary, indent=2) + "\n"
+
+
+# ---------------------------------------------------------------- figure
+
+
+def strip_plot_svg(records: list[dict], names: list[str]) -> str:
+    """Tilt score per estimator across logs, as an SVG: a row per estimator (best median on
+    top), a dot per log on a log-scale axis, the quartile box and the median."""
+    by_log = scores(records)
+    values = {n: np.array([s[n] for s in by_log.values() if n in s and s[n] > 0]) for n in names}
+    if "autopilot" in {n for s in by_log.values() for n in s}:
+        values["autopilot"] = np.array([s["autopilot"] for s in by_log.values() if s.get("autopilot", 0) > 0])
+    values = {n: v for n, v in values.items() if len(v)}
+    order = sorted(values, key=lambda n: np.median(values[n]))
+    everything = np.concatenate(list(values.values())) if values else np.array([0.1, 10.0])
+    lo = 10 ** math.floor(math.log10(everything.min()))
+    hi = 10 ** math.ceil(math.log10(everything.max()))
+    left, right, top, row_h = 110, 30, 20, 34
+    width, height = 760, top + row_h * len(order) + 50
+
+    def x_of(v):
+        return left + (math.log10(v) - math.log10(lo)) / (math.log10(hi) - math.log10(lo)) * (width - left - right)
+
+    rng = np.random.default_rng(0)
+    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
+             f'font-family="sans-serif" font-size="12">',
+             f'<rect width="{width}" height="{height}" fill="white"/>']
+    decade = lo
+    while decade <= hi * 1.001:
+        for k in range(1, 10):
+            v = decade * k
+            if v > hi * 1.001:
+                break
+            x = x_of(v)
+            strong = k == 1
+            parts.append(f'<line x1="{x:.1f}" y1="{top}" x2="{x:.1f}" y2="{height - 40}" '
+                         f'stroke="{"#bbb" if strong else "#eee"}"/>')
+            if strong:
+                parts.append(f'<text x="{x:.1f}" y="{height - 25}" text-anchor="middle">{v:g}°</text>')
+        decade *= 10
+    parts.append(f'<text x="{(left + width - right) / 2:.0f}" y="{height - 6}" text-anchor="middle">'
+                 'tilt error per log: mean of roll and pitch MAE (°, log scale)</text>')
+    for row, name in enumerate(order):
+        v = values[name]
+        y = top + row_h * row + row_h / 2
+        q1, med, q3 = np.percentile(v, [25, 50, 75])
+        parts.append(f'<text x="{left - 8}" y="{y + 4:.1f}" text-anchor="end">{name}</text>')
+        parts.append(f'<rect x="{x_of(q1):.1f}" y="{y - 10:.1f}" width="{max(x_of(q3) - x_of(q1), 1):.1f}" '
+                     f'height="20" fill="#dde8f5" stroke="#6b8fbf"/>')
+        parts.append(f'<line x1="{x_of(med):.1f}" y1="{y - 12:.1f}" x2="{x_of(med):.1f}" y2="{y + 12:.1f}" '
+                     f'stroke="#1f4e8c" stroke-width="2.5"/>')
+        for value in v:
+            jitter = rng.uniform(-7, 7)
+            parts.append(f'<circle cx="{x_of(value):.1f}" cy="{y + jitter:.1f}" r="2.6" '
+                         f'fill="#c0392b" fill-opacity="0.65"/>')
+    parts.append("</svg>")
+    return "\n".join(parts) + "\n"

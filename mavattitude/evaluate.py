@@ -1,0 +1,271 @@
+"""``mavattitude evaluate``: replay a collection of logs, as ``replay`` does each one, and rank
+the estimators across them.
+
+One record per log (``--out``/logs/<name>.json: the log's facts and its metrics, or why it
+failed) is written as soon as the log is done, so a run stopped half-way resumes where it
+stopped. The logs run in a local process pool, or on a Dask cluster (``--scheduler``); the
+records are the same either way. ``summarize`` turns the records into the tables of
+``evalreport``.
+"""
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import os
+import sys
+import tempfile
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError, UsageError
+from .pipeline import ReplaySettings
+
+LOG_SUFFIXES = (".bin", ".tlog")
+RECORD_VERSION = 1
+
+
+# ---------------------------------------------------------------- which logs
+
+
+def find_logs(paths: list[str]) -> list[str]:
+    """The logs named by ``paths``: files as given, folders searched recursively for .bin /
+    .tlog files (any case) that are logs by their content, and glob patterns. In order,
+    each once; InputError for a path that names nothing."""
+    from .readers import sniff_format
+
+    found: list[str] = []
+    for path in paths:
+        if os.path.isdir(path):
+            for root, dirs, files in os.walk(path):
+                dirs.sort()
+                for name in sorted(files):
+                    if name.lower().endswith(LOG_SUFFIXES):
+                        candidate = os.path.join(root, name)
+                        try:
+                            sniff_format(candidate)
+                        except InputError:
+                            continue  # a .bin that is no log (firmware, say) is not ours to replay
+                        found.append(candidate)
+        elif os.path.exists(path):
+            found.append(path)  # named on purpose: replayed, and failing with its reason if it must
+        elif glob.has_magic(path):
+            matches = sorted(glob.glob(path, recursive=True))
+            if not matches:
+                raise InputError(path, "the pattern matches no file")
+            found += find_logs(matches)
+        else:
+            raise InputError(path, "no such file or folder")
+    unique = list(dict.fromkeys(os.path.abspath(p) for p in found))
+    return [os.path.relpath(p) if not os.path.relpath(p).startswith("..") else p for p in unique]
+
+
+def record_name(path: str) -> str:
+    """The log's record file name in --out: its own name and a hash of its absolute path (two
+    folders may each hold a flight.bin)."""
+    digest = hashlib.sha1(os.path.abspath(path).encode()).hexdigest()[:10]
+    stem = "".join(c if c.isalnum() or c in "-_." else "_" for c in os.path.basename(path))
+    return f"{stem}-{digest}.json"
+
+
+def settings_key(settings: ReplaySettings) -> str:
+    """What a record was computed with: a record made with other settings is redone."""
+    return hashlib.sha1(json.dumps(asdict(settings), sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+# ---------------------------------------------------------------- one log
+
+
+def evaluate_log(path: str, settings: ReplaySettings, data: bytes | None = None) -> dict:
+    """Replay one log as ``replay`` does (``pipeline.replay_flight``) and return its record:
+    ``status`` ("ok", "failed" or "skipped"), ``facts``, ``metrics`` (``replay --json``'s
+    estimators), ``error``. ``data``: the log's bytes, for a worker that cannot see ``path``.
+    Never raises for a bad log: its error is the record."""
+    record = {"version": RECORD_VERSION, "log": path, "status": "failed", "facts": {}, "metrics": {},
+              "error": None, "seconds": 0.0}
+    start = time.perf_counter()
+    local = path
+    try:
+        if data is None:
+            record.update(_replay(path, path, settings))
+        else:
+            with tempfile.TemporaryDirectory() as tmp:
+                local = os.path.join(tmp, os.path.basename(path))
+                with open(local, "wb") as f:
+                    f.write(data)
+                record.update(_replay(local, path, settings))
+    except (InputError, UsageError) as exc:
+        record["error"] = str(exc).replace(local, path)
+    except MemoryError:
+        record["error"] = f"{path}: out of memory"
+    except Exception as exc:  # noqa: BLE001 - one log's fault must not stop a thousand others
+        record["error"] = f"{path}: internal error ({type(exc).__name__}: {exc}); please report it"
+    record["seconds"] = round(time.perf_counter() - start, 3)
+    return record
+
+
+def _replay(local: str, path: str, settings: ReplaySettings) -> dict:
+    from .pipeline import replay_flight
+    from .readers import read_log
+    from .report import estimator_extras, to_json_dict
+
+    flight = read_log(local, segment=settings.segment)
+    facts = log_facts(flight, settings.imu)
+    if settings.reference == "truth" and flight.truth is None:
+        return {"status": "skipped", "facts": facts, "error": "no ground truth (SIM / SIMSTATE)"}
+    if settings.reference == "autopilot" and flight.attitude is None:
+        return {"status": "skipped", "facts": facts, "error": "no attitude reference (ATT / ATTITUDE)"}
+    result, _ = replay_flight(flight, settings)
+    facts["imu_source"] = result.imu_source
+    metrics = to_json_dict(path, result.reference.source, result.comparisons, estimator_extras(result))
+    return {"status": "ok", "facts": facts, "metrics": metrics["estimators"], "reference": metrics["reference"]}
+
+
+def log_facts(flight, imu: str | None) -> dict:
+    """What kind of log it is, for the results table."""
+    from .readers import best_imu_source, imu_rate
+    from .runner import REINIT_GAP_S
+
+    source = imu if imu in flight.imu else best_imu_source(flight)
+    t = flight.imu[source].t
+    return {"format": flight.format, "vehicle": flight.vehicle, "firmware": flight.firmware,
+            "imu_source": source, "imu_rate_hz": round(imu_rate(flight.imu[source]), 2),
+            "duration_s": round(float(t[-1] - t[0]), 3) if len(t) else 0.0,
+            "gps": flight.gps is not None, "compass": bool(flight.mag), "baro": flight.baro is not None,
+            "clock_segments": len(flight.segments),
+            "gaps": int(np.count_nonzero(np.diff(t) > REINIT_GAP_S)) if len(t) else 0}
+
+
+# ---------------------------------------------------------------- many logs
+
+
+class Progress:
+    """Logs done, failures and the time left, on stderr: a line redrawn on a terminal, else
+    a line per log."""
+
+    def __init__(self, total: int, stream=None):
+        self.total, self.done, self.failed = total, 0, 0
+        self.start = time.monotonic()
+        self.stream = stream or sys.stderr
+        self.tty = self.stream.isatty()
+
+    def add(self, record: dict, reused: bool = False) -> None:
+        self.done += 1
+        self.failed += record["status"] == "failed"
+        elapsed = time.monotonic() - self.start
+        left = (elapsed / self.done * (self.total - self.done)) if self.done else 0.0
+        bar = (f"evaluate: {self.done}/{self.total} logs, {self.failed} failed, "
+               f"{_clock(elapsed)} elapsed, about {_clock(left)} left")
+        if self.tty:
+            print(f"\r{bar}   ", end="", file=self.stream, flush=True)
+            if record["status"] == "failed":
+                print(f"\rfailed: {record['error']}" + " " * 10, file=self.stream, flush=True)
+        else:
+            status = "already done" if reused else record["status"]
+            detail = f": {record['error']}" if record["status"] != "ok" else ""
+            print(f"[{self.done}/{self.total}] {record['log']}: {status}{detail} "
+                  f"({record['seconds']:.1f} s; about {_clock(left)} left)", file=self.stream, flush=True)
+
+    def close(self) -> None:
+        if self.tty:
+            print(file=self.stream, flush=True)
+
+
+def _clock(seconds: float) -> str:
+    seconds = int(round(seconds))
+    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}" if seconds >= 3600 \
+        else f"{seconds // 60}:{seconds % 60:02d}"
+
+
+def load_records(folder: Path, settings: ReplaySettings) -> dict[str, dict]:
+    """The records in ``folder`` computed with these settings, by log path."""
+    key = settings_key(settings)
+    records = {}
+    for path in sorted(folder.glob("*.json")):
+        try:
+            record = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue  # a record cut off mid-write: the log is redone
+        if isinstance(record, dict) and record.get("settings") == key and record.get("version") == RECORD_VERSION:
+            records[record["log"]] = record
+    return records
+
+
+def save_record(folder: Path, record: dict) -> None:
+    """Write a record under a temporary name, then rename: a killed run leaves none half-written."""
+    target = folder / record_name(record["log"])
+    tmp = target.with_suffix(".part")
+    tmp.write_text(json.dumps(record, indent=1))
+    os.replace(tmp, target)
+
+
+def run_logs(logs: list[str], settings: ReplaySettings, records_dir: Path, jobs: int,
+             scheduler: str | None = None, ship_logs: bool = False, force: bool = False,
+             progress: Progress | None = None) -> list[dict]:
+    """Every log's record, in the order of ``logs``: reused from ``records_dir`` when it was
+    computed with the same settings (unless ``force``), else computed here, in a pool of
+    ``jobs`` processes or on the Dask cluster at ``scheduler``, and saved as it arrives."""
+    key = settings_key(settings)
+    known = {} if force else load_records(records_dir, settings)
+    results: dict[str, dict] = {}
+    for log in logs:
+        if log in known:
+            results[log] = known[log]
+            if progress:
+                progress.add(known[log], reused=True)
+    todo = [log for log in logs if log not in results]
+
+    def finished(record: dict) -> None:
+        record["settings"] = key
+        save_record(records_dir, record)
+        results[record["log"]] = record
+        if progress:
+            progress.add(record)
+
+    if scheduler:
+        _run_dask(todo, settings, scheduler, ship_logs, finished)
+    elif jobs <= 1 or len(todo) <= 1:
+        for log in todo:
+            finished(evaluate_log(log, settings))
+    else:
+        _run_pool(todo, settings, jobs, finished)
+    return [results[log] for log in logs]
+
+
+def _run_pool(logs: list[str], settings: ReplaySettings, jobs: int, finished) -> None:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    # spawn: a fresh interpreter per worker (no forked numba or pymavlink state); each loads
+    # the compiled kernels from the cache once
+    with ProcessPoolExecutor(max_workers=min(jobs, len(logs)),
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(evaluate_log, log, settings) for log in logs]
+        try:
+            for future in as_completed(futures):
+                finished(future.result())
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+
+
+def _run_dask(logs: list[str], settings: ReplaySettings, address: str, ship_logs: bool, finished) -> None:
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise UsageError("--scheduler needs Dask distributed: pip install 'mavattitude[cluster]'") from None
+    try:
+        client = Client(address, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise InputError(address, f"no Dask scheduler answers ({exc})") from None
+    with client:
+        futures = []
+        for log in logs:
+            data = Path(log).read_bytes() if ship_logs else None
+            futures.append(client.submit(evaluate_log, log, settings, data, pure=False, key=f"evaluate-{record_name(log)}"))
+        for future in as_completed(futures):
+            finished(future.result())
