@@ -38,6 +38,7 @@ examples:
   mavattitude replay flight.bin --estimators mahony --rrd flight.rrd --json metrics.json
   mavattitude replay sitl.tlog --reference truth --export out/
   mavattitude replay flight.bin --estimators all --set ncs-eskf.h_threshold_air=0.02
+  mavattitude evaluate ../logs --estimators all -j 4 --out evaluation/
   mavattitude estimators
   mavattitude simulate --scenario figure8 --duration 120 -o figure8.tlog
   mavattitude live udpin:0.0.0.0:14550 --estimators all --spawn
@@ -201,7 +202,7 @@ def cmd_replay(args) -> int:
 
 def cmd_evaluate(args) -> int:
     from . import evalreport as er
-    from .evaluate import Progress, find_logs, run_logs
+    from .evaluate import Progress, check_scheduler, find_logs, run_logs
 
     names = _estimator_names(args.estimators)
     if args.ship_logs and not args.scheduler:
@@ -211,6 +212,8 @@ def cmd_evaluate(args) -> int:
         names.append(args.baseline)
         print(f"note: the baseline {args.baseline} is run too", file=sys.stderr)
     settings = _replay_settings(args, names)
+    if args.scheduler:
+        check_scheduler(args.scheduler)
     logs = find_logs(args.paths)
     if not logs:
         raise InputError(", ".join(args.paths), "holds no .bin or .tlog log")

@@ -104,12 +104,13 @@ def summarize(records: list[dict], names: list[str], baseline: str, reference: s
     estimators = {}
     ranks = {name: [] for name in names}
     wins = dict.fromkeys(names, 0)
-    for log, s in by_log.items():
-        ranked = sorted((v, n) for n, v in s.items() if n in names)
-        for place, (v, n) in enumerate(ranked, 1):
-            ranks[n].append(place)
-        if ranked:
-            wins[ranked[0][1]] += 1
+    for s in by_log.values():
+        on_log = {n: v for n, v in s.items() if n in names}
+        for n, v in on_log.items():  # 1 = best; a tie shares its places' mean
+            below = sum(w < v for w in on_log.values())
+            ties = sum(w == v for w in on_log.values())
+            ranks[n].append(below + (ties + 1) / 2)
+            wins[n] += below == 0  # each of a tie for best wins
     for name in names:
         values = np.array([s[name] for s in by_log.values() if name in s])
         pairs = [(s[name], s[baseline]) for s in by_log.values()

@@ -269,3 +269,21 @@ def _run_dask(logs: list[str], settings: ReplaySettings, address: str, ship_logs
             futures.append(client.submit(evaluate_log, log, settings, data, pure=False, key=f"evaluate-{record_name(log)}"))
         for future in as_completed(futures):
             finished(future.result())
+
+
+def check_scheduler(address: str) -> None:
+    """A refused or unreachable TCP scheduler address fails at once, not after Dask's timeout."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    if parts.scheme != "tcp":
+        return  # tls://, inproc://: Dask's own checks
+    try:
+        port = parts.port or 8786
+    except ValueError:
+        raise UsageError(f"--scheduler {address}: not a TCP address (tcp://HOST:PORT)") from None
+    try:
+        socket.create_connection((parts.hostname or "127.0.0.1", port), timeout=5.0).close()
+    except OSError as exc:
+        raise InputError(address, f"no Dask scheduler answers ({exc.strerror or exc})") from None

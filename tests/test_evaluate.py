@@ -1,0 +1,186 @@
+"""mavattitude evaluate: the same numbers as replay, resume, failing logs, the summary's
+arithmetic, the outputs, and the Dask path on loopback."""
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+from conftest import SAMPLE_LOGS, SHARED_LOGS
+from mavattitude import evalreport as er
+from mavattitude.cli import main
+from mavattitude.evaluate import find_logs, record_name
+
+ESTIMATORS = "mahony,ncs-eskf"
+
+
+@pytest.fixture
+def logs(tmp_path):
+    """Two sample logs in a folder of their own."""
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    for name in ("figure8.tlog", "static.bin"):
+        shutil.copy(SAMPLE_LOGS / name, folder / name)
+    return folder
+
+
+def evaluate(*args) -> int:
+    return main(["evaluate", *map(str, args)])
+
+
+def records(out: Path) -> dict[str, dict]:
+    return {Path(r["log"]).name: r for r in (json.loads(p.read_text()) for p in (out / "logs").glob("*.json"))}
+
+
+def test_each_log_scores_as_replay_does(logs, tmp_path):
+    out = tmp_path / "eval"
+    assert evaluate(logs, "--estimators", ESTIMATORS, "--out", out, "-j", "1") == 0
+    got = records(out)
+    assert set(got) == {"figure8.tlog", "static.bin"}
+    for name, record in got.items():
+        assert record["status"] == "ok", record
+        assert main(["replay", str(logs / name), "--estimators", ESTIMATORS, "--no-view",
+                     "--json", str(tmp_path / f"{name}.json")]) == 0
+        replayed = json.loads((tmp_path / f"{name}.json").read_text())
+        assert record["metrics"] == replayed["estimators"]
+
+
+def test_outputs_are_complete_and_well_formed(logs, tmp_path, capsys):
+    out = tmp_path / "eval"
+    assert evaluate(logs, "--estimators", ESTIMATORS, "--out", out, "-j", "1") == 0
+    assert "ncs-eskf" in capsys.readouterr().out  # the ranking on the terminal
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert len(rows) == 2 * 2 * 3  # logs × estimators × axes
+    assert {r["axis"] for r in rows} == {"roll", "pitch", "yaw"}
+    assert all(float(r["mae"]) >= 0 for r in rows if r["mae"])
+    assert {r["format"] for r in rows} == {"bin", "tlog"}
+    assert all(r["imu_source"] and float(r["imu_rate_hz"]) > 0 and float(r["duration_s"]) > 0 for r in rows)
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["estimators"]) == {"mahony", "ncs-eskf"}
+    assert summary["estimators"]["mahony"]["ratio_to_baseline_geomean"] == 1.0
+    report = (out / "report.md").read_text()
+    assert report.startswith("# Attitude estimators across logs") and "| ncs-eskf |" in report
+    svg = ET.parse(out / "tilt_error.svg").getroot()
+    assert svg.tag.endswith("svg")
+    assert len([e for e in svg.iter() if e.tag.endswith("circle")]) == 2 * 2  # a dot per log and estimator
+    if er.has_parquet():
+        import pyarrow.parquet as pq
+        assert pq.read_table(out / "results.parquet").num_rows == len(rows)
+
+
+def test_a_stopped_run_resumes_and_force_redoes(logs, tmp_path, capsys):
+    out = tmp_path / "eval"
+    assert evaluate(logs / "static.bin", "--estimators", ESTIMATORS, "--out", out, "-j", "1") == 0
+    first = (out / "logs" / record_name(str(logs / "static.bin"))).stat().st_mtime_ns
+    capsys.readouterr()
+    # the same options and one more log: only the new one is replayed
+    assert evaluate(logs, "--estimators", ESTIMATORS, "--out", out, "-j", "1") == 0
+    err = capsys.readouterr().err
+    assert "static.bin: already done" in err and "figure8.tlog: ok" in err
+    assert (out / "logs" / record_name(str(logs / "static.bin"))).stat().st_mtime_ns == first
+    # other options: redone (a record is only reused for what it was computed with)
+    assert evaluate(logs, "--estimators", "mahony", "--out", out, "-j", "1") == 0
+    assert "already done" not in capsys.readouterr().err
+    assert evaluate(logs, "--estimators", "mahony", "--out", out, "-j", "1", "--force") == 0
+    assert "already done" not in capsys.readouterr().err
+
+
+def test_a_failing_log_is_listed_and_the_run_goes_on(logs, tmp_path, capsys):
+    bad = logs / "broken.bin"
+    bad.write_bytes(b"\xa3\x95\x80" + bytes(200))  # a DataFlash header and nothing readable
+    out = tmp_path / "eval"
+    assert evaluate(logs, "--estimators", "mahony", "--out", out, "-j", "2") == 0
+    assert "broken.bin" in capsys.readouterr().err
+    summary = json.loads((out / "summary.json").read_text())
+    assert [f["log"] for f in summary["failed"]] == [str(Path(find_logs([str(bad)])[0]))]
+    assert summary["scored"] == 2
+    assert "## Failed" in (out / "report.md").read_text()
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert [r["status"] for r in rows if r["log"].endswith("broken.bin")] == ["failed"]
+
+
+def test_folders_are_searched_by_content(logs, tmp_path):
+    (logs / "sub").mkdir()
+    shutil.copy(SAMPLE_LOGS / "static.bin", logs / "sub" / "UPPER.BIN")
+    (logs / "firmware.bin").write_bytes(b"\x00" * 100)  # a .bin that is no log
+    (logs / "notes.txt").write_text("not a log")
+    found = [Path(p).name for p in find_logs([str(logs)])]
+    assert sorted(found) == ["UPPER.BIN", "figure8.tlog", "static.bin"]
+    assert [Path(p).name for p in find_logs([str(logs / "*.tlog")])] == ["figure8.tlog"]
+    # each log once, however often it is named
+    assert len(find_logs([str(logs), str(logs / "static.bin")])) == 3
+
+
+def test_bad_command_lines(logs, tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert evaluate(empty, "--out", tmp_path / "e") == 1
+    assert evaluate(tmp_path / "missing", "--out", tmp_path / "e") == 1
+    assert evaluate(tmp_path / "*.nothing", "--out", tmp_path / "e") == 1
+    assert evaluate(logs, "--baseline", "nope", "--out", tmp_path / "e") == 2
+    assert evaluate(logs, "--ship-logs", "--out", tmp_path / "e") == 2
+    assert evaluate(logs, "-j", "0", "--out", tmp_path / "e") == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+
+
+def test_summary_arithmetic():
+    def rec(log, **tilt):
+        return {"log": log, "status": "ok", "error": None, "facts": {},
+                "metrics": {n: {"roll": {"mae": v}, "pitch": {"mae": v}} for n, v in tilt.items()}}
+
+    records = [rec("a", **{"mahony": 2.0, "ekf": 1.0, "eskf": 0.5, "ncs-eskf": 0.4}),
+               rec("b", **{"mahony": 1.0, "ekf": 3.0, "eskf": 2.0, "ncs-eskf": 1.0}),
+               rec("c", **{"mahony": 4.0, "ekf": 2.0, "eskf": 8.0, "ncs-eskf": 1.0}),
+               {"log": "d", "status": "failed", "error": "d: broken", "facts": {}, "metrics": {}}]
+    s = er.summarize(records, ["mahony", "ekf", "eskf", "ncs-eskf"], "mahony", "autopilot")
+    e = s["estimators"]
+    assert e["ekf"]["median"] == 2.0 and e["ekf"]["mean"] == 2.0
+    assert e["ekf"]["ratio_to_baseline_geomean"] == round((0.5 * 3.0 * 0.5) ** (1 / 3), 3)
+    assert e["ekf"]["logs_at_most_0.8x_baseline"] == 2 and e["ekf"]["logs_over_2x_baseline"] == 1
+    assert e["ncs-eskf"]["wins"] == 3 and e["mahony"]["wins"] == 1  # b: a tie for best, both win
+    assert e["ncs-eskf"]["mean_rank"] == round((1 + 1.5 + 1) / 3, 3)
+    assert e["mahony"]["mean_rank"] == round((4 + 1.5 + 3) / 3, 3)
+    assert e["eskf"]["worst_logs"][0] == {"log": "c", "score": 8.0}
+    assert s["failed"] == [{"log": "d", "error": "d: broken"}] and s["scored"] == 3
+    chain = s["paper_001_ranking"]
+    assert chain["logs"] == 3
+    assert chain["steps"] == {"ncs-eskf < eskf": 3, "eskf < ekf": 2, "ekf < mahony": 2}
+    assert chain["whole_chain"] == 1  # only log a
+
+
+@pytest.mark.slow
+def test_dask_cluster_on_loopback_gives_the_local_numbers(logs, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    local = tmp_path / "local"
+    assert evaluate(logs, "--estimators", ESTIMATORS, "--out", local, "-j", "1") == 0
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  host="127.0.0.1", dashboard_address=":0") as cluster:
+        for extra, out in (((), tmp_path / "dask"), (("--ship-logs",), tmp_path / "shipped")):
+            assert evaluate(logs, "--estimators", ESTIMATORS, "--out", out,
+                            "--scheduler", cluster.scheduler_address, *extra) == 0
+            got, want = records(out), records(local)
+            assert {k: v["metrics"] for k, v in got.items()} == {k: v["metrics"] for k, v in want.items()}
+            assert (out / "summary.json").read_text() == (local / "summary.json").read_text()
+
+
+def test_no_scheduler_answering_is_one_line(logs, tmp_path, capsys):
+    pytest.importorskip("distributed")
+    assert evaluate(logs, "--out", tmp_path / "e", "--scheduler", "tcp://127.0.0.1:9") == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "127.0.0.1:9" in err
+
+
+@pytest.mark.slow
+def test_shared_logs_all_estimators(tmp_path):
+    if not SHARED_LOGS.is_dir():
+        pytest.skip(f"real logs not found at {SHARED_LOGS} (they live beside the project, not in it)")
+    out = tmp_path / "eval"
+    assert evaluate(SHARED_LOGS, "--estimators", "all", "--out", out) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["failed"] == [] and summary["scored"] == summary["logs"] >= 31
+    assert summary["paper_001_ranking"]["logs"] == summary["scored"]
