@@ -284,7 +284,7 @@ def strip_plot_svg(records: list[dict], names: list[str]) -> str:
             strong = k == 1
             parts.append(f'<line x1="{x:.1f}" y1="{top}" x2="{x:.1f}" y2="{height - 40}" '
                          f'stroke="{"#bbb" if strong else "#eee"}"/>')
-            if strong:
+            if k in (1, 2, 5):
                 parts.append(f'<text x="{x:.1f}" y="{height - 25}" text-anchor="middle">{v:g}°</text>')
         decade *= 10
     parts.append(f'<text x="{(left + width - right) / 2:.0f}" y="{height - 6}" text-anchor="middle">'
