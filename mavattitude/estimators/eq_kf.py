@@ -125,6 +125,7 @@ from ..flight import GRAVITY
 from ..params import param
 from ..quaternion import dcm_into, qmul_into
 from .base import MAX_STEP_S, Estimator
+from .consistency import attitude_error, carried, learn_gravity, step_rotation_into, track_stillness
 
 
 @dataclass
@@ -159,7 +160,6 @@ class EqKfParams:
 
 
 ACCEL_STATES = ("used", "down-weighted", "skipped")
-G_LEARN_S = 5.0  # s, time constant of learning the accelerometer's reading of g while still
 
 # Indices into the kernel's auxiliary state vector.
 _A_LP = 0  # 0-2: low-passed accelerometer f̃, body frame (NaN before the first sample)
@@ -201,23 +201,7 @@ def picard_step(q, dtheta, out):
 def error_transition(dtheta, dt, a, b):
     """Φ's blocks for one step: a = C(p̂)ᵀ (∂e'/∂e), b = -½Δt (I - ½[Δθ]×) (∂e'/∂β)."""
     dx, dy, dz = dtheta[0], dtheta[1], dtheta[2]
-    th2 = dx * dx + dy * dy + dz * dz
-    c0 = 1.0 - th2 / 8.0
-    c1 = 0.5 - th2 / 48.0
-    pw, px, py, pz = c0, c1 * dx, c1 * dy, c1 * dz
-    # a = C(p̂)ᵀ, written for the unnormalised p: C(p̂) = C'(p) / |p|²
-    ww, xx, yy, zz = pw * pw, px * px, py * py, pz * pz
-    n = 1.0 / (ww + xx + yy + zz)
-    n2 = 2.0 * n
-    a[0, 0] = (ww + xx - yy - zz) * n
-    a[1, 1] = (ww - xx + yy - zz) * n
-    a[2, 2] = (ww - xx - yy + zz) * n
-    a[1, 0] = (px * py - pw * pz) * n2
-    a[0, 1] = (px * py + pw * pz) * n2
-    a[2, 0] = (px * pz + pw * py) * n2
-    a[0, 2] = (px * pz - pw * py) * n2
-    a[2, 1] = (py * pz - pw * px) * n2
-    a[1, 2] = (py * pz + pw * px) * n2
+    step_rotation_into(dx, dy, dz, a)  # a = C(p̂)ᵀ, p the Picard step's rotation
     h = -0.5 * dt
     k = 0.25 * dt  # b = -½Δt I + ¼Δt [Δθ]×
     b[0, 0], b[0, 1], b[0, 2] = h, -k * dz, k * dy
@@ -495,9 +479,7 @@ def eqkf_run(s, state, cfg, out_q, diag):
         # ---- accelerometer bookkeeping, every vector carried along with the body rotation
         # (v ← C(p̂)ᵀ v): the low-pass f̃, the direction noise, the stillness test
         if step and accel_ok and lp0 == lp0:
-            f0 = a[0, 0] * lp0 + a[0, 1] * lp1 + a[0, 2] * lp2
-            f1 = a[1, 0] * lp0 + a[1, 1] * lp1 + a[1, 2] * lp2
-            f2 = a[2, 0] * lp0 + a[2, 1] * lp1 + a[2, 2] * lp2
+            f0, f1, f2 = carried(a, lp0, lp1, lp2)
             alpha = dt / (tau + dt)
             lp0 = f0 + alpha * (ax - f0)
             lp1 = f1 + alpha * (ay - f1)
@@ -516,23 +498,11 @@ def eqkf_run(s, state, cfg, out_q, diag):
             dir0 = np.nan
         # stillness: little rotation and a specific force that stays put in the navigation
         # frame, for still_time
-        if step and accel_ok and rx * rx + ry * ry + rz * rz < still_rate2:
-            f0 = a[0, 0] * ref0 + a[0, 1] * ref1 + a[0, 2] * ref2
-            f1 = a[1, 0] * ref0 + a[1, 1] * ref1 + a[1, 2] * ref2
-            f2 = a[2, 0] * ref0 + a[2, 1] * ref1 + a[2, 2] * ref2
-            ref0, ref1, ref2 = f0, f1, f2
-            if (ax - f0) ** 2 + (ay - f1) ** 2 + (az - f2) ** 2 < still_acc2:
-                still_t += dt
-            else:
-                still_t = -1.0
-        else:
-            still_t = -1.0
-        if not (still_t >= 0.0):  # not still (or NaN): a new span starts here
-            still_t = 0.0
-            ref0, ref1, ref2 = ax, ay, az
+        ref0, ref1, ref2, still_t = track_stillness(ref0, ref1, ref2, still_t, ax, ay, az, a, step and accel_ok,
+                                                    rx * rx + ry * ry + rz * rz, still_rate2, still_acc2, dt)
         still = still_t >= still_time
         if still:  # learn the accelerometer's own reading of g (its scale error)
-            g_a += dt / (G_LEARN_S + dt) * (an - g_a)
+            g_a = learn_gravity(g_a, an, dt)
 
         # ---- accelerometer update with trust w
         w_acc = 0.0
@@ -555,9 +525,7 @@ def eqkf_run(s, state, cfg, out_q, diag):
             cosr = (lp0 * hv[0] + lp1 * hv[1] + lp2 * hv[2]) / fn
             inconsistent = False
             if w_rate >= 1.0 and abs(eps) < cons_norm:
-                # ρ > φ_m + cons_tol  ⇔  cos ρ < cos(φ_m + cons_tol), cos φ_m = g_a/‖f̃‖
-                cphi = 1.0 / (1.0 + max(eps, 0.0))
-                inconsistent = cosr < cphi * cos_tol - np.sqrt(1.0 - cphi * cphi) * sin_tol
+                inconsistent = attitude_error(cosr, eps, cos_tol, sin_tol)
             if inconsistent:
                 cons_t += dt
             else:

@@ -81,20 +81,27 @@ and sustained-acceleration simulations cannot both be met by any choice of τ.
 - ``step_noise``: integration uncertainty per step, (step_noise · |ω_k - ω_k-1| dt)² added to
   Q: at a low IMU rate (1-10 Hz in many logs) the rate between samples is unknown and the
   gyro alone is not worth much, which P should say.
-- Consistency (``cons_time``; eq-kf's test, the same values): a horizontal manoeuvre that
-  turns the specific force by ρ away from gravity also lengthens it to g/cos ρ. When the
-  residual angle ρ (low-passed accelerometer f̃, time constant ``CONS_LPF_S``, against the
-  predicted gravity direction) exceeds the angle φ_m = arccos(g_a/‖f̃‖) that the measured
-  length explains by more than ``cons_tol``, for ``cons_time`` seconds, while |‖f̃‖/g_a - 1|
-  < ``cons_norm`` and ‖ω‖ < ``cons_rate``, the residual is attitude error, not a manoeuvre: the
-  tilt variance is raised so that the widened gate sits at twice the residual, and the
-  accelerometer recaptures the attitude. g_a is the accelerometer's own reading of g, learned
-  (time constant ``G_LEARN_S``) while the vehicle is still (rotating slower than
-  ``STILL_RATE`` with f̃ within ``STILL_ACCEL`` of where it was, for ``STILL_S``): old logs
-  read a few % off g, and a g_a learned in flight would learn a sustained acceleration. Why:
-  the gate alone cannot tell a drifted filter from a manoeuvre; a gyro whose bias jumps in
-  flight (copter-3.3) drifted it past the gate faster than P grows, and it stayed locked out
-  for 78 % of the flight, 11° / 19° roll / pitch MAE against ATT; with the test 2.0° / 3.1°.
+- Consistency (``cons_time``; eq-kf's test and values, the code in ``consistency``): a
+  horizontal manoeuvre that turns the specific force by ρ away from gravity also lengthens it
+  to g/cos ρ. When the residual angle ρ (low-passed accelerometer f̃, time constant
+  ``CONS_LPF_S``, against the predicted gravity direction) exceeds the angle
+  φ_m = arccos(g_a/‖f̃‖) that the measured length explains by more than ``cons_tol``, for
+  ``cons_time`` seconds, while |‖f̃‖/g_a - 1| < ``cons_norm`` and ‖ω‖ < ``cons_rate``, the
+  residual is attitude error, not a manoeuvre: the tilt variance is raised so that the widened
+  gate sits at twice the residual, and the accelerometer recaptures the attitude. g_a is the
+  accelerometer's own reading of g, learned while the vehicle is still (rotating slower than
+  ``STILL_RATE`` with the accelerometer within ``STILL_ACCEL`` of where it was, for
+  ``STILL_S``). Why: the gate alone cannot tell a drifted filter from a manoeuvre; a gyro
+  whose bias jumps in flight (copter-3.3) drifted it past the gate faster than P grows, and it
+  stayed locked out for 78 % of the flight, 11° / 19° roll / pitch MAE against ATT; with the
+  test 2.0° / 3.1°.
+  f̃ and the still reference are carried with each step's rotation, as in eq-kf (this test
+  first had its own copy with a plain body-frame low-pass and stillness judged on f̃). On the
+  31 shared logs (``mavattitude evaluate ../shared/logs --estimators ncs-eskf``, tilt error =
+  mean roll/pitch MAE against ATT): median 1.287° unchanged, mean 1.997° → 1.989°, worst log
+  (plane-4.3.1) 9.90° unchanged; copter-3.3 2.55° → 2.34°, sub-4.1.0 1.72° → 1.66°,
+  sitl-quadplane-vtol 7.74° → 7.77°, copter-4.5.7 lane-switch 0.94° → 0.95°, five more within
+  0.01°; against SITL truth only sitl-quadplane-vtol moved (+0.03°).
 
 No magnetometer: yaw is the gyro's, from the shared alignment's initial yaw.
 
@@ -114,6 +121,7 @@ from numba import njit
 from ..flight import GRAVITY
 from ..params import param
 from ..quaternion import exp_s, gravity_in_body_s, normalize_into, qmul_s
+from .consistency import attitude_error, carried, learn_gravity, step_rotation_into, track_stillness
 from .base import MAX_STEP_S, Estimator
 from .eskf import set_q, step_dt
 
@@ -143,9 +151,8 @@ class NcsEskfParams:
 
 ACCEL_USED, ACCEL_TOTAL, ACCEL_HORIZONTAL, ACCEL_NONE = 0, 1, 2, 3
 CONS_LPF_S = 0.1  # s, time constant of the accelerometer low-pass the consistency test uses
-G_LEARN_S = 5.0  # s, time constant of learning the accelerometer's reading of g while still
 STILL_RATE = 0.05  # rad/s: still when rotating slower than this ...
-STILL_ACCEL = 0.2  # m/s²: ... with f̃ within this of where it was ...
+STILL_ACCEL = 0.2  # m/s²: ... with the accelerometer within this of where it was ...
 STILL_S = 2.0  # s: ... for this long (eq-kf's stillness test, its default values)
 # cons (the consistency test's memory between chunks): f̃ (3), seconds inconsistent, g_a,
 # f̃ where the still span began (3), seconds still
@@ -272,6 +279,7 @@ def ncs_eskf_run(s, state, cfg, out, diag):
     cov_trace, accel_state, h_residual, h_gate = diag.cov_trace, diag.accel_state, diag.h_residual, diag.h_gate
     two_pi_fc = 2.0 * math.pi * lpf_hz
     cos_tol, sin_tol = math.cos(cons_tol), math.sin(cons_tol)
+    a = np.empty((3, 3))  # the step's rotation, for the consistency test
     for i in range(len(t)):
         dt = step_dt(t[i], t_prev[0])
         t_prev[0] = t[i]
@@ -293,8 +301,8 @@ def ncs_eskf_run(s, state, cfg, out, diag):
         gate = np.nan
         if math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az):
             if cons_time > 0.0 and gate_sigma > 0.0:
-                _consistency(q, P, cons, ax, ay, az, w0, w1, w2, dt if stepped else 0.0,
-                             cos_tol, sin_tol, cons_norm, cons_rate, cons_time, gate_sigma)
+                _consistency(q, P, cons, a, ax, ay, az, w0 - bias[0], w1 - bias[1], w2 - bias[2],
+                             dt if stepped else 0.0, cos_tol, sin_tol, cons_norm, cons_rate, cons_time, gate_sigma)
             if lpf_hz > 0.0:
                 if stepped and accel_lp[0] == accel_lp[0]:
                     alpha = 1.0 - math.exp(-two_pi_fc * dt)
@@ -335,32 +343,30 @@ def ncs_eskf_run(s, state, cfg, out, diag):
 
 
 @njit(cache=True, inline="always")
-def _consistency(q, P, cons, ax, ay, az, w0, w1, w2, dt, cos_tol, sin_tol, cons_norm, cons_rate,
+def _consistency(q, P, cons, a, ax, ay, az, w0, w1, w2, dt, cos_tol, sin_tol, cons_norm, cons_rate,
                  cons_time, gate_sigma):
-    """The consistency test (module docstring): update f̃ and g_a, count the seconds the
-    residual has been attitude error, and once cons_time is reached open the gate."""
-    if dt > 0.0 and cons[C_LP] == cons[C_LP]:
+    """The consistency test (module docstring; ``consistency``, eq-kf's): carry f̃ and the
+    still reference with the step's rotation (rate ``w`` without the bias), update g_a, count
+    the seconds the residual has been attitude error, and once cons_time is reached open the
+    gate."""
+    rate2 = w0 * w0 + w1 * w1 + w2 * w2
+    stepped = dt > 0.0 and cons[C_LP] == cons[C_LP]
+    if stepped:
+        step_rotation_into(w0 * dt, w1 * dt, w2 * dt, a)
+        f0, f1, f2 = carried(a, cons[C_LP], cons[C_LP + 1], cons[C_LP + 2])
         alpha = dt / (CONS_LPF_S + dt)
-        cons[C_LP] += alpha * (ax - cons[C_LP])
-        cons[C_LP + 1] += alpha * (ay - cons[C_LP + 1])
-        cons[C_LP + 2] += alpha * (az - cons[C_LP + 2])
-    else:  # first sample or after a gap: restart the low-pass
+        cons[C_LP], cons[C_LP + 1], cons[C_LP + 2] = f0 + alpha * (ax - f0), f1 + alpha * (ay - f1), f2 + alpha * (az - f2)
+    cons[C_REF], cons[C_REF + 1], cons[C_REF + 2], cons[C_STILL] = track_stillness(
+        cons[C_REF], cons[C_REF + 1], cons[C_REF + 2], cons[C_STILL], ax, ay, az, a, stepped, rate2,
+        STILL_RATE * STILL_RATE, STILL_ACCEL * STILL_ACCEL, dt)
+    if not stepped:  # first sample or after a gap: restart the low-pass
         cons[C_LP], cons[C_LP + 1], cons[C_LP + 2] = ax, ay, az
         cons[C_T] = 0.0
         return
+    if cons[C_STILL] >= STILL_S:
+        cons[C_G] = learn_gravity(cons[C_G], math.sqrt(ax * ax + ay * ay + az * az), dt)
     f0, f1, f2 = cons[C_LP], cons[C_LP + 1], cons[C_LP + 2]
     fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-    rate2 = w0 * w0 + w1 * w1 + w2 * w2
-    moved = ((f0 - cons[C_REF]) ** 2 + (f1 - cons[C_REF + 1]) ** 2 + (f2 - cons[C_REF + 2]) ** 2
-             > STILL_ACCEL * STILL_ACCEL)
-    if rate2 < STILL_RATE * STILL_RATE and not moved and cons[C_REF] == cons[C_REF]:
-        cons[C_STILL] += dt
-    else:  # a new still span may begin here
-        cons[C_STILL] = 0.0
-        cons[C_REF], cons[C_REF + 1], cons[C_REF + 2] = f0, f1, f2
-    if cons[C_STILL] >= STILL_S:
-        cons[C_G] += dt / (G_LEARN_S + dt) * (fn - cons[C_G])
-    slow = rate2 < cons_rate * cons_rate
     eps = fn / cons[C_G] - 1.0
     w, x, y, z = q[0], q[1], q[2], q[3]
     n2 = w * w + x * x + y * y + z * z
@@ -369,11 +375,7 @@ def _consistency(q, P, cons, ax, ay, az, w0, w1, w2, dt, cos_tol, sin_tol, cons_
     h1 = -2.0 * (y * z + w * x) / n2
     h2 = -(w * w - x * x - y * y + z * z) / n2
     cosr = (f0 * h0 + f1 * h1 + f2 * h2) / fn
-    inconsistent = False
-    if slow and abs(eps) < cons_norm:
-        # ρ > φ_m + cons_tol  ⇔  cos ρ < cos(φ_m + cons_tol), cos φ_m = g_a/‖f̃‖
-        cphi = 1.0 / (1.0 + max(eps, 0.0))
-        inconsistent = cosr < cphi * cos_tol - math.sqrt(1.0 - cphi * cphi) * sin_tol
+    inconsistent = rate2 < cons_rate * cons_rate and abs(eps) < cons_norm and attitude_error(cosr, eps, cos_tol, sin_tol)
     cons[C_T] = cons[C_T] + dt if inconsistent else 0.0
     if cons[C_T] >= cons_time:
         # P_xx = P_yy = 2 (ρ / gate_sigma)²: the widened gate at about twice the residual
