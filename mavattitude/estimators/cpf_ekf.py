@@ -282,33 +282,11 @@ class AidingRows(NamedTuple):
 
 
 @njit(cache=True)
-def exp_dexp(v, e, d):
-    """e = Exp(v) (4,) and d = ∂Exp(v)/∂v (4×3), written in place."""
-    th2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
-    th = math.sqrt(th2)
-    if th < 1e-4:
-        c = 1.0 - th2 / 8.0
-        f1 = 0.5 - th2 / 48.0  # sin(θ/2)/θ
-        f2 = -1.0 / 24.0 + th2 / 960.0  # (½ θ cos(θ/2) - sin(θ/2)) / θ³
-    else:
-        s4 = math.sin(0.25 * th)  # one sine and cosine of θ/4 give both of θ/2
-        c4 = math.cos(0.25 * th)
-        s = 2.0 * s4 * c4
-        c = c4 * c4 - s4 * s4
-        f1 = s / th
-        f2 = (0.5 * th * c - s) / (th2 * th)
-    e[0] = c
-    for i in range(3):
-        e[1 + i] = f1 * v[i]
-        d[0, i] = -0.5 * f1 * v[i]
-        for j in range(3):
-            d[1 + i, j] = f2 * v[i] * v[j]
-        d[1 + i, i] += f1
-
-
-@njit(cache=True)
 def exp_dexp_pair(v, e, d, eh, dh):
-    """``exp_dexp`` of v into (e, d) and of v/2 into (eh, dh), from one sine and cosine."""
+    """e = Exp(v) (4,) and d = ∂Exp(v)/∂v (4×3), and likewise eh, dh of v/2, written in place
+    from one sine and cosine (of θ/4, θ = |v|; series below θ = 1e-4):
+    Exp(v) = [cos ½θ, f₁ v], f₁ = sin(½θ)/θ;  ∂Exp/∂v = [-½ f₁ vᵀ; f₁ I + f₂ v vᵀ],
+    f₂ = (½θ cos ½θ - sin ½θ)/θ³."""
     th2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
     th = math.sqrt(th2)
     hh2 = 0.25 * th2
@@ -316,7 +294,7 @@ def exp_dexp_pair(v, e, d, eh, dh):
         c, f1, f2 = 1.0 - th2 / 8.0, 0.5 - th2 / 48.0, -1.0 / 24.0 + th2 / 960.0
         ch, f1h, f2h = 1.0 - hh2 / 8.0, 0.5 - hh2 / 48.0, -1.0 / 24.0 + hh2 / 960.0
     else:
-        s4 = math.sin(0.25 * th)
+        s4 = math.sin(0.25 * th)  # sin, cos of θ/4 give both of θ/2 and, as they are, of θ/4
         c4 = math.cos(0.25 * th)
         s = 2.0 * s4 * c4
         c = c4 * c4 - s4 * s4
@@ -429,35 +407,37 @@ def yaw_model(x, h_q):
 
 
 @njit(cache=True)
-def predict_state(x, w_mean, a_mean, dt, g, xn):
-    """The state step f(x) of eq 5-7 as implemented (see the module docstring), into ``xn``."""
+def _step_rotations(x, w_mean, a_mean, dt):
+    """What a step turns by (see the module docstring): Exp(φ) and its derivative, Exp(φ/2)
+    and its derivative, R(Exp(φ/2)), the mid-step attitude q_mid and the specific force a'
+    (z bias removed)."""
     phi = np.empty(3)
     for i in range(3):
         phi[i] = (w_mean[i] - x[IB + i]) * dt
-    e = np.empty(4)
-    d = np.empty((4, 3))
-    exp_dexp(phi, e, d)
-    rm = np.empty((4, 4))
-    right_matrix_into(e, rm)
-    half = np.empty(3)
-    for i in range(3):
-        half[i] = 0.5 * phi[i]
-    eh = np.empty(4)
-    dh = np.empty((4, 3))
-    exp_dexp(half, eh, dh)
+    e, d, eh, dh = np.empty(4), np.empty((4, 3)), np.empty(4), np.empty((4, 3))
+    exp_dexp_pair(phi, e, d, eh, dh)
     rh = np.empty((4, 4))
     right_matrix_into(eh, rh)
     qm = np.zeros(4)
     for i in range(4):
-        s = 0.0
-        sm = 0.0
         for k in range(4):
-            s += rm[i, k] * x[k]
-            sm += rh[i, k] * x[k]
-        xn[i] = s
-        qm[i] = sm
+            qm[i] += rh[i, k] * x[k]
     ap = np.empty(3)
     ap[0], ap[1], ap[2] = a_mean[0], a_mean[1], a_mean[2] - x[IA]
+    return e, d, dh, rh, qm, ap
+
+
+@njit(cache=True)
+def predict_state(x, w_mean, a_mean, dt, g, xn):
+    """The state step f(x) of eq 5-7 as implemented (see the module docstring), into ``xn``."""
+    e, d, dh, rh, qm, ap = _step_rotations(x, w_mean, a_mean, dt)
+    rm = np.empty((4, 4))
+    right_matrix_into(e, rm)
+    for i in range(4):
+        s = 0.0
+        for k in range(4):
+            s += rm[i, k] * x[k]
+        xn[i] = s
     an = np.empty(3)
     rotate_into(qm, ap, an)
     an[2] += g
@@ -471,12 +451,7 @@ def predict_state(x, w_mean, a_mean, dt, g, xn):
 @njit(cache=True)
 def transition_blocks(x, w_mean, a_mean, dt, fqq, fqb, fvq, fvb, fva):
     """The non-trivial blocks of F (see the module docstring)."""
-    phi = np.empty(3)
-    for i in range(3):
-        phi[i] = (w_mean[i] - x[IB + i]) * dt
-    e = np.empty(4)
-    d = np.empty((4, 3))
-    exp_dexp(phi, e, d)
+    e, d, dh, rh, qm, ap = _step_rotations(x, w_mean, a_mean, dt)
     right_matrix_into(e, fqq)
     lq = np.empty((4, 4))
     left_matrix_into(x[:4], lq)
@@ -486,20 +461,6 @@ def transition_blocks(x, w_mean, a_mean, dt, fqq, fqb, fvq, fvb, fva):
             for k in range(4):
                 s += lq[i, k] * d[k, j]
             fqb[i, j] = -dt * s
-    half = np.empty(3)
-    for i in range(3):
-        half[i] = 0.5 * phi[i]
-    eh = np.empty(4)
-    dh = np.empty((4, 3))
-    exp_dexp(half, eh, dh)
-    rh = np.empty((4, 4))
-    right_matrix_into(eh, rh)
-    qm = np.zeros(4)
-    for i in range(4):
-        for k in range(4):
-            qm[i] += rh[i, k] * x[k]
-    ap = np.empty(3)
-    ap[0], ap[1], ap[2] = a_mean[0], a_mean[1], a_mean[2] - x[IA]
     jm = np.empty((3, 4))
     rot_jacobian(qm, ap, jm)
     ez = np.zeros(3)
