@@ -38,13 +38,14 @@ def replay(log, estimators=("mahony",), reference: str = "autopilot", params: di
     ``params``: {estimator: {parameter: value}} (or a parameter dataclass), checked against
     each parameter's valid range; ``declination`` in degrees (default the log's COMPASS_DEC).
     """
-    from .params import build
+    from .params import build, log_defaults
     from .pipeline import run_replay
 
     flight = log if hasattr(log, "imu") else load(log)
     names = list(estimators)
     values = {n: v for n, v in (params or {}).items() if isinstance(v, dict)}
-    chosen = build(names, values, source="replay(params=...)")
+    log_values, _ = log_defaults(flight, names, values)  # as the command does (a plane's airspeed)
+    chosen = build(names, values, source="replay(params=...)", log_values=log_values)
     chosen.update({n: v for n, v in (params or {}).items() if not isinstance(v, dict)})
     return run_replay(flight, names, reference=reference, imu_source=imu, warmup_s=warmup,
                       declination_deg=declination, params=chosen, use_mag=use_mag)

@@ -72,3 +72,16 @@ def test_an_estimator_plugin_reaches_the_command(scratch, monkeypatch, capsys):
     assert code == 0 and "gyro-only" in out
     assert "estimator plugin broken" in err  # one line, and the command goes on
     assert main(["estimators"]) == 0 and "gyro-only: Gyro integration alone" in capsys.readouterr().out
+
+
+def test_replay_takes_the_logs_own_defaults_as_the_command_does(tmp_path):
+    """A plane's cruise airspeed reaches eq-kf from the API as from `replay` (params.log_defaults)."""
+    from conftest import shared_log
+
+    log = shared_log("plane-3.1-flight-329.bin")
+    assert main(["replay", str(log), "--estimators", "eq-kf", "--no-view", "--json", str(tmp_path / "m.json")]) == 0
+    import json
+    cli = json.loads((tmp_path / "m.json").read_text())["estimators"]
+    api = mavattitude.replay(log, estimators=["eq-kf"]).metrics["estimators"]
+    assert api == cli
+    assert api["eq-kf"]["params"]["airspeed"] > 0
