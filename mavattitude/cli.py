@@ -142,7 +142,7 @@ def _replay_settings(args, names: list[str]):
 
     settings = ReplaySettings(
         names=tuple(names), reference=args.reference, imu=args.imu, warmup_s=args.warmup,
-        declination_deg=args.declination, use_mag=not args.no_mag, segment=args.segment,
+        declination_deg=args.declination, use_mag=not args.no_mag, trim=not args.no_trim, segment=args.segment,
         file_values=load_file(args.params) if args.params else None,
         assignments=tuple(args.set or ()), params_source=args.params or "--params")
     settings.check()  # bad values fail before any log is read
@@ -173,9 +173,12 @@ def cmd_replay(args) -> int:
             if event.level == "warn":
                 _warn(event.text)
         if result.reference is not None:
+            trim = "" if result.trim is None else (
+                f"; estimates turned by the board trim (roll {math.degrees(result.trim[0]):.2f}°, "
+                f"pitch {math.degrees(result.trim[1]):.2f}°) as the autopilot's are")
             print(f"{flight.path}: {len(result.flight.imu[result.imu_source].t)} samples of "
                   f"{result.imu_source}, scored against {result.reference.source} "
-                  f"({args.reference}) after a {args.warmup:g} s warm-up")
+                  f"({args.reference}) after a {args.warmup:g} s warm-up{trim}")
             print(format_table(result.comparisons, result.reference.source))
             why = nothing_scored(result.comparisons, args.warmup)
             if why:
@@ -184,7 +187,7 @@ def cmd_replay(args) -> int:
         if json_out:
             with json_out.writing() as path:
                 write_json(path, flight.path, result.reference.source if result.reference else "none",
-                           result.comparisons, estimator_extras(result))
+                           result.comparisons, estimator_extras(result), scoring=result.scoring)
             print(f"metrics written to {json_out.path}")
         if export:
             if result.reference is None:
@@ -523,6 +526,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="write an output over an existing file of another kind (never over an "
                             "input log or parameter file)")
 
+    def trim_arg(p):
+        p.add_argument("--no-trim", action="store_true",
+                       help="score the estimates as estimated: without turning them by the log's board "
+                            "trim (AHRS_TRIM_X/Y) first, as the autopilot turns its own attitude")
+
     def segment_arg(p):
         p.add_argument("--segment", type=_number(0, whole=True), default=None, metavar="N",
                        help="when the autopilot rebooted during the log (its clock went back), "
@@ -544,6 +552,7 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("log", help="a .bin (DataFlash) or .tlog (telemetry) file")
     _estimation_args(p, "log")
+    trim_arg(p)
     segment_arg(p)
     out = p.add_argument_group("outputs")
     out.add_argument("--json", metavar="FILE", help="write the metrics as JSON")
@@ -581,6 +590,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ship-logs", action="store_true",
                    help="with --scheduler: send each log's bytes to the worker (workers without the files)")
     p.add_argument("--out", default="evaluation", metavar="DIR", help="where the results go (default evaluation/)")
+    trim_arg(p)
     segment_arg(p)
     force_arg(p)
     p.set_defaults(func=cmd_evaluate)

@@ -110,7 +110,6 @@ def evaluate_log(path: str, settings: ReplaySettings, data: bytes | None = None)
 def _replay(local: str, path: str, settings: ReplaySettings) -> dict:
     from .pipeline import replay_flight
     from .readers import read_log
-    from .report import estimator_extras, to_json_dict
 
     flight = read_log(local, segment=settings.segment)
     facts = log_facts(flight, settings.imu)
@@ -120,7 +119,8 @@ def _replay(local: str, path: str, settings: ReplaySettings) -> dict:
         return {"status": "skipped", "facts": facts, "error": "no attitude reference (ATT / ATTITUDE)"}
     result, _ = replay_flight(flight, settings)
     facts["imu_source"] = result.imu_source
-    metrics = to_json_dict(path, result.reference.source, result.comparisons, estimator_extras(result))
+    metrics = result.metrics
+    facts["board_trim"] = metrics["scoring"]["board_trim"]
     return {"status": "ok", "facts": facts, "metrics": metrics["estimators"], "reference": metrics["reference"]}
 
 

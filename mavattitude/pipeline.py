@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import aiding as aid
+from . import quaternion as quat
 from . import estimators as est
 from .errors import InputError, UsageError
 from .events import Event
@@ -39,14 +40,22 @@ class ReplayResult:
     estimator_events: dict[str, dict] = field(default_factory=dict)
     params: dict = field(default_factory=dict)  # estimator name -> its parameter dataclass
     aiding: aid.Aiding | None = None  # GPS / baro on the IMU clock, when an estimator used them
+    trim: tuple[float, float] | None = None  # (roll, pitch) rad the estimates were turned by, see board_trim
+
+    @property
+    def scoring(self) -> dict:
+        """How the estimates were scored, beyond the reference: the board trim applied."""
+        trim = None if self.trim is None else {"roll_deg": round(math.degrees(self.trim[0]), 4),
+                                               "pitch_deg": round(math.degrees(self.trim[1]), 4)}
+        return {"board_trim": trim}
 
     @property
     def metrics(self) -> dict:
         """What ``replay --json`` writes: per estimator and axis the statistics, its events,
-        diagnostics and parameters."""
+        diagnostics and parameters; ``scoring``."""
         from .report import estimator_extras, to_json_dict
         return to_json_dict(self.flight.path, self.reference.source if self.reference else "none",
-                            self.comparisons, estimator_extras(self))
+                            self.comparisons, estimator_extras(self), scoring=self.scoring)
 
     def write_json(self, path) -> None:
         """The metrics as JSON (``replay --json``)."""
@@ -54,7 +63,7 @@ class ReplayResult:
         from .report import estimator_extras, write_json
         with Outputs(inputs=[self.flight.path]) as outputs, outputs.file(path, "write_json", "json").writing() as to:
             write_json(to, self.flight.path, self.reference.source if self.reference else "none",
-                       self.comparisons, estimator_extras(self))
+                       self.comparisons, estimator_extras(self), scoring=self.scoring)
 
     def write_csv(self, folder) -> None:
         """reference.csv and <estimator>.csv in ``folder`` (``replay --export``)."""
@@ -81,6 +90,26 @@ def resolve_declination(flight: Flight, override_deg: float | None) -> tuple[flo
     if "COMPASS_DEC" in flight.params:
         return float(flight.params["COMPASS_DEC"]), "log parameter COMPASS_DEC"
     return 0.0, "none (0)"
+
+
+def board_trim(flight: Flight) -> tuple[float, float] | None:
+    """The log's AHRS_TRIM_X / AHRS_TRIM_Y (rad: roll, pitch), when either is non-zero.
+
+    ArduPilot reports the attitude of the vehicle body, the board's turned by the trim
+    (AP_AHRS: body DCM = DCM · R(trim)ᵀ, R(trim) from the Euler angles (trim_x, trim_y, 0);
+    AHRS_TRIM_Z is unused there); the estimators estimate the board's. The IMU is logged after
+    AHRS_ORIENTATION is applied, so that needs nothing here. The names are the same from
+    ArduPilot 3.1 on."""
+    roll, pitch = flight.params.get("AHRS_TRIM_X", 0.0), flight.params.get("AHRS_TRIM_Y", 0.0)
+    if not (math.isfinite(roll) and math.isfinite(pitch)) or (roll == 0.0 and pitch == 0.0):
+        return None
+    return float(roll), float(pitch)
+
+
+def trimmed(series: AttitudeSeries, trim: tuple[float, float]) -> AttitudeSeries:
+    """The attitude of the vehicle body from the board's: q ⊗ q_trim*, as the autopilot does."""
+    q_trim = quat.conjugate(quat.from_euler(trim[0], trim[1], 0.0))
+    return AttitudeSeries(series.source, series.t, quat.multiply(series.q, np.broadcast_to(q_trim, series.q.shape)))
 
 
 def run_estimators(flight: Flight, names: list[str], imu_source: str | None = None,
@@ -123,11 +152,13 @@ def reset_events(t: np.ndarray, reset: np.ndarray) -> dict:
 def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                imu_source: str | None = None, warmup_s: float = 10.0,
                declination_deg: float | None = None, params: dict | None = None,
-               use_mag: bool = True) -> ReplayResult:
+               use_mag: bool = True, trim: bool = True) -> ReplayResult:
     """Estimate with every named estimator and score each against the reference.
 
     ``reference``: "autopilot" (ATT / ATTITUDE) or "truth" (SIM / SIMSTATE); with truth the
-    autopilot's own attitude is scored as an extra row named "autopilot".
+    autopilot's own attitude is scored as an extra row named "autopilot". ``trim``: against
+    the autopilot, turn the estimates by the log's board trim first, as the autopilot turns
+    its own (``board_trim``).
     """
     if reference == "truth":
         if flight.truth is None:
@@ -142,6 +173,12 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     runner, dec_source = run_estimators(flight, names, imu_source, declination_deg, params, use_mag)
     estimates = {name: runner.estimate(name) for name in names}
     events = _events(flight, runner, dec_source)
+    applied_trim = board_trim(flight) if (trim and reference == "autopilot") else None
+    if applied_trim:
+        estimates = {name: trimmed(series, applied_trim) for name, series in estimates.items()}
+        events.append(Event(flight.time_span[0], "info", "estimates turned by the board trim AHRS_TRIM_X/Y "
+                            f"(roll {math.degrees(applied_trim[0]):.2f}°, pitch {math.degrees(applied_trim[1]):.2f}°) "
+                            "before scoring and drawing, as the autopilot turns its own (--no-trim: raw)"))
     for name, series in estimates.items():
         bad = int(np.count_nonzero(~np.isfinite(series.q).all(axis=1)))
         if bad:
@@ -171,7 +208,8 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                         declination=runner.declination, declination_source=dec_source,
                         mag_source=runner.mag_source, alignment=runner.alignment, phase=runner.phase_series(),
                         diagnostics=diagnostics, estimator_events=estimator_events,
-                        params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding())
+                        params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(),
+                        trim=applied_trim)
 
 
 @dataclass(frozen=True)
@@ -184,6 +222,7 @@ class ReplaySettings:
     warmup_s: float = 10.0
     declination_deg: float | None = None
     use_mag: bool = True
+    trim: bool = True
     segment: int | None = None
     file_values: dict | None = None  # --params, as read from the file
     assignments: tuple[str, ...] = ()  # --set
@@ -203,7 +242,7 @@ def replay_flight(flight: Flight, settings: ReplaySettings) -> tuple[ReplayResul
                    log_values=log_values)
     result = run_replay(flight, names, reference=settings.reference, imu_source=settings.imu,
                         warmup_s=settings.warmup_s, declination_deg=settings.declination_deg,
-                        params=params, use_mag=settings.use_mag)
+                        params=params, use_mag=settings.use_mag, trim=settings.trim)
     result.events += [Event(flight.time_span[0], "info", note) for note in notes]
     return result, notes
 

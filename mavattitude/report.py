@@ -64,7 +64,7 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str
 
 
 def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
-                 extras: dict[str, dict] | None = None) -> dict:
+                 extras: dict[str, dict] | None = None, scoring: dict | None = None) -> dict:
     """The JSON summary: ``{"log", "reference", "estimators": {name: {"roll": M, "pitch": M, "yaw": M}}}``.
 
     M holds ``n``, ``mae``, ``rmse``, ``mse`` (deg²), ``r2``, ``max``, ``sigma1``, ``sigma3``
@@ -86,7 +86,10 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
             axes[axis] = entry
         axes.update(_clean((extras or {}).get(name, {})))
         estimators[str(name)] = axes
-    return {"log": str(log), "reference": str(reference), "estimators": estimators}
+    out = {"log": str(log), "reference": str(reference), "estimators": estimators}
+    if scoring is not None:
+        out["scoring"] = _clean(scoring)
+    return out
 
 
 def _clean(value):
@@ -156,11 +159,11 @@ def format_events(result) -> str:
 
 
 def write_json(path, log: str, reference: str, comparisons: dict[str, Comparison],
-               extras: dict[str, dict] | None = None) -> Path:
+               extras: dict[str, dict] | None = None, scoring: dict | None = None) -> Path:
     """Write ``to_json_dict`` to ``path`` (strict JSON: no NaN), creating its directory."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(to_json_dict(log, reference, comparisons, extras), indent=2, allow_nan=False)
+    text = json.dumps(to_json_dict(log, reference, comparisons, extras, scoring), indent=2, allow_nan=False)
     path.write_text(text + "\n", encoding="utf-8")
     return path
 

@@ -2,7 +2,7 @@
 held in one ``SimFlight`` that the log writers turn into a .tlog or a .bin."""
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -40,6 +40,7 @@ class SimFlight:
     gps: GpsTrack
     baro: BaroTrack
     firmware: str  # the firmware string the logs carry (MSG, VER, STATUSTEXT)
+    extra_params: dict[str, float] = field(default_factory=dict)  # more parameters for the logs (tests)
 
     @property
     def t(self) -> np.ndarray:
@@ -64,6 +65,7 @@ class SimFlight:
             "COMPASS_OFS_X": float(offsets_mgauss[0]),
             "COMPASS_OFS_Y": float(offsets_mgauss[1]),
             "COMPASS_OFS_Z": float(offsets_mgauss[2]),
+            **self.extra_params,
         }
 
 
