@@ -52,21 +52,28 @@ class Comparison:
     scored: np.ndarray  # (N,) bool: after the warm-up, counted in the statistics
     axes: dict[str, AxisMetrics | None]  # None where no sample was scored
     yaw_aligned: bool = False  # yaw had no heading reference: its initial offset was removed
-    yaw_offset_deg: float = 0.0  # the offset removed
+    yaw_offset_deg: float = 0.0  # the offset removed (of the first span)
+    yaw_offsets_deg: tuple = ()  # ((span start s, offset removed °), ...): one per span between restarts
     warmup_s: float = 10.0
     # Input rows with a NaN (time or quaternion component), excluded. A reference time whose
     # interpolation would bridge a NaN estimate row keeps NaN in ``error_deg`` and is not scored.
     n_nan_reference: int = 0
     n_nan_estimate: int = 0
+    # Reference samples inside a gap of the estimate (longer than max_gap_s, or across a
+    # restart): nothing was estimated there, so they are not scored.
+    n_in_gaps: int = 0
 
 
 def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float = 10.0,
-            align_yaw: bool = False, name: str | None = None, restarts=()) -> Comparison:
+            align_yaw: bool = False, name: str | None = None, restarts=(),
+            max_gap_s: float = np.inf) -> Comparison:
     """Score ``estimate`` against ``reference`` per Euler axis.
 
     - The estimate is interpolated (nlerp, ``quaternion.interpolate``) at the reference's
       timestamps inside the estimate's span; it is never extrapolated, and never interpolated
-      across a NaN estimate row (that would invent an attitude over a hole).
+      across a NaN estimate row, a gap longer than ``max_gap_s`` or a restart (that would
+      invent an attitude over a hole): reference samples there are not scored, and counted in
+      ``n_in_gaps``.
     - Warm-up: reference samples earlier than the estimate's first valid sample + ``warmup_s``
       seconds are kept in ``t``/``error_deg`` (so they can be plotted) but not scored: filters
       start from a rough attitude and need time to converge.
@@ -112,6 +119,8 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
     q_at = interpolate(te, qe, t)
     if len(te) < len(t_est):  # some estimate rows were NaN: do not interpolate across them
         q_at[_bridges_hole(te, est_index, t)] = np.nan
+    in_gap = _in_gap(te, t, max_gap_s, np.sort(np.asarray(restarts, dtype=float)))
+    q_at[in_gap] = np.nan
 
     with np.errstate(invalid="ignore", divide="ignore"):
         euler_ref = np.degrees(to_euler(normalize(q_ref_span)))
@@ -119,7 +128,7 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
     valid = np.isfinite(error).all(axis=1)
     scored = valid & (t >= (te[0] + warmup_s if len(te) else np.inf))
 
-    yaw_offset = 0.0
+    yaw_offset, offsets = 0.0, []
     if align_yaw and scored.any():
         bounds = np.concatenate([[-np.inf], np.sort(np.asarray(restarts, dtype=float)), [np.inf]])
         offsets = []
@@ -128,9 +137,9 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
             if not (scored & span).any():
                 continue
             window = scored & span & (t < t[scored & span].min() + YAW_ALIGN_WINDOW_S)
-            offsets.append(float(circular_mean_deg(error[window, 2])))
-            error[span, 2] = wrap_deg(error[span, 2] - offsets[-1])
-        yaw_offset = offsets[0]
+            offsets.append((float(t[span][0]), float(circular_mean_deg(error[window, 2]))))
+            error[span, 2] = wrap_deg(error[span, 2] - offsets[-1][1])
+        yaw_offset = offsets[0][1]
 
     error_scored, ref_scored = error[scored], euler_ref[scored]
     axes = {axis: axis_metrics(error_scored[:, k], ref_scored[:, k], circular=(axis == "yaw"))
@@ -144,9 +153,11 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
         axes=axes,
         yaw_aligned=bool(align_yaw),
         yaw_offset_deg=yaw_offset,
+        yaw_offsets_deg=tuple(offsets),
         warmup_s=float(warmup_s),
         n_nan_reference=int(np.count_nonzero(~ref_ok)),
         n_nan_estimate=int(np.count_nonzero(~est_ok)),
+        n_in_gaps=int(np.count_nonzero(in_gap)),
     )
 
 
@@ -192,6 +203,19 @@ def circular_mean_deg(angles_deg: np.ndarray) -> float:
     """Mean direction of angles (degrees), in [-180, 180): the angle of the mean unit vector."""
     a = np.radians(np.asarray(angles_deg, dtype=float))
     return float(wrap_deg(np.degrees(np.arctan2(np.sin(a).mean(), np.cos(a).mean()))))
+
+
+def _in_gap(te: np.ndarray, t: np.ndarray, max_gap_s: float, restarts: np.ndarray) -> np.ndarray:
+    """True where ``t`` falls strictly between two estimate samples more than ``max_gap_s``
+    apart, or with a restart after the first and at or before the second."""
+    if len(te) < 2:
+        return np.zeros(len(t), dtype=bool)
+    k = np.searchsorted(te, t, side="left")
+    inner = (k > 0) & (k < len(te))
+    right = np.clip(k, 1, len(te) - 1)
+    before, after = te[right - 1], te[right]
+    restart = np.searchsorted(restarts, before, side="right") < np.searchsorted(restarts, after, side="right")
+    return inner & (after != t) & ((after - before > max_gap_s) | restart)
 
 
 def _bridges_hole(te: np.ndarray, est_index: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from .metrics import Comparison, compare
 from .params import build, log_defaults
 from .phase import PhaseSeries
 from .readers import best_imu_source, mag_for_imu
-from .runner import Runner
+from .runner import REINIT_GAP_S, Runner
 
 
 @dataclass
@@ -190,7 +190,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     if ref is not None:
         for name, series in estimates.items():
             comparisons[name] = compare(ref, series, warmup_s=warmup_s, align_yaw=not runner.has_heading[name],
-                                        name=name, restarts=restarts)
+                                        name=name, restarts=restarts, max_gap_s=REINIT_GAP_S)
         if reference == "truth" and flight.attitude is not None:
             comparisons["autopilot"] = compare(ref, flight.attitude, warmup_s=warmup_s, name="autopilot")
     else:

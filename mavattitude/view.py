@@ -68,6 +68,7 @@ from .flight import AttitudeSeries, GpsSeries
 from .metrics import AXES
 from .events import Event
 from .pipeline import ReplayResult
+from .runner import REINIT_GAP_S
 
 TIMELINE = "time"
 
@@ -415,9 +416,10 @@ def _time(t: np.ndarray) -> rr.TimeColumn:
 
 
 def _break_wraps(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A NaN between consecutive samples more than 180° apart (an angle wrapping at ±180°),
-    so the plot breaks the line there instead of drawing a vertical stroke across it."""
-    jumps = np.flatnonzero(np.abs(np.diff(y)) > 180.0)
+    """A NaN between consecutive samples more than 180° apart (an angle wrapping at ±180°) or
+    more than REINIT_GAP_S apart (a gap in the data), so the plot breaks the line there instead
+    of drawing a stroke across it."""
+    jumps = np.flatnonzero((np.abs(np.diff(y)) > 180.0) | (np.diff(t) > REINIT_GAP_S))
     if len(jumps) == 0:
         return t, y
     t_mid = 0.5 * (t[jumps] + t[jumps + 1])
@@ -725,7 +727,10 @@ def summary_markdown(result: ReplayResult) -> str:
                 cells.append(f"{_fmt(m.rmse)} / {_fmt(m.max)}")
                 n = max(n, m.n)
         note = f"warm-up {c.warmup_s:g} s"
-        if c.yaw_aligned:
+        if c.yaw_aligned and len(c.yaw_offsets_deg) > 1:
+            note += "; yaw offsets removed: " + ", ".join(f"{off:+.1f}° from {start:.0f} s"
+                                                          for start, off in c.yaw_offsets_deg)
+        elif c.yaw_aligned:
             note += f"; yaw offset {c.yaw_offset_deg:+.1f}° removed"
         lines.append(f"| {name} | {c.reference} | {' | '.join(cells)} | {n} | {note} |")
     if fl.warnings:

@@ -62,3 +62,50 @@ def test_no_trim_in_the_log_means_none_applied(tmp_path):
 
     got = scores(SAMPLE_LOGS / "static.bin", tmp_path)
     assert got["scoring"]["board_trim"] is None
+
+
+# ---------------------------------------------------------------- gaps
+
+
+def test_no_estimate_is_interpolated_across_a_gap_or_a_restart():
+    from mavattitude.flight import AttitudeSeries
+    from mavattitude.metrics import compare
+
+    def yaw_series(t, yaw_deg):
+        return AttitudeSeries("x", t, np.array([quat.from_euler(0.0, 0.0, math.radians(y)) for y in yaw_deg]))
+
+    t_est = np.concatenate([np.arange(0.0, 20.0, 0.1), np.arange(25.0, 40.0, 0.1)])  # a 5 s hole
+    est = yaw_series(t_est, np.where(t_est < 22, 0.0, 90.0))
+    t_ref = np.arange(0.0, 40.0, 0.25)
+    ref = yaw_series(t_ref, np.where(t_ref < 22, 0.0, 90.0))
+    bridged = compare(ref, est, warmup_s=0.0)
+    held = compare(ref, est, warmup_s=0.0, max_gap_s=2.0)
+    assert bridged.axes["yaw"].max > 20.0  # the interpolation across the hole invents an attitude
+    in_hole = (t_ref > 19.9) & (t_ref < 25.0)
+    assert held.n_in_gaps == np.count_nonzero(in_hole) and held.axes["yaw"].max < 1e-6
+    assert not held.scored[np.isin(held.t, t_ref[in_hole])].any()
+    # a restart is a hole too, however short the step across it
+    restarted = compare(ref, yaw_series(t_ref[::2], np.where(t_ref[::2] < 22, 0.0, 90.0)), warmup_s=0.0,
+                        restarts=[22.0])
+    assert restarted.n_in_gaps == 1 and restarted.axes["yaw"].max < 1e-6
+
+
+def test_a_logged_imu_gap_is_neither_scored_nor_bridged(tmp_path):
+    """The static sample log with 6 s of IMU cut out (the attitude log goes on): the runner
+    restarts, the reference samples in the hole are counted, not scored."""
+    from conftest import SAMPLE_LOGS
+    from mavattitude.pipeline import run_replay
+
+    flight = read_log(str(SAMPLE_LOGS / "static.bin"))
+    for source, imu in flight.imu.items():
+        keep = (imu.t < 20.0) | (imu.t > 26.0)
+        flight.imu[source] = replace(imu, t=imu.t[keep], gyro=imu.gyro[keep], accel=imu.accel[keep],
+                                     arrival=None if imu.arrival is None else imu.arrival[keep])
+    result = run_replay(flight, ["mahony"], warmup_s=0.0)
+    comp = result.comparisons["mahony"]
+    t = flight.imu[result.imu_source].t
+    last, first = t[t < 20.0][-1], t[t > 26.0][0]
+    expected = np.count_nonzero((flight.attitude.t > last) & (flight.attitude.t < first))
+    assert comp.n_in_gaps == expected > 0
+    assert result.metrics["estimators"]["mahony"]["unscored_in_gaps"] == expected
+    assert any("IMU gap" in e.text for e in result.events)
