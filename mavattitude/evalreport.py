@@ -19,7 +19,7 @@ from .report import BUCKET_KEYS
 AXES = ("roll", "pitch", "yaw")
 METRIC_KEYS = ("n", "mae", "rmse", "mse", "r2", "max", "sigma1", "sigma3")
 FACT_KEYS = ("format", "vehicle", "firmware", "imu_source", "imu_rate_hz", "duration_s", "gps", "compass",
-             "baro", "clock_segments", "gaps")
+             "baro", "clock_segments", "gaps", "reference_suspect")
 PAPER_001_CHAIN = ("ncs-eskf", "eskf", "ekf", "mahony")  # paper 001's ranking, best first
 
 
@@ -134,6 +134,7 @@ def summarize(records: list[dict], names: list[str], baseline: str, reference: s
         "logs": len(records), "scored": len(by_log),
         "failed": [{"log": r["log"], "error": r["error"]} for r in records if r["status"] == "failed"],
         "skipped": [{"log": r["log"], "why": r["error"]} for r in records if r["status"] == "skipped"],
+        "reference_suspect": [{"log": r["log"], "spans": r["suspects"]} for r in records if r.get("suspects")],
         "estimators": estimators,
     }
     if all(n in names for n in PAPER_001_CHAIN):
@@ -214,6 +215,14 @@ def report_markdown(summary: dict, command: str, figure: str | None) -> str:
     for name in order:
         worst = ", ".join(f"`{_short(w['log'])}` {w['score']:.2f}" for w in est[name]["worst_logs"])
         lines.append(f"| {name} | {worst or '-'} |")
+    if summary["reference_suspect"]:
+        lines += ["", "## References not trusted", "",
+                  "Spans where the log's own IMU says the autopilot's attitude cannot be right; they are "
+                  "not scored (the rest of the log is).", ""]
+        for entry in summary["reference_suspect"]:
+            spans = "; ".join((f"{s['start_s']:.1f}-{s['end_s']:.1f} s" if s["end_s"] is not None else "whole log")
+                              + f": {s['detail']}" for s in entry["spans"])
+            lines.append(f"- `{_short(entry['log'])}`: {spans}")
     if summary["failed"]:
         lines += ["", "## Failed", ""] + [f"- {f['error']}" for f in summary["failed"]]
     if summary["skipped"]:

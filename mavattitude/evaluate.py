@@ -121,7 +121,9 @@ def _replay(local: str, path: str, settings: ReplaySettings) -> dict:
     facts["imu_source"] = result.imu_source
     metrics = result.metrics
     facts["board_trim"] = metrics["scoring"]["board_trim"]
-    return {"status": "ok", "facts": facts, "metrics": metrics["estimators"], "reference": metrics["reference"]}
+    facts["reference_suspect"] = len(metrics["scoring"]["reference_suspect"])
+    return {"status": "ok", "facts": facts, "metrics": metrics["estimators"], "reference": metrics["reference"],
+            "suspects": metrics["scoring"]["reference_suspect"]}
 
 
 def log_facts(flight, imu: str | None) -> dict:

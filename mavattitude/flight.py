@@ -97,6 +97,7 @@ class Flight:
     segment_index: int = 0
     notes: list[str] = field(default_factory=list)  # things the reader fixed or noticed
     warnings: list[str] = field(default_factory=list)  # data the reader had to leave out (damage)
+    repeated: dict[str, int] = field(default_factory=dict)  # series -> samples dropped for repeating a time
 
     def all_series(self):
         """(kind, series) for every time series in the record."""

@@ -62,11 +62,12 @@ class Comparison:
     # Reference samples inside a gap of the estimate (longer than max_gap_s, or across a
     # restart): nothing was estimated there, so they are not scored.
     n_in_gaps: int = 0
+    n_excluded: int = 0  # reference samples inside an excluded (suspect) span, not scored
 
 
 def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float = 10.0,
             align_yaw: bool = False, name: str | None = None, restarts=(),
-            max_gap_s: float = np.inf) -> Comparison:
+            max_gap_s: float = np.inf, exclude=()) -> Comparison:
     """Score ``estimate`` against ``reference`` per Euler axis.
 
     - The estimate is interpolated (nlerp, ``quaternion.interpolate``) at the reference's
@@ -74,6 +75,8 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
       across a NaN estimate row, a gap longer than ``max_gap_s`` or a restart (that would
       invent an attitude over a hole): reference samples there are not scored, and counted in
       ``n_in_gaps``.
+    - ``exclude``: (start, end) spans (s) of a reference not to be trusted (``refcheck``): its
+      samples there are not scored, and counted in ``n_excluded``.
     - Warm-up: reference samples earlier than the estimate's first valid sample + ``warmup_s``
       seconds are kept in ``t``/``error_deg`` (so they can be plotted) but not scored: filters
       start from a rough attitude and need time to converge.
@@ -126,7 +129,10 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
         euler_ref = np.degrees(to_euler(normalize(q_ref_span)))
         error = wrap_deg(np.degrees(to_euler(q_at)) - euler_ref)
     valid = np.isfinite(error).all(axis=1)
-    scored = valid & (t >= (te[0] + warmup_s if len(te) else np.inf))
+    excluded = np.zeros(len(t), dtype=bool)
+    for start, end in exclude:
+        excluded |= (t >= start) & (t <= end)
+    scored = valid & ~excluded & (t >= (te[0] + warmup_s if len(te) else np.inf))
 
     yaw_offset, offsets = 0.0, []
     if align_yaw and scored.any():
@@ -158,6 +164,7 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
         n_nan_reference=int(np.count_nonzero(~ref_ok)),
         n_nan_estimate=int(np.count_nonzero(~est_ok)),
         n_in_gaps=int(np.count_nonzero(in_gap)),
+        n_excluded=int(np.count_nonzero(excluded)),
     )
 
 

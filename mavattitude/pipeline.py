@@ -17,6 +17,7 @@ from .flight import AttitudeSeries, Flight
 from .metrics import Comparison, compare
 from .params import build, log_defaults
 from .phase import PhaseSeries
+from .refcheck import check_reference, excluded_spans
 from .readers import best_imu_source, mag_for_imu
 from .runner import REINIT_GAP_S, Runner
 
@@ -41,13 +42,14 @@ class ReplayResult:
     params: dict = field(default_factory=dict)  # estimator name -> its parameter dataclass
     aiding: aid.Aiding | None = None  # GPS / baro on the IMU clock, when an estimator used them
     trim: tuple[float, float] | None = None  # (roll, pitch) rad the estimates were turned by, see board_trim
+    suspects: list = field(default_factory=list)  # refcheck.Suspect: where the reference is not trusted
 
     @property
     def scoring(self) -> dict:
         """How the estimates were scored, beyond the reference: the board trim applied."""
         trim = None if self.trim is None else {"roll_deg": round(math.degrees(self.trim[0]), 4),
                                                "pitch_deg": round(math.degrees(self.trim[1]), 4)}
-        return {"board_trim": trim}
+        return {"board_trim": trim, "reference_suspect": [s.as_dict() for s in self.suspects]}
 
     @property
     def metrics(self) -> dict:
@@ -187,10 +189,19 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                                 "they are left out of the metrics)"))
     restarts = [t for t, _ in runner.restarts]
     comparisons = {}
+    suspects = []
+    if ref is not None and reference == "autopilot":
+        phase = runner.phase_series()
+        suspects = check_reference(ref, flight.imu[runner.imu_source], applied_trim,
+                                   phase.on_clock if phase is not None else None, flight.gps,
+                                   flight.repeated.get(ref.source, 0))
+        events += [Event(s.start, "warn", f"reference not trusted {_span_text(s)}: {s.detail}"
+                         + (" (not scored there)" if s.end is not None else "")) for s in suspects]
     if ref is not None:
         for name, series in estimates.items():
             comparisons[name] = compare(ref, series, warmup_s=warmup_s, align_yaw=not runner.has_heading[name],
-                                        name=name, restarts=restarts, max_gap_s=REINIT_GAP_S)
+                                        name=name, restarts=restarts, max_gap_s=REINIT_GAP_S,
+                                        exclude=excluded_spans(suspects))
         if reference == "truth" and flight.attitude is not None:
             comparisons["autopilot"] = compare(ref, flight.attitude, warmup_s=warmup_s, name="autopilot")
     else:
@@ -209,7 +220,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                         mag_source=runner.mag_source, alignment=runner.alignment, phase=runner.phase_series(),
                         diagnostics=diagnostics, estimator_events=estimator_events,
                         params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(),
-                        trim=applied_trim)
+                        trim=applied_trim, suspects=suspects)
 
 
 @dataclass(frozen=True)
@@ -245,6 +256,10 @@ def replay_flight(flight: Flight, settings: ReplaySettings) -> tuple[ReplayResul
                         params=params, use_mag=settings.use_mag, trim=settings.trim)
     result.events += [Event(flight.time_span[0], "info", note) for note in notes]
     return result, notes
+
+
+def _span_text(s) -> str:
+    return f"from {s.start:.1f} s" if s.end is None else f"{s.start:.1f}-{s.end:.1f} s"
 
 
 def _events(flight: Flight, runner: Runner, dec_source: str) -> list[Event]:

@@ -70,7 +70,8 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
     M holds ``n``, ``mae``, ``rmse``, ``mse`` (deg²), ``r2``, ``max``, ``sigma1``, ``sigma3``
     (degrees) and ``buckets`` (shares keyed by ``BUCKET_KEYS``); the yaw M also holds
     ``aligned``. M is null for an axis with no scored sample; a non-finite number is null.
-    ``unscored_in_gaps``: reference samples in a gap of the estimate or across a restart.
+    ``unscored_in_gaps``: reference samples in a gap of the estimate or across a restart;
+    ``unscored_suspect_reference``: in a span where the reference is not trusted (``refcheck``).
     ``extras`` adds keys per estimator next to the axes: ``events`` (what became of its
     accelerometer updates: {state: {samples, spans, seconds}}; a watchdog's resets:
     ``resets``: {count, times}), ``diagnostics`` (median and
@@ -86,6 +87,7 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
                 entry["aligned"] = bool(comp.yaw_aligned)
             axes[axis] = entry
         axes["unscored_in_gaps"] = comp.n_in_gaps
+        axes["unscored_suspect_reference"] = comp.n_excluded
         axes.update(_clean((extras or {}).get(name, {})))
         estimators[str(name)] = axes
     out = {"log": str(log), "reference": str(reference), "estimators": estimators}

@@ -88,7 +88,7 @@ def test_json_schema(comparisons):
     assert list(d["estimators"]) == ["mahony", "ncs-eskf"]
     base = {"n", "mae", "rmse", "mse", "r2", "max", "sigma1", "sigma3", "buckets"}
     for name, axes in d["estimators"].items():
-        assert list(axes) == [*AXES, "unscored_in_gaps"]
+        assert list(axes) == [*AXES, "unscored_in_gaps", "unscored_suspect_reference"]
         assert axes["unscored_in_gaps"] == 0
         for axis in AXES:
             m = axes[axis]

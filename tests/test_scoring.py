@@ -109,3 +109,42 @@ def test_a_logged_imu_gap_is_neither_scored_nor_bridged(tmp_path):
     assert comp.n_in_gaps == expected > 0
     assert result.metrics["estimators"]["mahony"]["unscored_in_gaps"] == expected
     assert any("IMU gap" in e.text for e in result.events)
+
+
+# ---------------------------------------------------------------- a questionable reference
+
+
+@pytest.fixture(scope="module")
+def broken_reference_log(tmp_path_factory):
+    """A vehicle still on the ground for 60 s whose autopilot reports 10° of roll from 20 to
+    30 s (its accelerometer says level) and a 60° roll for 3 s from 40 s (no gyro moved)."""
+    sim = simulate("static", 60.0, seed=6, imu_rate=100.0)
+    t = sim.t
+    roll = np.where((t >= 20.0) & (t < 30.0), math.radians(10.0), 0.0)
+    roll = np.where((t >= 40.0) & (t < 43.0), math.radians(60.0), roll)
+    bad = quat.from_euler(roll, np.zeros_like(t), np.zeros_like(t))
+    sim = replace(sim, autopilot_q=quat.multiply(sim.autopilot_q, bad))
+    return write_log(sim, tmp_path_factory.mktemp("ref") / "broken.bin")
+
+
+def test_a_reference_the_imu_contradicts_is_flagged_and_not_scored(broken_reference_log, tmp_path):
+    got = scores(broken_reference_log, tmp_path)
+    spans = got["scoring"]["reference_suspect"]
+    rest = [s for s in spans if s["kind"] == "tilt at rest"]
+    jump = [s for s in spans if s["kind"] == "tilt jump"]
+    assert 19.0 <= rest[0]["start_s"] <= 21.5 and 28.5 <= rest[0]["end_s"] <= 31.0
+    assert len(jump) == 1 and 39.5 <= jump[0]["start_s"] <= 40.5 and jump[0]["end_s"] >= 43.0  # out and back
+    m = got["estimators"]["mahony"]
+    assert m["unscored_suspect_reference"] > 0
+    # the rest of the log is scored as if the reference had been right
+    assert m["roll"]["max"] < 1.0
+
+
+def test_repeated_reference_times_flag_the_log_without_a_span():
+    from mavattitude.refcheck import check_reference
+
+    flight = read_log(str(__import__("conftest").SAMPLE_LOGS / "static.bin"))
+    imu = flight.imu[next(iter(flight.imu))]
+    suspects = check_reference(flight.attitude, imu, None, repeated=len(flight.attitude.t) // 10)
+    assert [(s.kind, s.end) for s in suspects] == [("repeated times", None)]
+    assert check_reference(flight.attitude, imu, None, repeated=0) == []

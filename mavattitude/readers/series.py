@@ -21,6 +21,8 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
     holds data was not usable (none when every one was)."""
     def columns(kind, key):
         c = col.columns(kind, key, segment)
+        if c.duplicates:
+            flight.repeated[key] = c.duplicates
         # a message that feeds two series (RAW_IMU: IMU and compass) has the same fixes in both
         for text in ((f"{key}: dropped {c.duplicates} samples with repeated timestamps" if c.duplicates else None),
                      (f"{key}: dropped {c.reordered} samples older than one before them (out of order)"

@@ -1,0 +1,146 @@
+"""Where the autopilot's own attitude cannot be right, judged by the log's own IMU.
+
+A real log's reference is the autopilot's estimate, and it has faults of its own. Three checks:
+
+- **tilt at rest**: on the ground and still (rotating slower than ``REST_RATE``, the
+  accelerometer's 1 s mean within ``REST_ACCEL`` of g, and slower than ``REST_SPEED`` where
+  GPS says: a plane braking on its runway turns nothing yet its accelerometer is not level),
+  the accelerometer measures gravity alone: a reference tilt more than ``TILT_AT_REST_DEG`` from it, for ``MIN_REST_SPAN_S`` or
+  longer, is the reference's fault (the board trim is applied to the accelerometer first, as
+  the autopilot applies it to its attitude). Only where the ground/air phase is known: a
+  hovering copter's accelerometer does not measure its tilt.
+- **tilt jump**: between two reference samples the direction of gravity in the body turns by
+  more than the gyros allow (twice the integrated rate plus ``JUMP_MARGIN_DEG``): the reference
+  jumped (a crash that saturated its estimate, a lane switch, a reset). Yaw is not judged: an
+  EKF's yaw resets to its compass or GPS are its own business, and yaw is not ranked.
+  The span flagged runs from the jump to ``JUMP_HOLD_S`` after it.
+- **repeated times**: reference samples that repeat the time of the one before (dropped by
+  the reader): the log is flagged, no span (what is left is in order).
+
+Reference samples inside a flagged span are not scored (``metrics.compare(exclude=...)``); the
+spans, and the log, are listed in the table, the JSON and evaluate's report.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import quaternion as quat
+from .flight import GRAVITY, AttitudeSeries, GpsSeries, ImuSeries
+
+TILT_AT_REST_DEG = 5.0
+REST_RATE = 0.05  # rad/s, mean over 1 s
+REST_ACCEL = 0.03  # share of g, the 1 s mean's distance from g
+REST_SPEED = 0.5  # m/s, GPS ground speed
+MIN_REST_SPAN_S = 2.0
+JUMP_MARGIN_DEG = 20.0
+JUMP_HOLD_S = 5.0
+MAX_JUMP_STEP_S = 2.0  # reference samples further apart are a gap, not a jump
+REPEATED_SHARE = 0.005  # flag the log when more reference samples than this repeat a time
+
+
+@dataclass
+class Suspect:
+    """A stretch of reference that is not to be trusted (``end`` None: the whole log, not excluded)."""
+    kind: str  # "tilt at rest", "tilt jump", "repeated times"
+    start: float
+    end: float | None
+    detail: str
+
+    def as_dict(self) -> dict:
+        return {"kind": self.kind, "start_s": round(self.start, 3),
+                "end_s": None if self.end is None else round(self.end, 3), "detail": self.detail}
+
+
+def check_reference(ref: AttitudeSeries, imu: ImuSeries, trim, in_air_at=None, gps: GpsSeries | None = None,
+                    repeated: int = 0) -> list[Suspect]:
+    """Every suspect stretch of ``ref``, in time order. ``trim``: (roll, pitch) rad or None;
+    ``in_air_at``: t -> 1 (air) / 0 (ground) / NaN (unknown), or None when unknown;
+    ``repeated``: reference samples the reader dropped for repeating a time."""
+    suspects = []
+    if in_air_at is not None:
+        suspects += _tilt_at_rest(ref, imu, trim, in_air_at, gps)
+    suspects += _tilt_jumps(ref, imu)
+    if repeated and repeated > REPEATED_SHARE * (len(ref.t) + repeated):
+        suspects.append(Suspect("repeated times", float(ref.t[0]), None,
+                                f"{repeated} {ref.source} samples repeat the time of the one before"))
+    return sorted(suspects, key=lambda s: s.start)
+
+
+def excluded_spans(suspects: list[Suspect]) -> list[tuple[float, float]]:
+    return [(s.start, s.end) for s in suspects if s.end is not None]
+
+
+def _moving(gps: GpsSeries | None, t: np.ndarray) -> np.ndarray:
+    """Where GPS says the vehicle moves faster than REST_SPEED (False where it says nothing)."""
+    if gps is None:
+        return np.zeros(len(t), dtype=bool)
+    speed = np.linalg.norm(gps.vel_ned[:, :2], axis=1)
+    ok = np.isfinite(speed)
+    if not ok.any():
+        return np.zeros(len(t), dtype=bool)
+    return np.interp(t, gps.t[ok], speed[ok]) > REST_SPEED
+
+
+def _tilt_at_rest(ref: AttitudeSeries, imu: ImuSeries, trim, in_air_at, gps) -> list[Suspect]:
+    if len(imu.t) < 2 or len(ref.t) < 2:
+        return []
+    t0 = imu.t[0]
+    bins = np.floor(imu.t - t0).astype(np.int64)
+    n = int(bins[-1]) + 1
+    count = np.bincount(bins, minlength=n)
+    rate = np.bincount(bins, np.linalg.norm(imu.gyro, axis=1), n) / np.maximum(count, 1)
+    acc = np.stack([np.bincount(bins, imu.accel[:, k], n) for k in range(3)], axis=1) / np.maximum(count, 1)[:, None]
+    centre = t0 + np.arange(n) + 0.5
+    with np.errstate(invalid="ignore"):
+        rest = ((count > 0) & (rate < REST_RATE) & (np.abs(np.linalg.norm(acc, axis=1) - GRAVITY) < REST_ACCEL * GRAVITY)
+                & (in_air_at(centre) == 0.0) & ~_moving(gps, centre) & (centre > ref.t[0]) & (centre < ref.t[-1]))
+    if not rest.any():
+        return []
+    roll = np.arctan2(-acc[:, 1], -acc[:, 2])
+    pitch = np.arctan2(acc[:, 0], np.hypot(acc[:, 1], acc[:, 2]))
+    q_acc = quat.from_euler(roll, pitch, np.zeros(n))
+    if trim is not None:
+        q_acc = quat.multiply(q_acc, np.broadcast_to(quat.conjugate(quat.from_euler(trim[0], trim[1], 0.0)), q_acc.shape))
+    # the angle between the two gravity directions in the body
+    down_acc = quat.rotate(quat.conjugate(q_acc), np.array([0.0, 0.0, 1.0]))
+    down_ref = quat.rotate(quat.conjugate(quat.interpolate(ref.t, ref.q, centre)), np.array([0.0, 0.0, 1.0]))
+    with np.errstate(invalid="ignore"):
+        off = np.degrees(np.arccos(np.clip((down_acc * down_ref).sum(axis=1), -1.0, 1.0)))
+    bad = rest & (off > TILT_AT_REST_DEG)
+    out = []
+    for a, b in _runs(bad):
+        if b - a >= MIN_REST_SPAN_S:
+            out.append(Suspect("tilt at rest", float(centre[a] - 0.5), float(centre[b - 1] + 0.5),
+                               f"still on the ground, {ref.source}'s tilt is up to {off[a:b].max():.1f}° from the "
+                               "accelerometer's"))
+    return out
+
+
+def _tilt_jumps(ref: AttitudeSeries, imu: ImuSeries) -> list[Suspect]:
+    if len(imu.t) < 2 or len(ref.t) < 2:
+        return []
+    turned = np.concatenate([[0.0], np.cumsum(np.linalg.norm(imu.gyro[1:], axis=1) * np.diff(imu.t))])
+    down = quat.rotate(quat.conjugate(ref.q), np.array([0.0, 0.0, 1.0]))
+    with np.errstate(invalid="ignore"):
+        step = np.degrees(np.arccos(np.clip((down[:-1] * down[1:]).sum(axis=1), -1.0, 1.0)))
+    allowed = np.degrees(np.interp(ref.t[1:], imu.t, turned) - np.interp(ref.t[:-1], imu.t, turned))
+    inside = (ref.t[:-1] >= imu.t[0]) & (ref.t[1:] <= imu.t[-1]) & (np.diff(ref.t) < MAX_JUMP_STEP_S)
+    jumps = np.flatnonzero(inside & (step > 2.0 * allowed + JUMP_MARGIN_DEG))
+    spans: list[list[float]] = []
+    for i in jumps:
+        a, b = float(ref.t[i]), float(ref.t[i + 1]) + JUMP_HOLD_S
+        if spans and a <= spans[-1][1]:
+            spans[-1][1] = max(spans[-1][1], b)
+            spans[-1][2] = max(spans[-1][2], step[i])
+        else:
+            spans.append([a, b, step[i]])
+    return [Suspect("tilt jump", a, b, f"{ref.source}'s tilt jumped {big:.0f}° where the gyros turned at most "
+                    f"a few degrees") for a, b, big in spans]
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) of each run of True."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
