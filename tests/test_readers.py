@@ -8,7 +8,7 @@ from conftest import read_shared, shared_log, shared_log_params
 from mavattitude import quaternion as quat
 from mavattitude.errors import InputError
 from mavattitude.flight import GRAVITY
-from mavattitude.readers import best_imu_source, imu_rate, read_log
+from mavattitude.readers import best_imu_source, imu_rate, read_log, sniff_format
 from mavattitude.readers.collect import Collector
 
 
@@ -259,3 +259,36 @@ def test_simulated_log_round_trips_through_the_reader(sim_logs, name):
     assert np.abs(err).max() < 0.05
     assert flight.params["COMPASS_DEC"] == pytest.approx(sim.declination_rad, abs=1e-6)
     assert flight.gps is not None and flight.baro is not None and flight.mag
+
+
+# ---------------------------------------------------------------- tolerance
+
+
+def _tlog_metrics(path, tmp_path, name):
+    import json
+
+    from mavattitude.cli import main
+    out = tmp_path / f"{name}.json"
+    assert main(["replay", str(path), "--no-view", "--json", str(out)]) == 0
+    return json.loads(out.read_text())["estimators"]
+
+
+def test_a_tlog_behind_a_ground_station_header_reads_as_pymavlink_reads_it(tmp_path):
+    """Some ground stations write a header before the first record (1,359 bytes in one real log)."""
+    from conftest import SAMPLE_LOGS
+
+    data = (SAMPLE_LOGS / "figure8.tlog").read_bytes()
+    header = (b"\xfe\xfd" * 40 + bytes(range(256)) * 6)[:1359]  # with stray magic bytes
+    (tmp_path / "headed.tlog").write_bytes(header + data)
+    assert sniff_format(str(tmp_path / "headed.tlog")) == "tlog"
+    assert _tlog_metrics(tmp_path / "headed.tlog", tmp_path, "h") == _tlog_metrics(SAMPLE_LOGS / "figure8.tlog", tmp_path, "p")
+
+
+def test_a_tlog_is_known_by_its_content_whatever_its_name_and_folder(tmp_path):
+    from conftest import SAMPLE_LOGS
+
+    folder = tmp_path / "bin"  # pymavlink's mavlink_connection would *run* a file under a /bin/ folder
+    folder.mkdir()
+    (folder / "flight.bin").write_bytes((SAMPLE_LOGS / "figure8.tlog").read_bytes())
+    flight = read_log(str(folder / "flight.bin"))
+    assert flight.format == "tlog" and "RAW_IMU" in flight.imu

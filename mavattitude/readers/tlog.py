@@ -145,7 +145,10 @@ def is_vehicle(msg) -> bool:
 def read_tlog(path: str, progress=None) -> Decoded:
     """Decode a .tlog. ``progress(fraction)`` is called as it goes."""
     try:
-        log = mavutil.mavlink_connection(path, dialect="ardupilotmega", robust_parsing=True)
+        # the telemetry reader itself: mavlink_connection would choose one by the file's name
+        # (DataFlash for a .bin) and would run a file whose path holds "/bin/"
+        mavutil.set_dialect("ardupilotmega")
+        log = mavutil.mavmmaplog(path)
     except Exception as exc:
         raise InputError(path, f"not a readable telemetry log ({exc})")
     col = Collector()
