@@ -106,6 +106,64 @@ def test_converges_from_a_30_degree_offset(axis):
     assert err[sim.t >= sim.t[0] + 100.0, i].max() < 0.4
 
 
+def test_strict_is_the_papers_unweighted_mahony_ekf():
+    """strict=True: paper 000 as published, the internal Mahony unweighted (mahony's numbers at
+    the same gains), none of the additions (Mahony weight, rest, coasting limit, integral
+    gating); it equals k_mahony=0, whatever the additions' parameters say."""
+    sim = st.figure8_120()
+    t, gyro, accel, mag = st.inputs(sim)
+    a = align(t, gyro, accel, mag, sim.declination_rad)
+    f = MahonyEkf(MahonyEkfParams(strict=True, lock_s=5.0, ki_step=0.001, rest_gyro=1.0), sim.declination_rad)
+    f.keep_mahony = True
+    f.initialize(a.q0, a.gyro_bias)
+    q = f.update(t, gyro, accel, mag)
+    m = create("mahony", MahonyParams(kp=f.params.kp, ki=f.params.ki), sim.declination_rad)
+    m.initialize(a.q0, a.gyro_bias)
+    np.testing.assert_allclose(f.mahony_q, m.update(t, gyro, accel, mag), rtol=0, atol=1e-12)
+    assert (f.diagnostics["mahony_weight"] == 1.0).all()
+    q0, _ = st.run("mahony-ekf", sim, MahonyEkfParams(k_mahony=0.0))
+    np.testing.assert_array_equal(q, q0)
+    params = build(["mahony-ekf"], None, ["mahony-ekf.strict=true"])
+    assert params["mahony-ekf"].strict is True
+
+
+def test_additions_off_give_the_issue_3_filter():
+    """rest_gyro=0, lock_s=0, ki_step=0 turn the issue-10 additions off: the weight is
+    1/(1 + k_mahony |ā - ā_ref|) alone again, and it weighs out the figure-eight's turns."""
+    sim = st.figure8_120()
+    q, f = st.run("mahony-ekf", sim, MahonyEkfParams(rest_gyro=0.0, lock_s=0.0, ki_step=0.0))
+    err = st.errors_deg(sim, q)
+    assert err[:, 0].mean() < 1.0 and err[:, 1].mean() < 1.0
+    assert np.mean(f.diagnostics["mahony_weight"] < 0.2) > 0.8
+
+
+def test_rest_trusts_the_accelerometer_again_after_a_long_lockout():
+    """Linear acceleration with the gyro quiet is not rest (ā moved from its value at rest):
+    the accelerometer stays weighted out; once back at rest the weight returns to 1."""
+    sim = st.accel_110()
+    q, f = st.run("mahony-ekf", sim)
+    w = f.diagnostics["mahony_weight"]
+    dev = np.abs(np.linalg.norm(sim.imu[0].accel, axis=1) - GRAVITY)
+    assert np.mean(w[dev > 0.2] < 0.2) > 0.8  # the accelerating runs are weighted out
+    t = sim.t - sim.t[0]
+    for a in (20.0, 90.0):  # at rest between the runs (after 15 s and 80 s of lockout)
+        assert (w[(t >= a) & (t < a + 5.0)] == 1.0).all()
+    q_off, _ = st.run("mahony-ekf", sim, MahonyEkfParams(rest_gyro=0.0))
+    assert st.errors_deg(sim, q)[:, :2].mean() < st.errors_deg(sim, q_off)[:, :2].mean()
+
+
+def test_coasting_limit_scales_with_the_imu_rate_squared():
+    """A sustained lockout (the figure-eight's turns) may last lock_s at 100 Hz and
+    lock_s (f / 100 Hz)² at f: at 25 Hz the weight rises well above its 100 Hz level."""
+    lows = []
+    for rate in (100.0, 25.0):
+        sim = st.flight("figure8", 120.0, seed=12, imu_rate=rate)
+        _, f = st.run("mahony-ekf", sim, MahonyEkfParams(rest_gyro=0.0))
+        w = f.diagnostics["mahony_weight"]
+        lows.append(np.median(w[sim.t > sim.t[0] + 60.0]))
+    assert lows[1] > 2 * lows[0]
+
+
 # ---------------------------------------------------------------- the model
 
 

@@ -46,6 +46,56 @@ shared logs; the numbers are in the issue-3 report):
 - The internal Mahony's gains: Kp = 0.5 /s, Ki = 0.005 /s² (mahony's defaults are 0.2 and
   0.0005): with the accelerometer weighted out in manoeuvres, the stiffer loop holds the
   static tilt within 0.1° against the gyro bias walk (Kp = 0.2, Ki = 0.0005: 0.18°).
+- Issue 10: the weight above, tuned on 100 Hz simulated truth, made mahony-ekf worse than
+  mahony on real 25 Hz flights (real-copter-4.1.3-cubeblack-* 1.64-2.00× mahony's tilt MAE,
+  pixracer-dcm-lowbatt 1.82×, sub compasscal-handrotated-orca126 3.47×). The weight held
+  ≈ 0.05-0.2 through whole flights (rectified vibration and manoeuvres in ‖a‖), so q_M
+  coasted on a gyro integrated coarsely at 25 Hz; after orca126's 100 s of hand rotation
+  ā_ref had absorbed the rotation (0.4 m/s²) and kept the accelerometer locked out at
+  rest, and the integral term (Ki 10× mahony's) had wound up on the integration error
+  (2-3° left at rest, decaying over Kp/Ki ≈ 100 s). Three additions, each with a value
+  that turns it off; ``strict = true`` turns all of them and the weight off (k_mahony = 0:
+  the paper's unweighted Mahony, eq 16-17 as published). On the 31 shared logs (tilt MAE,
+  mean of roll and pitch, against the autopilot; mahony's median 1.195°), before → after:
+  median 1.323 → 0.976°, mean 2.002 → 1.753°, worst log real-plane-4.3.1-kakutef7-crash
+  8.920 → 7.850° (1.21 → 1.06× mahony; now copter-4.1-flight.tlog, 1 Hz, 8.068 → 7.980°,
+  0.97×), worst ratio 3.47 → 1.34× (mohai009), logs above
+  1.5× mahony 5 → 0: cubeblack-crash-flip-fyp-test4 1.514 → 1.132 (1.64 → 1.22×),
+  cubeblack-loggap-fyp-test1 1.323 → 0.790 (2.00 → 1.19×), cubeblack-mission-fyp-test3
+  1.801 → 1.204 (1.73 → 1.16×), pixracer-dcm-lowbatt 0.794 → 0.476 (1.82 → 1.09×),
+  compasscal-handrotated-orca126 1.553 → 0.348 (3.47 → 0.78×). Most moved otherwise:
+  sitl-copter-4.7-vibration 3.238 → 1.794, sitl-plane-4.7-circuit 2.441 → 4.202 (its
+  long coordinated turns now lean on the accelerometer after the coasting limit; still
+  0.54× mahony), plane-3.1-flight-329 4.224 → 2.865, compasscal-handrotated-orca-0925.tlog
+  1.758 → 0.976, copter-3.3-loiter-rtl 1.285 → 1.426. strict = true: median 1.073°, mean
+  2.082°, worst ratio 1.47×. Each addition off in turn (others on): median / mean / worst
+  ratio below.
+  * Rest (``rest_gyro`` = 0.05 rad/s, alignment's still threshold; ``rest_accel`` =
+    0.02 m/s²; ``rest_ref_s`` = 2 s): the low-passed |ω - b| below rest_gyro and ā within
+    rest_accel of its value at the last rest (the start is at rest) mean the vehicle is
+    at rest: the weight is 1 and ā_ref follows ā with a 2 s time constant, so the
+    accelerometer is trusted again as soon as a lockout ends. ā must agree with rest, or a
+    linear acceleration with the gyro quiet (simulated "accel") would count as rest (0.1
+    m/s² let the figure-eight's pitch MAE reach 1.03°; 0.02: 0.82°). Off: 1.080° / 1.795°
+    / 1.36× (SITL copters lose most: 400 Hz 0.664 → 1.106).
+  * Coasting limit (``lock_s`` = 100 s at 100 Hz): the debt D grows by (1 - w) dt while the
+    weight w is below 1 and is paid back at w Kp D; the weight is at least D / (D + B),
+    with the budget B = lock_s (100 Hz / f)²: a lockout may last as long as the gyro can
+    carry the attitude, and the trapezoidal integration's error grows with the step
+    squared (B ≈ 6 s at 25 Hz, 25 s at 50 Hz, 100 s at 100 Hz; a budget ∝ f instead, i.e.
+    25 s at 25 Hz, left mohai009 at 1.75×; 7.5 s at 25 Hz ∝ f, i.e. lock_s = 30, broke the
+    figure-eight's 1° claim). Off: 0.976° / 1.817° / 2.05× with 5 logs above 1.5×
+    (cubeblack-mission 1.85×, lowbatt 1.95×, mohai009 2.05×).
+  * Integral gating (``ki_step`` = 0.01 rad): the integral term learns with Ki w / (1 +
+    (|ω - b| T / ki_step)²): not while the accelerometer is weighted out, nor while the
+    gyro turns more than about 0.5° a sample (where the coarse integration's error, not
+    the bias, is what the gravity error shows). Below 20 Hz, where the weight stays 1,
+    this is what changes: plane-3.1-flight-329 4.224 → 2.865, orca-0925.tlog (10 Hz)
+    1.758 → 0.976. Off: 1.079° / 1.916° / 1.47× (orca126 0.348 → 0.654).
+  Not done: scaling k_mahony with the noise of ā measured at rest or in flight; the
+  in-flight noise of ‖a‖ did not separate the logs the weight helps (forumlog0039,
+  quiver083: gyro-only error ≈ 0.55-0.75°) from those it hurts (cubeblack, mohai subs:
+  gyro-only 2-36°); the gyro's drift did, which the coasting limit bounds instead.
 - The EKF predicts with the still-period bias only, as the paper does; the internal
   Mahony's integral term (its running bias correction) stays inside the Mahony filter.
 - The trapezoidal rate and gap handling follow mahony: the first sample, and any step
@@ -63,6 +113,7 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..params import param
+from .alignment import STILL_GYRO_RAD_S
 from .base import MAX_STEP_S, Estimator
 from .ekf import predict
 from .mahony import mahony_step
@@ -80,6 +131,12 @@ class MahonyEkfParams:
     accel_lp_s: float = param(0.5, "[0, inf)")  # time constant of ā, the low-passed ‖a‖ - g, s
     accel_ref_s: float = param(60.0, "[0, inf)")  # time constant of ā_ref, ā's slow baseline (0: none, ā_ref = 0), s
     weight_min_rate: float = param(20.0, "[0, inf)")  # IMU rate below which the weight stays 1, Hz
+    rest_gyro: float = param(STILL_GYRO_RAD_S, "[0, inf)")  # low-passed |ω - b| below this is rest: weight 1, rad/s (0: off)
+    rest_accel: float = param(0.02, "(0, inf)")  # ... and ā within this of its value at rest, m/s²
+    rest_ref_s: float = param(2.0, "(0, inf)")  # time constant of ā_ref (and ā's value at rest) at rest, s
+    lock_s: float = param(100.0, "[0, inf)")  # gyro-only coasting allowed at 100 Hz (∝ rate²), s (0: no limit)
+    ki_step: float = param(0.01, "[0, inf)")  # rotation per step halving the integral gain, rad (0: ki as is)
+    strict: bool = param(False)  # the paper's Mahony-EKF: unweighted Mahony measurement, none of the additions
 
 
 @njit(cache=True, inline='always')
@@ -184,7 +241,7 @@ class MahonyEkfState(NamedTuple):
     bias_correction: np.ndarray  # (3,) the internal Mahony's integral term, rad/s
     t_prev: np.ndarray  # (1,) the last sample's time, NaN before the first
     gyro_prev: np.ndarray  # (3,) the last gyro sample
-    accel_filt: np.ndarray  # (4,) [ā, ā_ref, samples seen, mean step] of the Mahony weight (NaN at first)
+    accel_filt: np.ndarray  # (7,) [ā, ā_ref, samples seen, mean step, low-passed |ω - b|, coasting debt, ā at rest]
     bias: np.ndarray  # (3,) the still-period gyro bias (constant), rad/s
 
 
@@ -200,6 +257,11 @@ class MahonyEkfSettings(NamedTuple):
     accel_lp_s: float
     accel_ref_s: float
     weight_min_rate: float
+    rest_gyro: float
+    rest_accel: float
+    rest_ref_s: float
+    lock_s: float
+    ki_step: float
     gravity: float
     cos_dec: float
     sin_dec: float
@@ -226,11 +288,14 @@ def mahony_ekf_run(s, state, cfg, out, diag, mahony_out):
     k_accel, k_mahony, accel_lp_s, accel_ref_s = cfg.k_accel, cfg.k_mahony, cfg.accel_lp_s, cfg.accel_ref_s
     weight_min_rate, gravity, cos_dec, sin_dec, max_step = (cfg.weight_min_rate, cfg.gravity, cfg.cos_dec,
                                                             cfg.sin_dec, cfg.max_step)
+    rest_gyro, rest_accel, rest_ref_s = cfg.rest_gyro, cfg.rest_accel, cfg.rest_ref_s
+    lock_s, ki_step = cfg.lock_s, cfg.ki_step
     keep_mahony = mahony_out.shape[0] == len(t)
     cov_trace, adaptive_r, mahony_weight = diag.cov_trace, diag.adaptive_r, diag.mahony_weight
     tp = t_prev[0]
     gp0, gp1, gp2 = gyro_prev[0], gyro_prev[1], gyro_prev[2]
     lp, ref, count, mean_dt = accel_filt[0], accel_filt[1], accel_filt[2], accel_filt[3]
+    glp, debt, rest_lp = accel_filt[4], accel_filt[5], accel_filt[6]
     for i in range(len(t)):
         dt = t[i] - tp if tp == tp else 0.0  # NaN before the first sample
         tp = t[i]
@@ -247,23 +312,45 @@ def mahony_ekf_run(s, state, cfg, out, diag, mahony_out):
         r = r0 * (1.0 + k_accel * abs(dev))  # eq 17, with |·|
 
         # weight of the internal Mahony's gravity error (a choice: see the module docstring)
+        rot = np.sqrt((w0 - bias[0]) ** 2 + (w1 - bias[1]) ** 2 + (w2 - bias[2]) ** 2)  # |ω - b|
+        if glp != glp:
+            glp = rot
+        elif step:
+            glp += (min(dt / accel_lp_s, 1.0) if accel_lp_s > 0.0 else 1.0) * (rot - glp)
+        rest = False
         if dev == dev:
             if lp != lp:
-                lp = ref = dev
+                lp = ref = rest_lp = dev
                 count = 1.0
             elif step:
                 count += 1.0
                 mean_dt = dt if mean_dt != mean_dt else mean_dt + 0.01 * (dt - mean_dt)
                 lp += (min(dt / accel_lp_s, 1.0) if accel_lp_s > 0.0 else 1.0) * (dev - lp)
-                if accel_ref_s > 0.0:  # a running mean at first, then exponential
-                    ref += max(min(dt / accel_ref_s, 1.0), 1.0 / count) * (lp - ref)
+                # rest: the gyro quiet and ā where it was at rest before (the start is at rest)
+                rest = rest_gyro > 0.0 and glp < rest_gyro and abs(lp - rest_lp) < rest_accel
+                if rest:
+                    rest_lp += max(min(dt / rest_ref_s, 1.0), 1.0 / count) * (lp - rest_lp)
+                if accel_ref_s > 0.0:  # a running mean at first, then exponential; at rest, quickly
+                    if rest:
+                        ref += max(min(dt / rest_ref_s, 1.0), 1.0 / count) * (lp - ref)
+                    else:
+                        ref += max(min(dt / accel_ref_s, 1.0), 1.0 / count) * (lp - ref)
         weight = 1.0
-        if k_mahony > 0.0 and lp == lp and not mean_dt * weight_min_rate > 1.0:
+        if k_mahony > 0.0 and lp == lp and not mean_dt * weight_min_rate > 1.0 and not rest:
             weight = 1.0 / (1.0 + k_mahony * abs(lp - (ref if accel_ref_s > 0.0 else 0.0)))
+            if lock_s > 0.0:  # the coasting debt raises the weight (its budget ∝ the IMU rate)
+                budget = lock_s * (0.01 / mean_dt) ** 2  # trapezoidal integration: error ∝ step²
+                weight = max(weight, debt / (debt + budget))
+        if step and k_mahony > 0.0:  # debt: time coasted on the gyro, paid back as the accelerometer corrects
+            debt = max(debt + dt * (1.0 - weight) - dt * weight * kp * debt, 0.0)
+        ki_eff = ki
+        if k_mahony > 0.0 and ki_step > 0.0:  # the bias is learned where the gyro integrates finely
+            th = rot * dt / ki_step
+            ki_eff = ki * weight / (1.0 + th * th)
 
         qm[0], qm[1], qm[2], qm[3], bias_correction[0], bias_correction[1], bias_correction[2] = mahony_step(
             qm[0], qm[1], qm[2], qm[3], bias_correction[0], bias_correction[1], bias_correction[2], w0, w1, w2,
-            a0, a1, a2, mag[i, 0], mag[i, 1], mag[i, 2], use_mag, cos_dec, sin_dec, kp, ki, dt, step, weight)
+            a0, a1, a2, mag[i, 0], mag[i, 1], mag[i, 2], use_mag, cos_dec, sin_dec, kp, ki_eff, dt, step, weight)
         if step:
             predict(x, P, w0 - bias[0], w1 - bias[1], w2 - bias[2], dt, q_gyro)
             # q_M and -q_M are one attitude: measure the one on X⁻'s side
@@ -282,6 +369,7 @@ def mahony_ekf_run(s, state, cfg, out, diag, mahony_out):
     t_prev[0] = tp
     gyro_prev[0], gyro_prev[1], gyro_prev[2] = gp0, gp1, gp2
     accel_filt[0], accel_filt[1], accel_filt[2], accel_filt[3] = lp, ref, count, mean_dt
+    accel_filt[4], accel_filt[5], accel_filt[6] = glp, debt, rest_lp
     return out
 
 
@@ -295,7 +383,8 @@ class MahonyEkf(Estimator):
     DIAGNOSTICS = {
         "cov_trace": "trace of the 4×4 quaternion covariance P (dimensionless)",
         "adaptive_r": "diagonal of the measurement noise R = r0 [1 + k_accel |‖a‖ - g|] (eq 17)",
-        "mahony_weight": "weight of the internal Mahony's gravity error, 1/(1 + k_mahony |ā - ā_ref|), 0-1",
+        "mahony_weight": "weight of the internal Mahony's gravity error, 1/(1 + k_mahony |ā - ā_ref|), at least "
+                         "the coasting limit's D/(D + B), 1 at rest, 0-1",
     }
 
     def initialize(self, q0, gyro_bias) -> None:
@@ -304,11 +393,12 @@ class MahonyEkf(Estimator):
         bias = np.array(gyro_bias, dtype=np.float64).reshape(3)
         # paper 000: P₀ = I₄; the internal Mahony's integral starts at -bias, as mahony's
         self._state = MahonyEkfState(x, np.eye(4), x.copy(), -bias.copy(), np.array([np.nan]), np.zeros(3),
-                                     np.full(4, np.nan), bias)
+                                     np.array([np.nan, np.nan, np.nan, np.nan, np.nan, 0.0, np.nan]), bias)
         p = self.params
         self._settings = MahonyEkfSettings(
             float(p.kp), float(p.ki), bool(p.use_mag), float(p.q_gyro), float(p.r0), float(p.k_accel),
-            float(p.k_mahony), float(p.accel_lp_s), float(p.accel_ref_s), float(p.weight_min_rate), GRAVITY,
+            0.0 if p.strict else float(p.k_mahony), float(p.accel_lp_s), float(p.accel_ref_s),
+            float(p.weight_min_rate), float(p.rest_gyro), float(p.rest_accel), float(p.rest_ref_s), float(p.lock_s), float(p.ki_step), GRAVITY,
             float(np.cos(self.declination)), float(np.sin(self.declination)), MAX_STEP_S)
         self.mahony_q = np.empty((0, 4))  # the internal Mahony attitude over the last chunk
         self.initialized = True
