@@ -171,6 +171,50 @@ def test_segmented_threshold_follows_the_phase_sample_by_sample():
     assert np.all(d["h_gate"][1:] >= 0.01)
 
 
+def test_noise_gate_widens_the_thresholds_by_the_measured_residual_noise():
+    """A level, still vehicle whose accelerometer carries white horizontal noise of σ per axis
+    (a vibrating copter logged at 25 Hz): the 0.01 g air gate refuses most samples; the noise
+    gate measures σ from the step differences and opens to √(0.01² + (3σ)²)."""
+    rng = np.random.default_rng(3)
+    n, sigma = 2500, 0.05
+    t = np.arange(n) / 25.0
+    accel = np.tile([0.0, 0.0, -GRAVITY], (n, 1))
+    accel[:, :2] += rng.normal(scale=sigma * GRAVITY, size=(n, 2))
+    base = NcsEskfParams(gate_sigma=0.0, taper=0.0)
+    paper = _states(replace(base, noise_gate=0.0), t, np.zeros((n, 3)), accel, np.ones(n))
+    np.testing.assert_allclose(paper["h_gate"][1:], 0.01)
+    assert np.mean(paper["accel_state"] == 2) > 0.9
+    d = _states(base, t, np.zeros((n, 3)), accel, np.ones(n))
+    later = slice(n // 2, None)  # after a few NOISE_S
+    np.testing.assert_allclose(np.median(d["h_gate"][later]), np.hypot(0.01, 3 * sigma), rtol=0.1)
+    assert np.mean(d["accel_state"][later] == 0) > 0.95
+    # noise-free data keeps the paper's threshold exactly
+    t, gyro, clean = _level_with_horizontal_accel(300, 0.05)
+    np.testing.assert_allclose(_states(base, t, gyro, clean, np.ones(300))["h_gate"][1:], 0.01)
+
+
+def test_strict_is_the_papers_filter_whatever_the_other_values():
+    """strict=True: the published thresholds and gate_sigma=0, taper=0, estimate_bias=False,
+    step_noise=0, cons_time=0, noise_gate=0 (the docstring's list), whatever is set."""
+    sim = st.figure8_120()
+    paper = NcsEskfParams(gate_sigma=0.0, taper=0.0, estimate_bias=False, step_noise=0.0, cons_time=0.0,
+                          noise_gate=0.0)
+    q_p, f_p = st.run("ncs-eskf", sim, params=paper)
+    odd = NcsEskfParams(strict=True, gate_sigma=9.0, taper=0.5, estimate_bias=True, step_noise=1.0,
+                        cons_time=0.5, noise_gate=5.0, total_threshold=0.5, h_threshold_air=0.05,
+                        h_threshold_ground=0.3)
+    q_s, f_s = st.run("ncs-eskf", sim, params=odd)
+    np.testing.assert_array_equal(q_s, q_p)
+    for k in NcsEskf.DIAGNOSTICS:
+        np.testing.assert_array_equal(f_s.diagnostics[k], f_p.diagnostics[k])
+    np.testing.assert_allclose(f_s.diagnostics["h_gate"][1:], 0.01)  # in_air unknown: the air threshold
+    assert np.all(f_s.gyro_bias == f_s._state.bias)  # no bias learned
+    assert f_s.params.gate_sigma == 9.0  # the values given are kept, only not used
+    # the defaults differ from it
+    q_d, _ = st.run("ncs-eskf", sim)
+    assert not np.array_equal(q_d, q_p)
+
+
 def test_total_threshold_skips_large_specific_force():
     n = 200
     t = np.arange(n) / 100.0
