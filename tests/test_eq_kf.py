@@ -268,3 +268,43 @@ def test_turn_compensation_on_a_fixed_wing_orbit():
     # on the ground, and with airspeed 0 whatever the phase: exactly the uncompensated filter
     np.testing.assert_array_equal(_orbit_roll_error(EqKfParams(airspeed=15.0), np.zeros(n))[0], q_off)
     np.testing.assert_array_equal(_orbit_roll_error(EqKfParams(), np.ones(n))[0], q_off)
+
+
+def test_strict_is_the_papers_filter_whatever_the_other_parameters():
+    """strict=True: the trust w = w_norm · w_rate of ALGORITHMS.md on the raw sample with the
+    fixed STRICT thresholds, no bias states, and none of our additions, however they are set."""
+    from mavattitude.estimators.eq_kf import STRICT
+    sim = simtruth.figure8_120()
+    n = len(sim.t)
+    q, f = simtruth.run("eq-kf", sim, EqKfParams(strict=True))
+    bias0 = f.gyro_bias
+    # every addition and threshold set far from its default: nothing changes
+    wild = dict(bias_walk=1e-2, int_noise=3.0, init_bias_sigma=0.1, norm_lo=0.5, norm_hi=0.9,
+                rate_lo=0.01, rate_hi=0.02, gate_noise=1e-4, gate_lo=0.1, gate_hi=0.2, trust_rise=30.0,
+                trust_lpf=2.0, vib_time=0.01, still_rate=1.0, still_accel=5.0, still_time=0.1, cons_tol=0.0,
+                cons_norm=0.5, cons_time=0.0, airspeed=30.0)
+    q_wild, f_wild = simtruth.run("eq-kf", sim, EqKfParams(strict=True, **wild), in_air=np.ones(n))
+    np.testing.assert_array_equal(q_wild, q)
+    np.testing.assert_array_equal(f_wild.diagnostics["accel_weight"], f.diagnostics["accel_weight"])
+    # the bias is never learned
+    np.testing.assert_array_equal(f.gyro_bias, bias0)
+    assert np.all(f.covariance[3:, 3:] == 0.0)
+    # the same as the full filter with every addition switched off by its parameters
+    off = dict(bias_walk=0.0, init_bias_sigma=0.0, int_noise=0.0, gate_lo=1e300, gate_hi=2e300, trust_rise=0.0,
+               trust_lpf=0.0, still_time=1e300, cons_norm=0.0, cons_time=1e300, airspeed=0.0, **STRICT)
+    q_off, _ = simtruth.run("eq-kf", sim, EqKfParams(**off))
+    np.testing.assert_array_equal(q_off, q)
+    # the trust is exactly ramp(|‖a‖/g - 1|) · ramp(‖ω̄‖) on the raw samples
+    t, gyro, accel, _ = simtruth.inputs(sim, True)
+
+    def ramp(x, lo, hi):
+        return np.clip((hi - x) / (hi - lo), 0.0, 1.0)
+
+    rate = np.linalg.norm(0.5 * (gyro[1:] + gyro[:-1]) - bias0, axis=1)
+    eps = np.abs(np.linalg.norm(accel[1:], axis=1) / 9.80665 - 1.0)
+    w = ramp(eps, STRICT["norm_lo"], STRICT["norm_hi"]) * ramp(rate, STRICT["rate_lo"], STRICT["rate_hi"])
+    np.testing.assert_allclose(f.diagnostics["accel_weight"][1:], w, atol=1e-9)
+    assert f.diagnostics["accel_weight"][0] == 0.0  # the first sample has no Δt
+    assert 0.0 < w.mean() < 1.0  # the figure-eight exercises the trust
+    # and the default filter is not the strict one
+    assert not np.array_equal(simtruth.run("eq-kf", sim)[0], q)
