@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 
+from .. import kernel_cache as _kernel_cache
 from .alignment import Alignment, align
 from .base import Estimator
 from .base import needs_compile as _needs_compile
@@ -31,6 +32,8 @@ ESTIMATORS: dict[str, type[Estimator]] = {
     EqKf.name: EqKf,
     CpfEkf.name: CpfEkf,
 }
+
+_kernel_cache.refresh(Mahony.kernels[0])  # no stale kernel from older sources (see kernel_cache)
 
 
 def summary(cls) -> str:

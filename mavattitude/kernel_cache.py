@@ -1,0 +1,71 @@
+"""Keep numba's cache of our kernels in step with the sources.
+
+numba stamps a cached kernel with its own source file only, not with the files whose
+functions it compiled in (quaternion.py, estimators/consistency.py, mahony_step in
+mahony.py...). After an update that changed only those, it would load a kernel built from the
+old code and give old numbers without a word. So the cache carries a stamp of every source
+file that holds kernels; when the stamp differs, our cached kernels are deleted, and compile
+again on first use (announced, as on a first run).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parent
+STAMP = "mavattitude-kernels.stamp"
+
+
+def sources_stamp() -> str:
+    """A hash of every package source file that defines numba kernels."""
+    digest = hashlib.sha1()
+    for path in sorted(PACKAGE.rglob("*.py")):
+        text = path.read_bytes()
+        if b"njit" in text:
+            digest.update(str(path.relative_to(PACKAGE)).encode() + b"\0" + text)
+    return digest.hexdigest()
+
+
+def cache_root(kernel) -> Path | None:
+    """Where numba caches this package's kernels: the package itself (a __pycache__ beside
+    each module) or its mirror under NUMBA_CACHE_DIR / the user cache."""
+    path = getattr(getattr(kernel, "_cache", None), "_cache_path", None)
+    if path is None:
+        return None
+    path = Path(path)  # the cache folder of the kernel's module, in mavattitude/<sub>/
+    module_dir = Path(kernel.py_func.__code__.co_filename).resolve().parent
+    depth = len(module_dir.relative_to(PACKAGE).parts)
+    root = path.parent if path.name == "__pycache__" else path
+    for _ in range(depth):
+        root = root.parent
+    return root
+
+
+def refresh(kernel) -> bool:
+    """Empty the cache of our kernels if the sources changed since it was filled (judged by
+    ``kernel``'s cache folder, one of ours); True when it did."""
+    root = cache_root(kernel)
+    if root is None or not root.is_dir():
+        return False
+    stamp_file = Path(kernel._cache._cache_path) / STAMP
+    stamp = sources_stamp()
+    try:
+        if stamp_file.read_text() == stamp:
+            return False
+    except OSError:
+        pass
+    stale = [p for pattern in ("*.nbi", "*.nbc") for p in root.rglob(pattern)]
+    for path in stale:
+        try:
+            path.unlink()
+        except OSError:
+            pass  # another process got there first, or a read-only cache: numba copes
+    try:
+        stamp_file.parent.mkdir(parents=True, exist_ok=True)
+        tmp = stamp_file.with_suffix(f".{os.getpid()}")
+        tmp.write_text(stamp)
+        os.replace(tmp, stamp_file)
+    except OSError:
+        pass
+    return bool(stale)
