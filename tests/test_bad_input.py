@@ -258,8 +258,10 @@ class BlackHole:
 def _cli_process(args, timeouts="FLUSH_TIMEOUT_S=3; s.SHUTDOWN_TIMEOUT_S=2"):
     code = (f"import sys; import mavattitude.sink as s; s.{timeouts}; from mavattitude.cli import main; "
             f"sys.exit(main({[str(a) for a in args]!r}))")
+    # Ctrl-C as a terminal delivers it: a test run started as a background job (`cmd &` in a
+    # script, some CI runners) ignores SIGINT, and its children inherit that
     return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 @pytest.mark.slow
