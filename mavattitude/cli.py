@@ -221,7 +221,7 @@ def cmd_evaluate(args) -> int:
     if not logs:
         raise InputError(", ".join(args.paths), "holds no .bin or .tlog log")
     with Outputs(inputs=[*logs, args.params], force=args.force) as outputs:
-        out = outputs.folder(args.out, "--out", ["results.csv"], "csv")
+        out = outputs.folder(args.out, "--out", [], "csv")  # its files are claimed one by one below
         files = {name: outputs.file(out / name, "--out", kind) for name, kind in (
             ("results.csv", "csv"), ("summary.json", "json"), ("report.md", "md"), ("tilt_error.svg", "svg"),
             ("results.parquet", "parquet"))}

@@ -74,11 +74,10 @@ def record_name(path: str) -> str:
 def settings_key(settings: ReplaySettings) -> str:
     """What a record was computed with, the settings and the code: a record made with other
     settings, or by another version of mavattitude, is redone."""
-    digest = hashlib.sha1(json.dumps(asdict(settings), sort_keys=True, default=str).encode())
-    package = Path(__file__).resolve().parent
-    for source in sorted(package.rglob("*.py")):
-        digest.update(source.read_bytes())
-    return digest.hexdigest()[:16]
+    from .kernel_cache import sources_stamp
+
+    options = json.dumps(asdict(settings), sort_keys=True, default=str)
+    return hashlib.sha1((options + sources_stamp(kernels_only=False)).encode()).hexdigest()[:16]
 
 
 # ---------------------------------------------------------------- one log

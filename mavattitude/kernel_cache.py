@@ -17,12 +17,12 @@ PACKAGE = Path(__file__).resolve().parent
 STAMP = "mavattitude-kernels.stamp"
 
 
-def sources_stamp() -> str:
-    """A hash of every package source file that defines numba kernels."""
+def sources_stamp(kernels_only: bool = True) -> str:
+    """A hash of every package source file that defines numba kernels (or of every one)."""
     digest = hashlib.sha1()
     for path in sorted(PACKAGE.rglob("*.py")):
         text = path.read_bytes()
-        if b"njit" in text:
+        if b"njit" in text or not kernels_only:
             digest.update(str(path.relative_to(PACKAGE)).encode() + b"\0" + text)
     return digest.hexdigest()
 

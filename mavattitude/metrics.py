@@ -137,7 +137,6 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
     yaw_offset, offsets = 0.0, []
     if align_yaw and scored.any():
         bounds = np.concatenate([[-np.inf], np.sort(np.asarray(restarts, dtype=float)), [np.inf]])
-        offsets = []
         for start, end in zip(bounds[:-1], bounds[1:]):
             span = (t >= start) & (t < end)
             if not (scored & span).any():
@@ -212,17 +211,23 @@ def circular_mean_deg(angles_deg: np.ndarray) -> float:
     return float(wrap_deg(np.degrees(np.arctan2(np.sin(a).mean(), np.cos(a).mean()))))
 
 
+def _interpolated(te: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each time ``t``: whether the estimate at ``te`` is interpolated there (strictly
+    between two of its samples), and the index of the later of the two (``right``)."""
+    k = np.searchsorted(te, t, side="left")  # first sample at or after t
+    right = np.clip(k, 1, len(te) - 1)  # bracket [right - 1, right] (clipped; masked below)
+    return (k > 0) & (k < len(te)) & (te[right] != t), right
+
+
 def _in_gap(te: np.ndarray, t: np.ndarray, max_gap_s: float, restarts: np.ndarray) -> np.ndarray:
     """True where ``t`` falls strictly between two estimate samples more than ``max_gap_s``
     apart, or with a restart after the first and at or before the second."""
     if len(te) < 2:
         return np.zeros(len(t), dtype=bool)
-    k = np.searchsorted(te, t, side="left")
-    inner = (k > 0) & (k < len(te))
-    right = np.clip(k, 1, len(te) - 1)
+    inside, right = _interpolated(te, t)
     before, after = te[right - 1], te[right]
     restart = np.searchsorted(restarts, before, side="right") < np.searchsorted(restarts, after, side="right")
-    return inner & (after != t) & ((after - before > max_gap_s) | restart)
+    return inside & ((after - before > max_gap_s) | restart)
 
 
 def _bridges_hole(te: np.ndarray, est_index: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -234,9 +239,5 @@ def _bridges_hole(te: np.ndarray, est_index: np.ndarray, t: np.ndarray) -> np.nd
     """
     if len(te) < 2:  # nothing to interpolate between
         return np.zeros(len(t), dtype=bool)
-    k = np.searchsorted(te, t, side="left")  # first valid sample at or after t
-    inner = (k > 0) & (k < len(te))
-    right = np.clip(k, 1, len(te) - 1)  # bracket [right - 1, right] (clipped; `inner` masks the rest)
-    exact = te[right] == t
-    gap = (est_index[right] - est_index[right - 1]) > 1
-    return inner & gap & ~exact
+    inside, right = _interpolated(te, t)
+    return inside & ((est_index[right] - est_index[right - 1]) > 1)

@@ -109,9 +109,8 @@ def board_trim(flight: Flight) -> tuple[float, float] | None:
 
 
 def trimmed(series: AttitudeSeries, trim: tuple[float, float]) -> AttitudeSeries:
-    """The attitude of the vehicle body from the board's: q ⊗ q_trim*, as the autopilot does."""
-    q_trim = quat.conjugate(quat.from_euler(trim[0], trim[1], 0.0))
-    return AttitudeSeries(series.source, series.t, quat.multiply(series.q, np.broadcast_to(q_trim, series.q.shape)))
+    """The attitude of the vehicle body from the board's, as the autopilot does (``quaternion.trimmed``)."""
+    return AttitudeSeries(series.source, series.t, quat.trimmed(series.q, *trim))
 
 
 def run_estimators(flight: Flight, names: list[str], imu_source: str | None = None,

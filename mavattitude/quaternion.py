@@ -69,6 +69,13 @@ def conjugate(q) -> np.ndarray:
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
+def trimmed(q, roll: float, pitch: float) -> np.ndarray:
+    """The vehicle body's attitude from the board's, for ArduPilot's board trim (AHRS_TRIM_X/Y,
+    rad): q ⊗ q_trim*, q_trim from the Euler angles (roll, pitch, 0) (AP_AHRS: DCM · R(trim)ᵀ)."""
+    q = np.asarray(q, dtype=float)
+    return multiply(q, np.broadcast_to(conjugate(from_euler(roll, pitch, 0.0)), q.shape))
+
+
 def normalize(q) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     return q / np.linalg.norm(q, axis=-1, keepdims=True)

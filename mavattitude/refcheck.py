@@ -102,7 +102,7 @@ def _tilt_at_rest(ref: AttitudeSeries, imu: ImuSeries, trim, in_air_at, gps) -> 
     pitch = np.arctan2(acc[:, 0], np.hypot(acc[:, 1], acc[:, 2]))
     q_acc = quat.from_euler(roll, pitch, np.zeros(n))
     if trim is not None:
-        q_acc = quat.multiply(q_acc, np.broadcast_to(quat.conjugate(quat.from_euler(trim[0], trim[1], 0.0)), q_acc.shape))
+        q_acc = quat.trimmed(q_acc, *trim)
     # the angle between the two gravity directions in the body
     down_acc = quat.rotate(quat.conjugate(q_acc), np.array([0.0, 0.0, 1.0]))
     down_ref = quat.rotate(quat.conjugate(quat.interpolate(ref.t, ref.q, centre)), np.array([0.0, 0.0, 1.0]))

@@ -13,7 +13,7 @@ import simtruth as st
 from mavattitude import quaternion as quat
 from mavattitude.estimators import ESTIMATORS
 from mavattitude.estimators.cpf_ekf import (IA, IB, IM, IMB, IS, IV, NX, CpfEkf, CpfEkfParams,
-                                            _reset_yaw_covariance, mag_jacobian, mag_model, paper_params,
+                                            _reset_yaw_covariance, mag_jacobian, mag_model,
                                             predict_state, transition_matrix, yaw_model)
 from mavattitude.flight import GRAVITY
 from mavattitude.sim import SensorParams, simulate
@@ -192,7 +192,8 @@ def test_registered_with_aiding_and_params():
     p = CpfEkfParams()
     assert p.reset_threshold == pytest.approx(0.27416) and p.reset_cycles == 3  # the paper's
     assert not p.strict and not p.mag_tilt
-    paper = paper_params(replace(p, reset_threshold=1.0, reset_cycles=5, mag_tilt=False, innovation_gate=3.0))
+    paper = CpfEkf(replace(p, strict=True, reset_threshold=1.0, reset_cycles=5, mag_tilt=False,
+                           innovation_gate=3.0)).run_params()
     assert paper.reset_threshold == pytest.approx(0.27416) and paper.reset_cycles == 3
     assert paper.mag_tilt and paper.watchdog and paper.innovation_gate == 0.0
     assert set(CpfEkf.DIAGNOSTICS) >= {"cov_trace", "reset", "gyro_bias_x", "mag_bias_z", "vel_n",

@@ -24,6 +24,7 @@ counts the accel states into the JSON events and the view shows them.
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -40,6 +41,12 @@ class Estimator:
     DIAGNOSTICS: dict = {}  # diagnostic series name -> what it holds, with its unit
     ACCEL_STATES: tuple = ()  # meaning of each accel_state code, code 0 = "used"
     uses_aiding: bool = False  # takes GPS / baro measurements: update(..., aiding=Aiding)
+    PAPER: dict = {}  # parameter values ``strict`` forces: the paper's filter as published
+
+    def run_params(self):
+        """The parameters the filter runs with: ``params``, or with ``strict`` set, ``params``
+        with the paper's published values (``PAPER``) whatever they say."""
+        return replace(self.params, **self.PAPER) if getattr(self.params, "strict", False) else self.params
 
     def __init__(self, params=None, declination: float = 0.0):
         self.params = params if params is not None else self.Params()

@@ -152,7 +152,7 @@ watchdog, yaw lagged from 320 s and diverged by 700 s.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -233,15 +233,6 @@ class CpfEkfParams:
     use_baro: bool = param(True)  # fuse baro height when the log has it
     mag_tilt: bool = param(False)  # the compass corrects the tilt too (eq 12-16 as printed); false: the heading only
     strict: bool = param(False)  # the paper's filter: published thresholds, every addition below the paper off, whatever the values above
-
-
-# the published thresholds (eq 21: N, 3 cycles) and every robustness addition off: what ``strict`` runs
-PAPER = dict(reset_threshold=0.27416, reset_cycles=3, watchdog=True, innovation_gate=0.0, mag_tilt=True)
-
-
-def paper_params(p: CpfEkfParams) -> CpfEkfParams:
-    """``p`` with the paper's thresholds and none of the robustness additions (``strict``)."""
-    return replace(p, **PAPER)
 
 
 # parameter vector layout for the kernel
@@ -1155,6 +1146,8 @@ class CpfEkf(Estimator):
     uses_mag = True
     uses_aiding = True
     kernels = (cpf_ekf_run,)
+    # strict: the published thresholds (eq 21: N, 3 cycles) and every robustness addition off
+    PAPER = dict(reset_threshold=0.27416, reset_cycles=3, watchdog=True, innovation_gate=0.0, mag_tilt=True)
     DIAGNOSTICS = {
         "cov_trace": "trace of the 20×20 covariance P (mixed units)",
         "reset": "1 at a watchdog reset (eq 21: EKF reset from the complementary filter), else 0",
@@ -1188,7 +1181,7 @@ class CpfEkf(Estimator):
     }
 
     def initialize(self, q0, gyro_bias) -> None:
-        p = paper_params(self.params) if self.params.strict else self.params
+        p = self.run_params()
         self._settings = CpfEkfSettings.of(p, self.declination)
         x = np.zeros(NX)
         x[:4] = np.asarray(q0, dtype=np.float64) / np.linalg.norm(q0)

@@ -379,6 +379,7 @@ class MahonyEkf(Estimator):
     Params = MahonyEkfParams
     uses_mag = True
     kernels = (mahony_ekf_run,)
+    PAPER = dict(k_mahony=0.0)  # strict: the unweighted Mahony measurement (eq 16-17); the additions act on the weight
     keep_mahony = False  # set True to keep the internal Mahony attitude of each chunk in ``mahony_q``
     DIAGNOSTICS = {
         "cov_trace": "trace of the 4×4 quaternion covariance P (dimensionless)",
@@ -394,10 +395,10 @@ class MahonyEkf(Estimator):
         # paper 000: P₀ = I₄; the internal Mahony's integral starts at -bias, as mahony's
         self._state = MahonyEkfState(x, np.eye(4), x.copy(), -bias.copy(), np.array([np.nan]), np.zeros(3),
                                      np.array([np.nan, np.nan, np.nan, np.nan, np.nan, 0.0, np.nan]), bias)
-        p = self.params
+        p = self.run_params()
         self._settings = MahonyEkfSettings(
             float(p.kp), float(p.ki), bool(p.use_mag), float(p.q_gyro), float(p.r0), float(p.k_accel),
-            0.0 if p.strict else float(p.k_mahony), float(p.accel_lp_s), float(p.accel_ref_s),
+            float(p.k_mahony), float(p.accel_lp_s), float(p.accel_ref_s),
             float(p.weight_min_rate), float(p.rest_gyro), float(p.rest_accel), float(p.rest_ref_s), float(p.lock_s), float(p.ki_step), GRAVITY,
             float(np.cos(self.declination)), float(np.sin(self.declination)), MAX_STEP_S)
         self.mahony_q = np.empty((0, 4))  # the internal Mahony attitude over the last chunk

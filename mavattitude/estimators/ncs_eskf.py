@@ -144,7 +144,7 @@ Reported (paper 001): Table 1, 50 Hz aircraft data, roll / pitch MAE: NCS-ESKF 0
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -181,16 +181,6 @@ class NcsEskfParams:
     cons_time: float = param(1.5, "[0, inf)")  # s: ... for this long (0: no consistency test)
     noise_gate: float = param(3.0, "[0, inf)")  # σ of measured residual noise added (root-sum-square) to the thresholds; 0: off
     strict: bool = param(False)  # the paper's filter: published thresholds, every addition off, whatever the values above
-
-
-# the published thresholds (§1.3, §3.2 Table 2) and every addition off: what ``strict`` runs
-PAPER = dict(total_threshold=0.2, h_threshold_air=0.01, h_threshold_ground=0.1, gate_sigma=0.0, taper=0.0,
-             estimate_bias=False, step_noise=0.0, cons_time=0.0, noise_gate=0.0)
-
-
-def paper_params(p: NcsEskfParams) -> NcsEskfParams:
-    """``p`` with the paper's thresholds and none of the additions (``strict``)."""
-    return replace(p, **PAPER)
 
 
 ACCEL_USED, ACCEL_TOTAL, ACCEL_HORIZONTAL, ACCEL_NONE = 0, 1, 2, 3
@@ -643,6 +633,9 @@ class NcsEskf(Estimator):
     Params = NcsEskfParams
     uses_mag = False
     kernels = (ncs_eskf_run,)
+    # strict: the published thresholds (§1.3, §3.2 Table 2) and every addition off
+    PAPER = dict(total_threshold=0.2, h_threshold_air=0.01, h_threshold_ground=0.1, gate_sigma=0.0, taper=0.0,
+                 estimate_bias=False, step_noise=0.0, cons_time=0.0, noise_gate=0.0)
     ACCEL_STATES = ("used",
                     "skipped: |a|-g above total threshold",
                     "skipped: horizontal maneuver above threshold",
@@ -658,7 +651,7 @@ class NcsEskf(Estimator):
     }
 
     def initialize(self, q0, gyro_bias) -> None:
-        p = paper_params(self.params) if self.params.strict else self.params
+        p = self.run_params()
         q0 = np.array(q0, dtype=np.float64)
         P = np.zeros((6, 6))
         P[:3, :3] = np.eye(3) * np.radians(p.p0_deg) ** 2
