@@ -1,6 +1,7 @@
 """Shared fixtures: the real logs in ../shared/logs (skipped where absent) and simulated flights."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pytest
@@ -16,15 +17,19 @@ def shared_log_paths() -> list[Path]:
     return sorted(p for p in SHARED_LOGS.iterdir() if p.suffix in (".bin", ".tlog"))
 
 
-def shared_log_params():
-    """pytest params for every shared log; one skipped param when the folder is absent. The
-    telemetry logs of SITL (seconds each to decode) are marked slow."""
+def shared_log_params(corpus: bool = False, suffix: str | None = None, slow_above_mb: float = math.inf):
+    """pytest params for every shared log (``corpus``: its corpus/ folder too; ``suffix``: of
+    one kind); one skipped param when the folder is absent. Logs larger than ``slow_above_mb``
+    are marked slow."""
     paths = shared_log_paths()
+    if corpus and paths:
+        paths += sorted(p for p in (SHARED_LOGS / "corpus").iterdir() if p.suffix in (".bin", ".tlog"))
+    paths = [p for p in paths if suffix in (None, p.suffix)]
     if not paths:
         return [pytest.param(None, marks=pytest.mark.skip(
             reason=f"real logs not found at {SHARED_LOGS} (they live beside the project, not in it)"))]
-    return [pytest.param(p, id=p.name, marks=[pytest.mark.slow] if p.name.startswith("sitl-") and
-                         p.suffix == ".tlog" else []) for p in paths]
+    return [pytest.param(p, id=p.name, marks=[pytest.mark.slow] if p.stat().st_size > slow_above_mb * 1e6 else [])
+            for p in paths]
 
 
 def shared_log(name: str) -> Path:

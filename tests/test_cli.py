@@ -160,7 +160,7 @@ def _bound(name: str) -> float:
     return PLANE_BIN_MAX_DEG if name.startswith("plane") else COPTER_BIN_MAX_DEG
 
 
-@pytest.mark.parametrize("path", shared_log_params())
+@pytest.mark.parametrize("path", shared_log_params(slow_above_mb=5))
 def test_every_shared_log_replays_with_every_estimator(path, tmp_path, capsys):
     from mavattitude.estimators import ESTIMATORS
 

@@ -19,40 +19,12 @@ from .dataflash import read_dataflash
 from .series import IMU_LIMITS, MAG_LIMITS, earth_field_power, fill_series
 from .sources import (IMU_PREFERENCE, best_imu_source, enum_name, identify_vehicle, imu_rate, mag_for_imu,
                       pick_imu, pick_mag)
-from .tlog import read_tlog
+from .tlog import TLOG_SEARCH_BYTES, read_tlog, tlog_start
 
 __all__ = ["IMU_LIMITS", "IMU_PREFERENCE", "MAG_LIMITS", "best_imu_source", "earth_field_power", "enum_name",
            "identify_vehicle", "imu_rate", "mag_for_imu", "pick_imu", "pick_mag", "read_log", "sniff_format"]
 
 DATAFLASH_MAGIC = b"\xa3\x95"
-MAVLINK_MAGIC = (0xFE, 0xFD)  # MAVLink 1, MAVLink 2 start bytes
-
-
-TLOG_SEARCH_BYTES = 1 << 16  # a ground station's header before the first record (1,359 bytes seen)
-TLOG_TIME_RANGE_US = (946684800e6, 4102444800e6)  # a record's UNIX time: 2000 to 2100
-
-
-def tlog_start(data: bytes) -> int | None:
-    """Where the first of two consecutive telemetry records starts in ``data`` (a record: a
-    big-endian UNIX time in µs, then a MAVLink 1 or 2 packet), or None. What comes before is
-    a header pymavlink skips too."""
-    def record_size(p: int) -> int | None:
-        if p + 18 > len(data) or data[p + 8] not in MAVLINK_MAGIC:
-            return None
-        if not TLOG_TIME_RANGE_US[0] <= int.from_bytes(data[p:p + 8], "big") <= TLOG_TIME_RANGE_US[1]:
-            return None
-        length = data[p + 9]
-        if data[p + 8] == 0xFE:
-            return 8 + 6 + length + 2
-        return 8 + 10 + length + 2 + (13 if data[p + 10] & 0x01 else 0)  # v2, signed when flagged
-
-    for start in range(0, max(len(data) - 18, 0)):
-        if data[start + 8] not in MAVLINK_MAGIC:
-            continue
-        size = record_size(start)
-        if size is not None and (start + size >= len(data) or record_size(start + size) is not None):
-            return start
-    return None
 
 
 def sniff_format(path: str) -> str:

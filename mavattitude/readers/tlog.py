@@ -1,4 +1,4 @@
-"""MAVLink telemetry logs (.tlog): pymavlink decodes, we keep columns.
+"""MAVLink telemetry logs (.tlog): decoded in bulk by message type (``tlogrecords``), kept as columns.
 
 Units as sent (MAVLink common/ardupilotmega definitions):
 
@@ -16,18 +16,22 @@ Units as sent (MAVLink common/ardupilotmega definitions):
 
 Time: the autopilot's ``time_boot_ms`` / ``time_usec`` (µs since boot), never the ground
 station's receive time. A message without a boot time (SIMSTATE, or a GPS_RAW_INT with a
-zero or UNIX-epoch time) takes the latest boot time its vehicle sent: ArduPilot sends it in
-the same burst as the message that carried that time.
+zero or UNIX-epoch time) takes the latest boot time of its vehicle's other sample messages:
+ArduPilot sends it in the same burst as the message that carried that time.
+
+The vehicle is the first system that says it is one (``is_vehicle``); other systems' messages
+are counted and ignored.
 """
 from __future__ import annotations
 
-import math
-import os
+from types import SimpleNamespace
 
-from pymavlink import mavutil
+import numpy as np
 
 from ..errors import InputError
 from .collect import Collector, Decoded
+from .dfrecords import open_log
+from .tlogrecords import decode, dialect, msgid, packet_bytes, scan
 
 G_STD = 9.80665
 MILLI_G_TO_MS2 = G_STD / 1000.0
@@ -39,24 +43,103 @@ HPA_TO_PA = 100.0
 EPOCH_THRESHOLD_US = 1e15
 MAV_AUTOPILOT_INVALID = 8
 
-SCALED_IMUS = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+TLOG_SEARCH_BYTES = 1 << 16  # a ground station's header before the first record (1,359 bytes seen)
+TLOG_TIME_RANGE_US = (946684800e6, 4102444800e6)  # a record's UNIX time: 2000 to 2100
 
 
-def _boot_time(msg) -> float | None:
-    """Seconds since boot from the message's own time field, or None."""
-    ms = getattr(msg, "time_boot_ms", None)
-    if ms is not None:
-        return ms * 1e-3 if ms > 0 else None
-    us = getattr(msg, "time_usec", None)
-    if us is not None and 0 < us < EPOCH_THRESHOLD_US:
-        return us * 1e-6
+def tlog_start(data: bytes) -> int | None:
+    """Where the first of two consecutive telemetry records starts in ``data`` (a record: a
+    big-endian UNIX time in µs, then a MAVLink 1 or 2 packet), or None. What comes before is
+    a header pymavlink skips too."""
+    def record_size(p: int) -> int | None:
+        if p + 18 > len(data) or data[p + 8] not in (0xFE, 0xFD):
+            return None
+        if not TLOG_TIME_RANGE_US[0] <= int.from_bytes(data[p:p + 8], "big") <= TLOG_TIME_RANGE_US[1]:
+            return None
+        length = data[p + 9]
+        if data[p + 8] == 0xFE:
+            return 8 + 6 + length + 2
+        return 8 + 10 + length + 2 + (13 if data[p + 10] & 0x01 else 0)  # v2, signed when flagged
+
+    for start in range(0, max(len(data) - 18, 0)):
+        if data[start + 8] not in (0xFE, 0xFD):
+            continue
+        size = record_size(start)
+        if size is not None and (start + size >= len(data) or record_size(start + size) is not None):
+            return start
     return None
 
 
-def _imu_key(name: str, msg) -> str:
-    # RAW_IMU and HIGHRES_IMU carry an instance field "id" (not the message id attribute).
-    inst = msg.id if name in ("RAW_IMU", "HIGHRES_IMU") and "id" in msg.get_fieldnames() else 0
-    return f"{name}[{inst}]" if inst else name
+
+SCALED_IMUS = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+
+
+# The messages whose samples we keep, by kind, and those read for their text or numbers only.
+IMU_MESSAGES = SCALED_IMUS + ("HIGHRES_IMU",)
+SAMPLE_MESSAGES = IMU_MESSAGES + ("GPS_RAW_INT", "SCALED_PRESSURE", "ATTITUDE", "ATTITUDE_QUATERNION", "SIMSTATE")
+OTHER_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "AUTOPILOT_VERSION", "HEARTBEAT")
+
+
+# ---------------------------------------------------------------- units, shared by file and link
+# Each takes one message or, from the bulk reader, a message type's columns (the same names
+# holding arrays), and returns the sample's values in SI units.
+
+def boot_time(m):
+    """Seconds since boot from the message's own time field; NaN where it has none (zero, or
+    a UNIX time in time_usec)."""
+    if hasattr(m, "time_boot_ms"):
+        ms = np.asarray(m.time_boot_ms, np.float64)
+        return np.where(ms > 0, ms * 1e-3, np.nan)
+    if hasattr(m, "time_usec"):
+        us = np.asarray(m.time_usec, np.float64)
+        return np.where((us > 0) & (us < EPOCH_THRESHOLD_US), us * 1e-6, np.nan)
+    return np.full(np.shape(m.roll), np.nan)  # SIMSTATE: no time of its own
+
+
+def imu_values(name: str, m) -> tuple[tuple, tuple]:
+    """(gyro rad/s + accel m/s², compass T) of an IMU message."""
+    if name == "HIGHRES_IMU":
+        return ((m.xgyro, m.ygyro, m.zgyro, m.xacc, m.yacc, m.zacc),
+                (m.xmag * GAUSS_TO_TESLA, m.ymag * GAUSS_TO_TESLA, m.zmag * GAUSS_TO_TESLA))
+    return ((m.xgyro * MRAD_TO_RAD, m.ygyro * MRAD_TO_RAD, m.zgyro * MRAD_TO_RAD,
+             m.xacc * MILLI_G_TO_MS2, m.yacc * MILLI_G_TO_MS2, m.zacc * MILLI_G_TO_MS2),
+            (m.xmag * MILLIGAUSS_TO_TESLA, m.ymag * MILLIGAUSS_TO_TESLA, m.zmag * MILLIGAUSS_TO_TESLA))
+
+
+def imu_instance(name: str, m):
+    """RAW_IMU and HIGHRES_IMU carry their sensor's instance in ``id`` (0 for the first)."""
+    return m.id if name in ("RAW_IMU", "HIGHRES_IMU") and hasattr(m, "id") else 0
+
+
+def imu_key(name: str, instance: int) -> str:
+    return f"{name}[{instance}]" if instance else name
+
+
+def gps_values(m) -> tuple:
+    """lat, lon (deg), alt (m AMSL), north, east, down velocity (m/s; down not sent), fix type,
+    satellites, horizontal accuracy (m; NaN when not sent)."""
+    vel = np.asarray(m.vel, np.float64)
+    cog = np.asarray(m.cog, np.float64)
+    speed = np.where(vel != 65535, vel * 0.01, np.nan)
+    course = np.where(cog != 65535, np.radians(cog * 0.01), np.nan)
+    h_acc = np.asarray(getattr(m, "h_acc", 0), np.float64)
+    return (m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3, speed * np.cos(course), speed * np.sin(course),
+            np.full(np.shape(vel), np.nan), m.fix_type, m.satellites_visible, np.where(h_acc > 0, h_acc * 1e-3, np.nan))
+
+
+def sample_values(name: str, m) -> tuple | None:
+    """(kind, values) of the non-IMU sample messages."""
+    if name == "GPS_RAW_INT":
+        return "gps", gps_values(m)
+    if name == "SCALED_PRESSURE":
+        return "baro", (m.press_abs * HPA_TO_PA, np.full(np.shape(m.press_abs), np.nan))
+    if name == "ATTITUDE":
+        return "att_euler", (m.roll, m.pitch, m.yaw)
+    if name == "ATTITUDE_QUATERNION":
+        return "att_quat", (m.q1, m.q2, m.q3, m.q4)
+    if name == "SIMSTATE":
+        return "truth_euler", (m.roll, m.pitch, m.yaw)
+    return None
 
 
 def _vehicle_version(msg) -> str:
@@ -65,13 +148,15 @@ def _vehicle_version(msg) -> str:
 
 
 class MessageDecoder:
-    """One vehicle's MAVLink messages -> samples in SI units on its clock.
+    """One vehicle's MAVLink messages -> samples in SI units on its clock, one message at a time
+    (the live link; a .tlog is read in bulk by ``read_tlog`` with the same unit functions).
 
     ``decode(msg, add)`` calls ``add(kind, key, t, row)`` for each sample a message carries
     (kinds: imu, mag, gps, baro, att_euler, att_quat, truth_euler; ``t`` seconds since boot),
     and keeps parameters (``params``) and identity texts (``texts``: STATUSTEXT, version,
-    heartbeat type). Shared by the .tlog reader and the live link, so a packet converts the same
-    way whether it came from a file or a socket.
+    heartbeat type). A message without a boot time (SIMSTATE, or a GPS_RAW_INT with a zero or
+    UNIX-epoch time) takes the latest boot time of the vehicle's other sample messages: ArduPilot
+    sends it in the same burst as the message that carried that time.
     """
 
     def __init__(self):
@@ -80,58 +165,41 @@ class MessageDecoder:
         self.heard_heartbeat = False
         self.last_t = None  # the vehicle's latest boot time, for messages that carry none
 
-    def decode(self, msg, add) -> None:
+    def note(self, msg) -> None:
+        """A parameter, a text or the vehicle's identity."""
         name = msg.get_type()
         if name == "PARAM_VALUE":
             self.params[msg.param_id] = float(msg.param_value)
-            return
-        if name == "STATUSTEXT":
+        elif name == "STATUSTEXT":
             self.texts.append(msg.text)
-            return
-        if name == "AUTOPILOT_VERSION":
+        elif name == "AUTOPILOT_VERSION":
             self.texts.append(f"version {_vehicle_version(msg)}")
+        elif name == "HEARTBEAT" and not self.heard_heartbeat:  # the vehicle's type, once
+            self.texts.append(f"heartbeat type {msg.type} autopilot {msg.autopilot}")
+            self.heard_heartbeat = True
+
+    def decode(self, msg, add) -> None:
+        name = msg.get_type()
+        if name in OTHER_MESSAGES:
+            self.note(msg)
             return
-        if name == "HEARTBEAT":
-            if not self.heard_heartbeat:  # the vehicle's type, once
-                self.texts.append(f"heartbeat type {msg.type} autopilot {msg.autopilot}")
-                self.heard_heartbeat = True
+        if name not in SAMPLE_MESSAGES:
             return
-        t = _boot_time(msg)
-        if t is None:
+        t = float(boot_time(msg))
+        if t != t:
             t = self.last_t
         elif name != "GPS_RAW_INT":  # its time is the fix's, older than the send time
             self.last_t = t
         if t is None:
             return
-        if name in SCALED_IMUS:
-            key = _imu_key(name, msg)
-            add("imu", key, t,
-                (msg.xgyro * MRAD_TO_RAD, msg.ygyro * MRAD_TO_RAD, msg.zgyro * MRAD_TO_RAD,
-                 msg.xacc * MILLI_G_TO_MS2, msg.yacc * MILLI_G_TO_MS2, msg.zacc * MILLI_G_TO_MS2))
-            add("mag", key, t,
-                (msg.xmag * MILLIGAUSS_TO_TESLA, msg.ymag * MILLIGAUSS_TO_TESLA,
-                 msg.zmag * MILLIGAUSS_TO_TESLA))
-        elif name == "HIGHRES_IMU":
-            key = _imu_key(name, msg)
-            add("imu", key, t, (msg.xgyro, msg.ygyro, msg.zgyro, msg.xacc, msg.yacc, msg.zacc))
-            add("mag", key, t,
-                (msg.xmag * GAUSS_TO_TESLA, msg.ymag * GAUSS_TO_TESLA, msg.zmag * GAUSS_TO_TESLA))
-        elif name == "GPS_RAW_INT":
-            speed = msg.vel * 0.01 if msg.vel != 65535 else math.nan
-            course = math.radians(msg.cog * 0.01) if msg.cog != 65535 else math.nan
-            h_acc = msg.h_acc * 1e-3 if getattr(msg, "h_acc", 0) else math.nan
-            add("gps", "GPS_RAW_INT", t,
-                (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
-                 speed * math.cos(course), speed * math.sin(course), math.nan,
-                 msg.fix_type, msg.satellites_visible, h_acc))
-        elif name == "SCALED_PRESSURE":
-            add("baro", "SCALED_PRESSURE", t, (msg.press_abs * HPA_TO_PA, math.nan))
-        elif name == "ATTITUDE":
-            add("att_euler", "ATTITUDE", t, (msg.roll, msg.pitch, msg.yaw))
-        elif name == "ATTITUDE_QUATERNION":
-            add("att_quat", "ATTITUDE_QUATERNION", t, (msg.q1, msg.q2, msg.q3, msg.q4))
-        elif name == "SIMSTATE":
-            add("truth_euler", "SIMSTATE", t, (msg.roll, msg.pitch, msg.yaw))
+        if name in IMU_MESSAGES:
+            key = imu_key(name, imu_instance(name, msg))
+            imu, mag = imu_values(name, msg)
+            add("imu", key, t, imu)
+            add("mag", key, t, mag)
+        else:
+            kind, values = sample_values(name, msg)
+            add(kind, name, t, tuple(float(v) for v in values))
 
 
 def is_vehicle(msg) -> bool:
@@ -139,53 +207,97 @@ def is_vehicle(msg) -> bool:
     attitude data (a ground station or a companion computer sends neither)."""
     name = msg.get_type()
     return ((name == "HEARTBEAT" and msg.autopilot != MAV_AUTOPILOT_INVALID)
-            or name in SCALED_IMUS or name in ("HIGHRES_IMU", "ATTITUDE"))
+            or name in VEHICLE_MESSAGES)
+
+
+VEHICLE_MESSAGES = IMU_MESSAGES + ("ATTITUDE",)
 
 
 def read_tlog(path: str, progress=None) -> Decoded:
-    """Decode a .tlog. ``progress(fraction)`` is called as it goes."""
-    try:
-        # the telemetry reader itself: mavlink_connection would choose one by the file's name
-        # (DataFlash for a .bin) and would run a file whose path holds "/bin/"
-        mavutil.set_dialect("ardupilotmega")
-        log = mavutil.mavmmaplog(path)
-    except Exception as exc:
-        raise InputError(path, f"not a readable telemetry log ({exc})")
-    col = Collector()
+    """Decode a .tlog in bulk (``tlogrecords``). ``progress(fraction)`` is called as it goes."""
+    data = open_log(path)
+    with open(path, "rb") as f:
+        start = tlog_start(f.read(TLOG_SEARCH_BYTES))
+    if start is None:
+        raise InputError(path, "not a readable telemetry log (no MAVLink records found)")
+    packets = scan(data, start, list(SAMPLE_MESSAGES + OTHER_MESSAGES))
+    if progress is not None:
+        progress(0.5)
+    names = {msgid(name): name for name in SAMPLE_MESSAGES + OTHER_MESSAGES}
+    rows_of = {name: np.flatnonzero(packets.msgids == i) for i, name in names.items()}
+    columns = {name: SimpleNamespace(**decode(data, packets, name, rows))
+               for name, rows in rows_of.items() if len(rows) and name in SAMPLE_MESSAGES}
+    others = np.sort(np.concatenate([rows_of[name] for name in OTHER_MESSAGES]))
+    mav = dialect.MAVLink(None)
+    notes = {i: mav.decode(packet_bytes(data, packets, i)) for i in others.tolist()}
+
+    # The vehicle: the first system that says it is an autopilot, or that sends IMU or attitude data.
+    said_so = [rows_of[name] for name in VEHICLE_MESSAGES]
+    said_so.append(np.array([i for i, m in notes.items() if is_vehicle(m)], np.int64))
+    first = min((int(r[0]) for r in said_so if len(r)), default=None)
+    if first is None:
+        return Decoded(Collector(), {}, [], packets.counts, warnings=_damage(packets))
+    vehicle = int(packets.sysids[first])
+    mine = (packets.sysids == vehicle) & (np.arange(len(packets.msgids)) >= first)
+
     decoder = MessageDecoder()
-    counts: dict[str, int] = {}
-    size = max(os.path.getsize(path), 1)
-    vehicle_sysid = None
-    other_systems = set()
-    n = 0
-    while True:
-        try:
-            msg = log.recv_msg()
-        except Exception as exc:
-            raise InputError(path, f"corrupt telemetry data ({exc})")
-        if msg is None:
-            break
-        n += 1
-        if progress is not None and n % 20000 == 0:
-            progress(log.f.tell() / size)
-        name = msg.get_type()
-        counts[name] = counts.get(name, 0) + 1
-        if name == "BAD_DATA":
-            continue
-        sysid = msg.get_srcSystem()
-        if vehicle_sysid is None:
-            # The vehicle: the first system that says it is an autopilot, or that sends IMU data.
-            if not is_vehicle(msg):
-                continue
-            vehicle_sysid = sysid
-        if sysid != vehicle_sysid:
-            other_systems.add(sysid)
-            continue
-        decoder.decode(msg, col.add)
-    out = Decoded(col, decoder.params, decoder.texts, counts)
-    if other_systems:
-        out.notes.append(f"ignored messages from other MAVLink systems {sorted(other_systems)} "
-                         f"(vehicle is system {vehicle_sysid})")
-    if counts.get("BAD_DATA"):
-        out.warnings.append(f"skipped {counts['BAD_DATA']} corrupt or unknown packets")
+    for i, msg in notes.items():
+        if mine[i]:
+            decoder.note(msg)
+    col = Collector()
+    _collect(col, packets, columns, rows_of, mine)
+    out = Decoded(col, decoder.params, decoder.texts, packets.counts, warnings=_damage(packets))
+    others = sorted(set(packets.sysids[~mine & (np.arange(len(mine)) >= first)].tolist()) - {vehicle})
+    if others:
+        out.notes.append(f"ignored messages from other MAVLink systems {others} (vehicle is system {vehicle})")
     return out
+
+
+def _collect(col: Collector, packets, columns: dict, rows_of: dict, mine: np.ndarray) -> None:
+    """The vehicle's sample messages into the collector, a message type at a time, each sample
+    on the boot clock (``MessageDecoder`` says how a message without a time gets one)."""
+    times = {}
+    for name, m in columns.items():
+        keep = mine[rows_of[name]]
+        columns[name] = SimpleNamespace(**{k: v[keep] for k, v in vars(m).items()})
+        rows_of[name] = rows_of[name][keep]
+        times[name] = boot_time(columns[name])
+    # the latest time of the vehicle's other sample messages, in file order
+    clock_rows = np.concatenate([rows_of[n][np.isfinite(t)] for n, t in times.items() if n != "GPS_RAW_INT"]
+                                + [np.empty(0, np.int64)])
+    clock_t = np.concatenate([t[np.isfinite(t)] for n, t in times.items() if n != "GPS_RAW_INT"] + [np.empty(0)])
+    by_row = np.argsort(clock_rows)
+    clock_rows, clock_t = clock_rows[by_row], clock_t[by_row]
+    for name, m in columns.items():
+        t, rows = times[name], rows_of[name]
+        missing = ~np.isfinite(t)
+        if missing.any():
+            before = np.searchsorted(clock_rows, rows[missing]) - 1
+            t[missing] = np.where(before >= 0, clock_t[np.maximum(before, 0)], np.nan)
+        has_time = np.isfinite(t)
+        order = packets.offsets[rows]
+        if name in IMU_MESSAGES:
+            instance = np.asarray(imu_instance(name, m)) * np.ones(len(t), np.int64)
+            imu, mag = imu_values(name, m)
+            imu, mag = np.column_stack(imu), np.column_stack(mag)
+            for i in np.unique(instance):
+                sel = (instance == i) & has_time
+                col.add_columns("imu", imu_key(name, int(i)), order[sel], t[sel], imu[sel])
+                # after the IMU sample of its packet, as a link decodes them (record offsets are
+                # ≥ 16 bytes apart: one more is still before the next packet)
+                col.add_columns("mag", imu_key(name, int(i)), order[sel] + 1, t[sel], mag[sel])
+        else:
+            kind, values = sample_values(name, m)
+            values = np.column_stack([np.broadcast_to(np.asarray(v, np.float64), t.shape) for v in values])
+            col.add_columns(kind, name, order[has_time], t[has_time], values[has_time])
+
+
+def _damage(packets) -> list[str]:
+    """What the scan could not use, said plainly (nothing for an undamaged log)."""
+    notes = []
+    if packets.corrupt or packets.unknown:
+        notes.append(f"skipped {packets.corrupt + packets.unknown} corrupt or unknown packets "
+                     f"({packets.corrupt} with a wrong checksum, {packets.unknown} of unknown message ids)")
+    if packets.skipped_bytes:
+        notes.append(f"skipped {packets.skipped_bytes:,} bytes that were no MAVLink record")
+    return notes
