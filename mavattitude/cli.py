@@ -141,7 +141,7 @@ def _replay_settings(args, names: list[str]):
     from .pipeline import ReplaySettings
 
     settings = ReplaySettings(
-        names=tuple(names), reference=args.reference, imu=args.imu, warmup_s=args.warmup,
+        names=tuple(names), reference=args.reference, imu=args.imu, imu_family=args.imu_source, warmup_s=args.warmup,
         declination_deg=args.declination, use_mag=not args.no_mag, trim=not args.no_trim, segment=args.segment,
         file_values=load_file(args.params) if args.params else None,
         assignments=tuple(args.set or ()), params_source=args.params or "--params")
@@ -329,13 +329,15 @@ def cmd_simulate(args) -> int:
     suffix = Path(args.output).suffix.lower() if args.output else None
     if args.output and suffix not in (".tlog", ".bin"):
         raise UsageError(f"{args.output}: the output must end in .tlog or .bin")
+    if args.imt and suffix != ".bin":
+        raise UsageError("--imt writes DataFlash records: give -o FILE.bin")
     if args.live:
         return _simulate_live(args)
     with Outputs(force=args.force) as outputs:
         out = outputs.file(args.output, "-o", "sim")
         sim = simulate(args.scenario, args.duration, seed=args.seed, imu_rate=args.imu_rate)
         with out.writing() as path:
-            write_log(sim, path, suffix)
+            write_log(sim, path, suffix, imt=args.imt)
     print(f"{out.path}: {args.scenario}, {args.duration:g} s, IMU {args.imu_rate:g} Hz, seed {args.seed} "
           f"({out.path.stat().st_size / 1e6:.2f} MB)")
     return 0
@@ -490,6 +492,12 @@ def _estimation_args(p, source: str) -> None:
                    help="IMU source to estimate from, e.g. IMU[1], RAW_IMU, SCALED_IMU2, HIGHRES_IMU "
                         "(default: the fastest, most precise" + ("; see 'mavattitude info')" if source == "log"
                                                                  else " that arrives; live asks for it)"))
+    if source == "log":
+        from .flight import DEFAULT_FAMILIES, IMU_FAMILIES
+        p.add_argument("--imu-source", choices=list(IMU_FAMILIES), default=None,
+                       help="which kind of IMU data to estimate from: " + "; ".join(
+                           f"{k}: {v}" for k, v in IMU_FAMILIES.items()) + " (default: the first of "
+                           f"{', '.join(DEFAULT_FAMILIES)} the log has; --imu picks one series)")
     p.add_argument("--warmup", type=SECONDS, default=10.0, metavar="S",
                    help="seconds at the start not scored while estimators converge (default 10)")
     p.add_argument("--declination", type=DEGREES, default=None, metavar="DEG",
@@ -609,6 +617,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", default="figure8", help="scenario name (see --list; default figure8)")
     p.add_argument("--duration", type=POSITIVE, default=120.0, metavar="S", help="seconds (default 120)")
     p.add_argument("--imu-rate", type=POSITIVE, default=100.0, metavar="HZ", help="IMU rate (default 100)")
+    p.add_argument("--imt", action="store_true",
+                   help="a .bin with delta angles and velocities too (IMT, as ArduPilot logs them)")
     p.add_argument("--seed", type=SEED, default=0, help="sensor-noise seed (default 0)")
     p.add_argument("-o", "--output", metavar="FILE", help="output file: .tlog or .bin")
     p.add_argument("--live", metavar="URL",

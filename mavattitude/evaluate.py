@@ -112,11 +112,11 @@ def evaluate_log(path: str, settings: ReplaySettings, data: bytes | None = None)
 
 
 def _replay(local: str, path: str, settings: ReplaySettings) -> dict:
-    from .pipeline import replay_flight
+    from .pipeline import choose_imu, replay_flight
     from .readers import read_log
 
     flight = read_log(local, segment=settings.segment)
-    facts = log_facts(flight, settings.imu)
+    facts = log_facts(flight, choose_imu(flight, settings.imu, settings.imu_family))
     if settings.reference == "truth" and flight.truth is None:
         return {"status": "skipped", "facts": facts, "error": "no ground truth (SIM / SIMSTATE)"}
     if settings.reference == "autopilot" and flight.attitude is None:
@@ -130,12 +130,11 @@ def _replay(local: str, path: str, settings: ReplaySettings) -> dict:
             "suspects": metrics["scoring"]["reference_suspect"]}
 
 
-def log_facts(flight, imu: str | None) -> dict:
-    """What kind of log it is, for the results table."""
-    from .readers import best_imu_source, imu_rate
+def log_facts(flight, source: str) -> dict:
+    """What kind of log it is, for the results table (``source``: the IMU estimated from)."""
+    from .readers import imu_rate
     from .runner import REINIT_GAP_S
 
-    source = imu if imu in flight.imu else best_imu_source(flight)
     t = flight.imu[source].t
     return {"format": flight.format, "vehicle": flight.vehicle, "firmware": flight.firmware,
             "imu_source": source, "imu_rate_hz": round(imu_rate(flight.imu[source]), 2),

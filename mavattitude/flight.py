@@ -23,6 +23,22 @@ import numpy as np
 GRAVITY = 9.80665  # m/s², standard gravity
 
 
+# The IMU families a log can hold (``--imu-source``), told apart by their series' names.
+IMU_FAMILIES = {
+    "imu": "the main loop's samples (IMU, RAW_IMU, SCALED_IMU*, HIGHRES_IMU)",
+    "raw": "the sensor-rate samples (GYR with ACC, 1-8 kHz)",
+    "delta": "delta angles and velocities (IMT)",
+}
+# The default: the first a log has. The main loop's samples first: on simulated truth neither the
+# deltas nor the sensor-rate samples did better (scripts/imu_source_gain.py), and the sensor-rate
+# ones cost 3x the work.
+DEFAULT_FAMILIES = ("imu", "delta", "raw")
+
+
+def imu_family(key: str) -> str:
+    return "raw" if key.startswith("GYR[") else "delta" if key.startswith("IMT[") else "imu"
+
+
 @dataclass
 class ImuSeries:
     source: str  # e.g. "IMU[0]", "RAW_IMU", "HIGHRES_IMU"

@@ -113,14 +113,25 @@ def trimmed(series: AttitudeSeries, trim: tuple[float, float]) -> AttitudeSeries
     return AttitudeSeries(series.source, series.t, quat.trimmed(series.q, *trim))
 
 
-def run_estimators(flight: Flight, names: list[str], imu_source: str | None = None,
-                   declination_deg: float | None = None, params: dict | None = None,
-                   use_mag: bool = True) -> tuple[Runner, str]:
-    """Run each named estimator over the chosen IMU of a whole flight: (the runner, which
-    holds estimates, diagnostics and events; the declination's source)."""
-    imu_source = imu_source or best_imu_source(flight)
+def choose_imu(flight: Flight, imu_source: str | None = None, imu_family: str | None = None) -> str:
+    """The IMU series to estimate from: ``imu_source`` (--imu) if given, else the best of
+    ``imu_family`` (--imu-source; default: the best present). InputError if there is none."""
+    if imu_source is None:
+        try:
+            return best_imu_source(flight, imu_family)
+        except KeyError as exc:
+            raise InputError(flight.path, f"{exc.args[0]} (--imu-source)") from None
     if imu_source not in flight.imu:
         raise InputError(flight.path, f"has no IMU source {imu_source!r} (--imu); it has: {', '.join(flight.imu)}")
+    return imu_source
+
+
+def run_estimators(flight: Flight, names: list[str], imu_source: str | None = None,
+                   declination_deg: float | None = None, params: dict | None = None,
+                   use_mag: bool = True, imu_family: str | None = None) -> tuple[Runner, str]:
+    """Run each named estimator over the chosen IMU of a whole flight (``choose_imu``): (the
+    runner, which holds estimates, diagnostics and events; the declination's source)."""
+    imu_source = choose_imu(flight, imu_source, imu_family)
     mag_source = mag_for_imu(flight, imu_source) if use_mag else None
     declination, dec_source = resolve_declination(flight, declination_deg)
     runner = Runner(names, params, declination, use_mag, imu_source, mag_source)
@@ -153,7 +164,7 @@ def reset_events(t: np.ndarray, reset: np.ndarray) -> dict:
 def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                imu_source: str | None = None, warmup_s: float = 10.0,
                declination_deg: float | None = None, params: dict | None = None,
-               use_mag: bool = True, trim: bool = True) -> ReplayResult:
+               use_mag: bool = True, trim: bool = True, imu_family: str | None = None) -> ReplayResult:
     """Estimate with every named estimator and score each against the reference.
 
     ``reference``: "autopilot" (ATT / ATTITUDE) or "truth" (SIM / SIMSTATE); with truth the
@@ -171,7 +182,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     else:
         raise UsageError(f"unknown reference {reference!r}: use 'autopilot' or 'truth'")
 
-    runner, dec_source = run_estimators(flight, names, imu_source, declination_deg, params, use_mag)
+    runner, dec_source = run_estimators(flight, names, imu_source, declination_deg, params, use_mag, imu_family)
     estimates = {name: runner.estimate(name) for name in names}
     events = _events(flight, runner, dec_source)
     applied_trim = board_trim(flight) if (trim and reference == "autopilot") else None
@@ -229,6 +240,7 @@ class ReplaySettings:
     names: tuple[str, ...]
     reference: str = "autopilot"
     imu: str | None = None
+    imu_family: str | None = None  # --imu-source
     warmup_s: float = 10.0
     declination_deg: float | None = None
     use_mag: bool = True
@@ -251,6 +263,7 @@ def replay_flight(flight: Flight, settings: ReplaySettings) -> tuple[ReplayResul
     params = build(names, settings.file_values, settings.assignments, source=settings.params_source,
                    log_values=log_values)
     result = run_replay(flight, names, reference=settings.reference, imu_source=settings.imu,
+                        imu_family=settings.imu_family,
                         warmup_s=settings.warmup_s, declination_deg=settings.declination_deg,
                         params=params, use_mag=settings.use_mag, trim=settings.trim)
     result.events += [Event(flight.time_span[0], "info", note) for note in notes]

@@ -97,6 +97,17 @@ def rotate(q, v) -> np.ndarray:
     return np.einsum("...ij,...j->...i", to_dcm(q), np.asarray(v, dtype=float))
 
 
+def to_rotation_vector(q) -> np.ndarray:
+    """The rotation vector (axis × angle, rad) of unit quaternions, the shorter way round."""
+    q = np.asarray(q, dtype=float)
+    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
+    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., :1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(s > 1e-12, angle / s, 2.0)  # small angles: 2 × the vector part
+    return q[..., 1:] * scale
+
+
 def make_continuous(q) -> np.ndarray:
     """Flip signs so consecutive quaternions lie in the same hemisphere (q and -q are one attitude)."""
     q = np.array(q, dtype=float)

@@ -292,3 +292,65 @@ def test_a_tlog_is_known_by_its_content_whatever_its_name_and_folder(tmp_path):
     (folder / "flight.bin").write_bytes((SAMPLE_LOGS / "figure8.tlog").read_bytes())
     flight = read_log(str(folder / "flight.bin"))
     assert flight.format == "tlog" and "RAW_IMU" in flight.imu
+
+
+# ---------------------------------------------------------------- IMU families (--imu-source)
+
+
+def test_delta_angles_read_as_rates_that_integrate_to_the_true_turn(tmp_path):
+    """IMT (simulate --imt): delta angle / its interval, at the IMU's times, integrates to the
+    true attitude change (exactly, but for the sensor's noise and bias)."""
+    from mavattitude.sim import simulate, write_log
+
+    sim = simulate("figure8", 60.0, seed=2, imu_rate=50.0)
+    flight = read_log(str(write_log(sim, tmp_path / "f8.bin", imt=True)))
+    imt, imu = flight.imu["IMT[0]"], flight.imu["IMU[0]"]
+    np.testing.assert_allclose(imt.t, imu.t[1:], atol=1e-6)
+    dt = np.diff(sim.t)[:, None]
+    true_turn = quat.to_rotation_vector(quat.multiply(quat.conjugate(sim.truth.q[:-1]), sim.truth.q[1:]))
+    sensor_error = (sim.imu[0].gyro - sim.truth.omega_b)[1:]
+    np.testing.assert_allclose(imt.gyro * dt, true_turn + sensor_error * dt, atol=1e-7)
+    assert best_imu_source(flight) == "IMU[0]" and best_imu_source(flight, "delta") == "IMT[0]"
+    with pytest.raises(KeyError, match="no IMU of the 'raw' family"):
+        best_imu_source(flight, "raw")
+
+
+def test_sensor_rate_gyro_and_accel_join_on_the_gyro_clock():
+    from mavattitude.readers.series import sensor_rate_imu
+
+    t_gyro = np.arange(0.0, 1.0, 0.001)
+    t_accel = np.concatenate([np.arange(0.0, 0.5, 0.002), np.arange(0.6, 1.0, 0.002)])  # a 100 ms hole
+    accel = np.column_stack([t_accel, 2 * t_accel, np.full_like(t_accel, -9.8)])
+    t, values, arrival = sensor_rate_imu((t_gyro, np.ones((len(t_gyro), 3)), np.arange(len(t_gyro))),
+                                         (t_accel, accel, np.arange(len(t_accel))))
+    assert not np.any((t > 0.5 + 0.02) & (t < 0.6 - 0.02))  # no accelerometer there
+    np.testing.assert_allclose(values[:, 3], t, atol=1e-12)  # linear: interpolated exactly
+    np.testing.assert_allclose(values[:, :3], 1.0)
+    assert np.all(np.diff(arrival) > 0)
+
+
+def test_sensor_rate_samples_of_a_real_log():
+    """ArduPilot SITL 4.7 with raw IMU logging: GYR/ACC at 1.2 kHz beside IMU at 400 Hz, the
+    same motion (the IMU message holds the filtered samples)."""
+    flight = read_shared("sitl-copter-4.7-400hz.bin")
+    raw, imu = flight.imu["GYR[0]"], flight.imu["IMU[0]"]
+    assert imu_rate(raw) == pytest.approx(1200, rel=0.01) and imu_rate(imu) == pytest.approx(400, rel=0.01)
+    assert best_imu_source(flight) == "IMU[0]" and best_imu_source(flight, "raw") == "GYR[0]"
+    for a, b in ((raw.gyro, imu.gyro), (raw.accel, imu.accel)):
+        np.testing.assert_allclose(a.mean(axis=0), b.mean(axis=0), atol=0.02)
+
+
+def test_the_pymavlink_fallback_reads_what_the_bulk_reader_reads(sim_logs, monkeypatch):
+    """A log the bulk reader cannot lay out goes to pymavlink, into the same columns."""
+    from mavattitude.readers import dataflash
+
+    _, path = sim_logs["figure8.bin"]
+    bulk = read_log(str(path))
+    monkeypatch.setattr(dataflash, "scan_log", lambda *a: (_ for _ in ()).throw(RuntimeError("test")))
+    slow = read_log(str(path))
+    assert slow.notes and "read with pymavlink" in slow.notes[0]
+    assert list(slow.imu) == list(bulk.imu) and slow.params == bulk.params
+    for key in bulk.imu:
+        np.testing.assert_array_equal(slow.imu[key].gyro, bulk.imu[key].gyro)
+    np.testing.assert_array_equal(slow.attitude.q, bulk.attitude.q)
+    np.testing.assert_array_equal(slow.gps.lat_deg, bulk.gps.lat_deg)

@@ -10,6 +10,8 @@ degrees, 'L' 1e-7 degrees -> degrees, but not the FMTU multipliers):
 | message | fields used | unit in the log |
 |---|---|---|
 | IMU, IMU2, IMU3 (old) / IMU with I (new) | GyrX..Z, AccX..Z | rad/s, m/s² |
+| GYR, ACC (sensor rate, INS_RAW_LOG_OPT / fast sampling) | SampleUS, GyrX..Z / AccX..Z | µs, rad/s / m/s² |
+| IMT, IMT2, IMT3 / IMT with I (delta angles and velocities) | DelaT, DelvT, DelAX..Z, DelVX..Z | s, rad, m/s |
 | MAG, MAG2, MAG3 / MAG with I | MagX..Z | milligauss (FMTU says 1e-3 G; not applied) |
 | GPS / GPS with I | Lat, Lng, Alt, Spd, GCrs, VZ, Status, NSats | deg, deg, m AMSL, m/s, deg, m/s down |
 | BARO | Press, Alt | Pa, m |
@@ -18,7 +20,15 @@ degrees, 'L' 1e-7 degrees -> degrees, but not the FMTU multipliers):
 | PARM | Name, Value | as the parameter |
 
 Time: ``TimeUS`` (µs since boot) or, in old logs, ``TimeMS`` (ms). Old GPS messages carry
-GPS time-of-week in ``TimeMS`` and the boot time in ``T`` (ms): we use ``T``.
+GPS time-of-week in ``TimeMS`` and the boot time in ``T`` (ms): we use ``T``. GYR and ACC carry
+the sensor's own sample time in ``SampleUS``: we use it.
+
+The three IMU families (``--imu-source``): ``IMU[i]``, the filtered samples of the main loop
+(25-400 Hz); ``GYR[i]``, the sensor-rate samples (1-8 kHz, GYR with ACC interpolated onto its
+times, ``series.sensor_rate_imu``); ``IMT[i]``, delta angles and velocities over each main-loop
+step, as rates (delta / its interval), so an estimator integrating rate × dt integrates the
+deltas. The batch sampler's ISBH/ISBD are not read: they are bursts of one sensor at a time,
+with gaps between them, for vibration spectra, and cannot carry an attitude.
 """
 from __future__ import annotations
 
@@ -35,8 +45,8 @@ MILLIGAUSS_TO_TESLA = 1e-7  # 1 mG = 1e-3 G = 1e-7 T
 DEG = math.pi / 180.0
 MAX_INSTANCE = 9  # sensor instances ArduPilot numbers (0-based); beyond: a corrupt record
 
-WANTED = ["IMU", "IMU2", "IMU3", "MAG", "MAG2", "MAG3", "GPS", "BARO", "ATT", "SIM",
-          "PARM", "MSG", "VER"]
+WANTED = ["IMU", "IMU2", "IMU3", "GYR", "ACC", "IMT", "IMT2", "IMT3", "MAG", "MAG2", "MAG3", "GPS", "BARO",
+          "ATT", "SIM", "PARM", "MSG", "VER"]
 
 
 def read_dataflash(path: str, progress=None) -> Decoded:
@@ -48,21 +58,32 @@ def read_dataflash(path: str, progress=None) -> Decoded:
         return _read_with_pymavlink(path, progress, f"read with pymavlink ({type(exc).__name__}: {exc})")
     if progress is not None:
         progress(0.5)
-    col = Collector()
     warnings = damage_notes(scan, len(data))
     records = {}
     for name in scan.offsets:
         try:
-            records[name] = r = decode(data, scan, name)
-            _collect(col, name, r, scan.offsets[name])
+            records[name] = decode(data, scan, name)
         except (ValueError, KeyError) as exc:  # a format the firmware or damage got wrong
             what = f"its format has no column {exc}" if isinstance(exc, KeyError) else str(exc)
             warnings.append(f"{name}: {what} (a corrupt FMT record?): {len(scan.offsets[name])} "
                             "records skipped")
-    params = {name: float(value) for name, value in zip(records.get("PARM", {}).get("Name", []),
-                                                          records.get("PARM", {}).get("Value", []))}
-    texts = list(records.get("MSG", {}).get("Message", [])) + list(records.get("VER", {}).get("FWS", []))
-    return Decoded(col, params, texts, dict(scan.counts), warnings=warnings)
+    return _decoded(records, scan.offsets, dict(scan.counts), warnings=warnings)
+
+
+def _decoded(records: dict, order: dict, counts: dict, **notes) -> Decoded:
+    """Each message type's columns (``records``) and their places in the file (``order``)
+    into the collector, parameters and texts."""
+    col = Collector()
+    for name, r in records.items():
+        try:
+            _collect(col, name, r, order[name])
+        except KeyError as exc:
+            notes.setdefault("warnings", []).append(f"{name}: its format has no column {exc} "
+                                                    f"(a corrupt FMT record?): {len(order[name])} records skipped")
+    parm, msg, ver = (records.get(name, {}) for name in ("PARM", "MSG", "VER"))
+    params = {name: float(value) for name, value in zip(parm.get("Name", []), parm.get("Value", []))}
+    texts = list(msg.get("Message", [])) + list(ver.get("FWS", []))
+    return Decoded(col, params, texts, counts, **notes)
 
 
 def damage_notes(scan, size: int) -> list[str]:
@@ -85,6 +106,8 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
         return
     if name == "GPS" and "T" in r and "TimeUS" not in r:
         t = r["T"] * 1e-3  # old GPS: TimeMS is GPS time of week, T is the boot clock
+    elif "SampleUS" in r:
+        t = r["SampleUS"] * 1e-6  # the sensor's sample time (TimeUS: when it was logged)
     elif "TimeUS" in r:
         t = r["TimeUS"] * 1e-6
     elif "TimeMS" in r:
@@ -96,14 +119,14 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
     else:
         instance = np.full(len(t), int(name[-1]) - 1 if name[-1].isdigit() else 0)
     plausible = (instance >= 0) & (instance <= MAX_INSTANCE)
-    if name.startswith("IMU") or name.startswith("MAG"):
-        kind, cols, scale = (("imu", ("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"), 1.0)
-                             if name.startswith("IMU") else ("mag", ("MagX", "MagY", "MagZ"), MILLIGAUSS_TO_TESLA))
-        values = np.column_stack([r[c] for c in cols]) * scale
+    per_instance = {"IMU": ("imu", "IMU"), "MAG": ("mag", "MAG"), "IMT": ("imu", "IMT"), "GYR": ("gyr", "GYR"),
+                    "ACC": ("acc", "ACC")}.get(name.rstrip("23"))
+    if per_instance:
+        kind, prefix = per_instance
+        values = _sensor_values(prefix, r)
         for i in np.unique(instance[plausible]):
             mine = instance == i
-            col.add_columns(kind, f"{kind.upper() if kind == 'imu' else 'MAG'}[{i}]", order[mine], t[mine],
-                            values[mine])
+            col.add_columns(kind, f"{prefix}[{i}]", order[mine], t[mine], values[mine])
         return
     primary = instance == 0
     if name == "GPS":
@@ -126,33 +149,29 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
                             np.column_stack([r["Roll"], r["Pitch"], r["Yaw"]]) * DEG)
 
 
-def _instance(msg, name: str) -> int:
-    """Sensor instance: the I field of new logs, or the digit of IMU2/MAG2 in old ones."""
-    inst = getattr(msg, "I", None) if "I" in msg._fieldnames else None
-    if inst is not None:
-        return int(inst)
-    return int(name[-1]) - 1 if name[-1].isdigit() else 0
-
-
-def _time_s(msg, fields) -> float | None:
-    if "TimeUS" in fields:
-        return msg.TimeUS * 1e-6
-    if "TimeMS" in fields:
-        return msg.TimeMS * 1e-3
-    return None
+def _sensor_values(prefix: str, r: dict) -> np.ndarray:
+    """The SI values of one sensor message type's records (see the table above)."""
+    if prefix == "IMT":
+        with np.errstate(divide="ignore", invalid="ignore"):  # a zero interval: not finite, dropped later
+            gyro = np.column_stack([r[c] for c in ("DelAX", "DelAY", "DelAZ")]) / r["DelaT"][:, None]
+            accel = np.column_stack([r[c] for c in ("DelVX", "DelVY", "DelVZ")]) / r["DelvT"][:, None]
+        return np.hstack([gyro, accel])
+    columns = {"IMU": ("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"), "MAG": ("MagX", "MagY", "MagZ"),
+               "GYR": ("GyrX", "GyrY", "GyrZ"), "ACC": ("AccX", "AccY", "AccZ")}[prefix]
+    return np.column_stack([r[c] for c in columns]) * (MILLIGAUSS_TO_TESLA if prefix == "MAG" else 1.0)
 
 
 def _read_with_pymavlink(path: str, progress, why: str) -> Decoded:
-    """The fallback: pymavlink, message by message (slower; stops at an unknown type)."""
+    """The fallback: pymavlink, message by message (slower; stops at an unknown type), into
+    the same columns as the bulk decoder's."""
     from pymavlink import DFReader
 
     try:
         log = DFReader.DFReader_binary(path, zero_time_base=True)
     except Exception as exc:  # pymavlink raises bare exceptions on garbage
         raise InputError(path, f"not a readable DataFlash log ({exc.__class__.__name__}: {exc})")
-    col = Collector()
-    params: dict[str, float] = {}
-    texts: list[str] = []
+    fields: dict[str, dict[str, list]] = {}
+    order: dict[str, list[int]] = {}
     size = max(os.path.getsize(path), 1)
     n = 0
     while True:
@@ -162,50 +181,19 @@ def _read_with_pymavlink(path: str, progress, why: str) -> Decoded:
             raise InputError(path, f"corrupt DataFlash data near byte {log.offset} ({exc})")
         if msg is None:
             break
-        try:
-            _add_message(col, msg, params, texts)
-        except (AttributeError, IndexError, TypeError, ValueError) as exc:  # a damaged format
-            raise InputError(path, f"corrupt {msg.get_type()} record near byte {log.offset} ({exc})")
+        name = msg.get_type()
+        columns = fields.setdefault(name, {})
+        for field in msg._fieldnames:
+            columns.setdefault(field, []).append(getattr(msg, field))
+        order.setdefault(name, []).append(n)
         n += 1
         if progress is not None and n % 20000 == 0:
             progress(log.offset / size)
+    records = {}
+    for name, columns in fields.items():
+        if len({len(v) for v in columns.values()}) != 1:  # a format changed midway: damage
+            raise InputError(path, f"corrupt {name} records (their fields change midway)")
+        records[name] = {k: np.array(v, dtype=object if isinstance(v[0], str) else None) for k, v in columns.items()}
     counts = {log.formats[i].name: c for i, c in enumerate(log.counts)
               if c and i in log.formats and log.formats[i].name != "FMT"}
-    return Decoded(col, params, texts, counts, notes=[why])
-
-
-def _add_message(col: Collector, msg, params: dict, texts: list) -> None:
-    """One pymavlink message into the collector (the fallback's ``_collect``)."""
-    name = msg.get_type()
-    fields = msg._fieldnames
-    if name == "PARM":
-        params[msg.Name] = float(msg.Value)
-        return
-    if name in ("MSG", "VER"):
-        texts.append(msg.Message if name == "MSG" else getattr(msg, "FWS", ""))
-        return
-    if name == "GPS" and "T" in fields and "TimeUS" not in fields:
-        t = msg.T * 1e-3
-    else:
-        t = _time_s(msg, fields)
-    if t is None:
-        return
-    if name.startswith("IMU"):
-        col.add("imu", f"IMU[{_instance(msg, name)}]", t,
-                (msg.GyrX, msg.GyrY, msg.GyrZ, msg.AccX, msg.AccY, msg.AccZ))
-    elif name.startswith("MAG"):
-        col.add("mag", f"MAG[{_instance(msg, name)}]", t,
-                (msg.MagX * MILLIGAUSS_TO_TESLA, msg.MagY * MILLIGAUSS_TO_TESLA, msg.MagZ * MILLIGAUSS_TO_TESLA))
-    elif name == "GPS" and _instance(msg, name) == 0:
-        course = msg.GCrs * DEG
-        col.add("gps", "GPS", t, (msg.Lat, msg.Lng, msg.Alt, msg.Spd * math.cos(course),
-                                  msg.Spd * math.sin(course), msg.VZ, msg.Status, msg.NSats, math.nan))
-    elif name == "BARO" and _instance(msg, name) == 0:
-        col.add("baro", "BARO", t, (msg.Press, msg.Alt))
-    elif name == "ATT":
-        col.add("att_euler", "ATT", t, (msg.Roll * DEG, msg.Pitch * DEG, msg.Yaw * DEG))
-    elif name == "SIM":
-        if "Q1" in fields:
-            col.add("truth_quat", "SIM", t, (msg.Q1, msg.Q2, msg.Q3, msg.Q4))
-        else:
-            col.add("truth_euler", "SIM", t, (msg.Roll * DEG, msg.Pitch * DEG, msg.Yaw * DEG))
+    return _decoded(records, {k: np.array(v) for k, v in order.items()}, counts, notes=[why])

@@ -14,6 +14,7 @@ from .collect import Collector
 # reads on Earth: such samples are corrupt records.
 IMU_LIMITS = [(slice(0, 3), 50.0), (slice(3, 6), 50 * 9.81)]  # rad/s, m/s²
 MAG_LIMITS = [(slice(0, 3), 1e-3)]  # tesla (10 gauss)
+ACCEL_GAP_S = 0.02  # a gyro sample this far from any accelerometer sample has none (sensor_rate_imu)
 
 
 def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
@@ -42,8 +43,12 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
         return ok
 
     unusable = []
-    for key in col.keys("imu"):
-        t, v, arrival = columns("imu", key)
+    imus = [(key, *columns("imu", key)) for key in col.keys("imu")]
+    for key in col.keys("gyr"):
+        accel_key = "ACC" + key[len("GYR"):]
+        if accel_key in col.keys("acc"):
+            imus.append((key, *sensor_rate_imu(columns("gyr", key), columns("acc", accel_key))))
+    for key, t, v, arrival in imus:
         fitted = np.any(v != 0, axis=1)  # an unfitted sensor sends all zeros
         live = fitted & plausible(key, v, IMU_LIMITS)
         if np.count_nonzero(live) >= 2:
@@ -76,6 +81,23 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
     flight.attitude = _attitude(col, "att", segment, columns)
     flight.truth = _attitude(col, "truth", segment, columns)
     return unusable
+
+
+def sensor_rate_imu(gyro: tuple, accel: tuple, max_gap_s: float = ACCEL_GAP_S) -> tuple:
+    """GYR and ACC (each: t, values, arrival) as one IMU series on the gyro's clock: the
+    accelerometer interpolated linearly onto the gyro's sample times. The gyro is the clock
+    because the attitude integrates it; the accelerometer only corrects slowly. Gyro samples
+    further than ``max_gap_s`` from an accelerometer sample are dropped (no accelerometer
+    there to speak of). The interpolation looks at most one accelerometer sample ahead (a
+    millisecond at sensor rate) of what had arrived."""
+    (t, rate, arrival), (ta, specific_force, _) = gyro, accel
+    if len(ta) < 2:
+        return t[:0], np.empty((0, 6)), arrival[:0]
+    after = np.clip(np.searchsorted(ta, t), 1, len(ta) - 1)
+    near = (np.minimum(np.abs(t - ta[after - 1]), np.abs(ta[after] - t)) <= max_gap_s) & (t >= ta[0]) & (t <= ta[-1])
+    t, rate, arrival = t[near], rate[near], arrival[near]
+    resampled = np.column_stack([np.interp(t, ta, specific_force[:, k]) for k in range(3)])
+    return t, np.hstack([rate, resampled]), arrival
 
 
 def _earth_field_scale(flight: Flight, key: str, field: np.ndarray) -> np.ndarray:

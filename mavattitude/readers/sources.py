@@ -5,7 +5,7 @@ import re
 
 import numpy as np
 
-from ..flight import Flight, ImuSeries
+from ..flight import DEFAULT_FAMILIES, IMU_FAMILIES, Flight, ImuSeries, imu_family
 
 # IMU sources, best first, among those with the same sample rate: float SI data beats
 # integer mG/mrad/s, and the primary instance beats the others.
@@ -45,9 +45,18 @@ def imu_rate(series: ImuSeries) -> float:
     return float(1.0 / np.median(np.diff(series.t)))
 
 
-def best_imu_source(flight: Flight) -> str:
-    """The IMU to estimate from: the highest sample count (within 2 %), then IMU_PREFERENCE."""
-    return pick_imu({k: len(s.t) for k, s in flight.imu.items()})
+def best_imu_source(flight: Flight, family: str | None = None) -> str:
+    """The IMU to estimate from: of ``family`` (default: the first of DEFAULT_FAMILIES the log
+    has), the highest sample count (within 2 %), then IMU_PREFERENCE. KeyError (naming what
+    there is) when the log has no IMU of that family."""
+    counts = {k: len(s.t) for k, s in flight.imu.items()}
+    if family is None:
+        family = next((f for f in DEFAULT_FAMILIES if any(imu_family(k) == f for k in counts)), "imu")
+    mine = {k: n for k, n in counts.items() if imu_family(k) == family}
+    if not mine:
+        have = sorted({imu_family(k) for k in counts})
+        raise KeyError(f"has no IMU of the {family!r} family ({IMU_FAMILIES[family]}); it has: {', '.join(have)}")
+    return pick_imu(mine)
 
 
 def pick_imu(counts: dict[str, int]) -> str:

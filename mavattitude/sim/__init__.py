@@ -23,15 +23,20 @@ SCENARIOS: dict[str, str] = {name: s.description for name, s in REGISTRY.items()
 _WRITERS = {".tlog": write_tlog, ".bin": write_bin}
 
 
-def write_log(sim: SimFlight, path, suffix: str | None = None) -> Path:
+def write_log(sim: SimFlight, path, suffix: str | None = None, imt: bool = False) -> Path:
     """Write ``sim`` as a .tlog or .bin, chosen by ``suffix`` (default: that of ``path``);
-    returns the path."""
+    ``imt``: a .bin with delta angles and velocities too. Returns the path."""
     path = Path(path)
     writer = _WRITERS.get((suffix or path.suffix).lower())
     if writer is None:
         raise ValueError(f"{path}: cannot write a {path.suffix or 'suffix-less'} log; "
                          f"use a .tlog or .bin file name")
-    writer(sim, path)
+    if imt:
+        if writer is not write_bin:
+            raise ValueError(f"{path}: delta angles (IMT) are DataFlash records; write a .bin")
+        writer(sim, path, imt=True)
+    else:
+        writer(sim, path)
     return path
 
 

@@ -15,6 +15,10 @@ What is written (TimeUS: µs since boot):
 - a header stamped with the first sample time: FMT for every type, UNIT, MULT, FMTU, PARM
   (COMPASS_DEC rad, COMPASS_OFS_X/Y/Z mGauss), VER and MSG (the firmware string, "Frame: QUAD/X");
 - IMU, I = 0 and 1, at the IMU rate: GyrX.. rad/s, AccX.. m/s² (specific force);
+- with ``imt=True``, IMT, I = 0 and 1, on the same ticks: the delta angle (rad) and delta
+  velocity (m/s) over the step to each sample, as ArduPilot integrates its sensor-rate samples.
+  The true part is exact (the rotation between the true attitudes, the trapezoid of the true
+  specific force); the sensor's bias and noise are those of the IMU sample, times the step;
 - MAG, I = 0, at the compass rate: MagX.. mGauss after offsets, OfsX.. the offsets applied;
 - GPS and GPA, I = 0, at the GPS rate: Status 3, Lat/Lng degrees, Alt m, Spd m/s, GCrs deg,
   VZ m/s down; GWk/GMS from the fake boot epoch, so pymavlink's clock gives that UNIX time;
@@ -126,7 +130,9 @@ ATT = LogFormat(70, "ATT", "QccccCCCCB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,Des
            "sddddhhdh-", "FBBBBBBBB-")
 SIM = LogFormat(75, "SIM", "QccCfLLffff", "TimeUS,Roll,Pitch,Yaw,Alt,Lat,Lng,Q1,Q2,Q3,Q4",
            "sddhmDU????", "FBBB0GG????")
-FORMATS = (FMT, UNIT, FMTU, MULT, PARM, MSG, VER, IMU, MAG, GPS, GPA, BARO, ATT, SIM)
+IMT = LogFormat(204, "IMT", "QBfffffffff", "TimeUS,I,DelT,DelvT,DelaT,DelAX,DelAY,DelAZ,DelVX,DelVY,DelVZ",
+           "s#sssrrrnnn", "F-000000000")
+FORMATS = (FMT, UNIT, FMTU, MULT, PARM, MSG, VER, IMU, IMT, MAG, GPS, GPA, BARO, ATT, SIM)
 
 # The UNIT and MULT tables ArduPilot 4.4 writes (id character -> label / multiplier).
 UNITS = {
@@ -172,7 +178,7 @@ def _header(sim, t_us: int) -> list[np.ndarray]:
     return blocks
 
 
-def _data(sim) -> list[np.ndarray]:
+def _data(sim, imt: bool = False) -> list[np.ndarray]:
     """Sensor, attitude and truth records, each block in time order."""
     blocks = []
     for instance, imu in enumerate(sim.imu):
@@ -181,6 +187,8 @@ def _data(sim) -> list[np.ndarray]:
             len(imu.t), TimeUS=_us(imu.t), I=instance, GyrX=g[:, 0], GyrY=g[:, 1], GyrZ=g[:, 2],
             AccX=a[:, 0], AccY=a[:, 1], AccZ=a[:, 2], EG=0, EA=0, T=imu.temperature_c, GH=1, AH=1,
             GHz=round(sim.rates.imu), AHz=round(sim.rates.imu)))
+        if imt:
+            blocks.append(_imt_records(sim, instance, imu))
 
     mag = sim.mag
     mg = mag.field * 1e7  # tesla -> mGauss
@@ -228,6 +236,19 @@ def _data(sim) -> list[np.ndarray]:
     return blocks
 
 
+def _imt_records(sim, instance: int, imu) -> np.ndarray:
+    """IMT: each step's delta angle and velocity (see the module docstring), from the second sample."""
+    truth = sim.truth
+    dt = np.diff(imu.t)[:, None]
+    turn = quat.to_rotation_vector(quat.multiply(quat.conjugate(truth.q[:-1]), truth.q[1:]))
+    delta_angle = turn + (imu.gyro - truth.omega_b)[1:] * dt
+    f = truth.specific_force_b
+    delta_velocity = 0.5 * (f[:-1] + f[1:]) * dt + (imu.accel - f)[1:] * dt
+    da, dv = delta_angle, delta_velocity
+    return IMT.records(len(dt), TimeUS=_us(imu.t[1:]), I=instance, DelT=dt[:, 0], DelvT=dt[:, 0], DelaT=dt[:, 0],
+                       DelAX=da[:, 0], DelAY=da[:, 1], DelAZ=da[:, 2], DelVX=dv[:, 0], DelVY=dv[:, 1], DelVZ=dv[:, 2])
+
+
 def _heading_deg(yaw_deg) -> np.ndarray:
     """Yaw as a 0-360° heading whose centidegree value stays below 36000 after rounding."""
     return (np.rint(np.asarray(yaw_deg) * 100.0) % 36000) / 100.0
@@ -251,10 +272,11 @@ def _merge(blocks: list[np.ndarray]) -> np.ndarray:
     return out
 
 
-def write_bin(sim, path) -> None:
-    """Write ``sim`` (a SimFlight) as an ArduPilot DataFlash log at ``path``."""
+def write_bin(sim, path, imt: bool = False) -> None:
+    """Write ``sim`` (a SimFlight) as an ArduPilot DataFlash log at ``path`` (``imt``: with
+    delta angles and velocities)."""
     t_start = int(_us(sim.truth.t[0]))
     header = np.concatenate([np.ascontiguousarray(b).view(np.uint8) for b in _header(sim, t_start)])
     with open(Path(path), "wb") as f:
         f.write(header.tobytes())
-        f.write(_merge(_data(sim)).tobytes())
+        f.write(_merge(_data(sim, imt)).tobytes())
