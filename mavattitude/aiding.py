@@ -52,6 +52,8 @@ class Aiding:
     origin: tuple[float, float, float] | None = None  # (lat °, lon °, alt m AMSL) of the first good fix
     baro_zero: float | None = None  # m, the standard-atmosphere height ``baro_height`` is relative to
 
+    COLUMNS = ("gps_pos", "gps_vel", "gps_h_acc", "gps_v_acc", "baro_height")  # the per-sample arrays
+
     def __len__(self) -> int:
         return len(self.baro_height)
 

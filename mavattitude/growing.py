@@ -1,4 +1,4 @@
-"""An append-only table of float64 rows for data that arrives a little at a time (a live link).
+"""An append-only table of rows (float64 unless told) for data that arrives a little at a time.
 
 Appending is amortised O(1) (the storage doubles when full); ``view()`` is the filled part, a
 numpy view that stays valid (it keeps the storage it was taken from) even after later appends.
@@ -9,9 +9,9 @@ import numpy as np
 
 
 class Growing:
-    def __init__(self, width: int, capacity: int = 1024):
+    def __init__(self, width: int, capacity: int = 1024, dtype=np.float64):
         self.width = width
-        self._data = np.empty((capacity, width))
+        self._data = np.empty((capacity, width), dtype)
         self.n = 0
 
     def __len__(self) -> int:
@@ -24,14 +24,19 @@ class Growing:
         self.n += 1
 
     def extend(self, rows) -> None:
-        rows = np.asarray(rows, dtype=float).reshape(-1, self.width)
+        rows = np.asarray(rows, dtype=self._data.dtype).reshape(-1, self.width)
         if self.n + len(rows) > len(self._data):
             self._grow(self.n + len(rows))
         self._data[self.n:self.n + len(rows)] = rows
         self.n += len(rows)
 
-    def _grow(self, need: int) -> None:
-        data = np.empty((max(need, 2 * len(self._data)), self.width))
+    def reserve(self, rows: int) -> None:
+        """Room for ``rows`` rows in all (a log's known length: no doubling past it)."""
+        if rows > len(self._data):
+            self._grow(rows, exact=True)
+
+    def _grow(self, need: int, exact: bool = False) -> None:
+        data = np.empty((need if exact else max(need, 2 * len(self._data)), self.width), self._data.dtype)
         data[:self.n] = self._data[:self.n]
         self._data = data
 

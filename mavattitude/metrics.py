@@ -110,7 +110,8 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
     ref_ok = np.isfinite(t_ref) & np.isfinite(q_ref).all(axis=1)
     est_ok = np.isfinite(t_est) & np.isfinite(q_est).all(axis=1)
     est_index = np.flatnonzero(est_ok)  # positions of the valid rows in the (sorted) estimate
-    te, qe = t_est[est_ok], q_est[est_ok]
+    # (no copy of an hour-long estimate when every row is valid, as nearly always)
+    te, qe = (t_est, q_est) if len(est_index) == len(t_est) else (t_est[est_ok], q_est[est_ok])
 
     if len(te):
         in_span = np.isfinite(t_ref) & (t_ref >= te[0]) & (t_ref <= te[-1])

@@ -136,7 +136,7 @@ def run_estimators(flight: Flight, names: list[str], imu_source: str | None = No
     declination, dec_source = resolve_declination(flight, declination_deg)
     runner = Runner(names, params, declination, use_mag, imu_source, mag_source)
     runner.add_flight(flight)
-    runner.step(final=True)
+    runner.step(final=True, chunk=False)
     return runner, dec_source
 
 

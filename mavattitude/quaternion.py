@@ -127,7 +127,7 @@ def interpolate(t_src, q_src, t_dst) -> np.ndarray:
     """
     t_src = np.asarray(t_src, dtype=float)
     t_dst = np.asarray(t_dst, dtype=float)
-    q_src = make_continuous(q_src)
+    q_src = np.asarray(q_src, dtype=float)
     out = np.full((len(t_dst), 4), np.nan)
     if len(t_src) < 2:
         return out
@@ -136,7 +136,11 @@ def interpolate(t_src, q_src, t_dst) -> np.ndarray:
     i = np.clip(np.searchsorted(t_src, td, side="right") - 1, 0, len(t_src) - 2)
     span = t_src[i + 1] - t_src[i]
     a = np.where(span > 0, (td - t_src[i]) / np.where(span > 0, span, 1.0), 0.0)[:, None]
-    out[inside] = normalize((1 - a) * q_src[i] + a * q_src[i + 1])
+    # q and -q are one attitude: blend each pair in one hemisphere (only the pairs used, not an
+    # hour-long source made continuous first)
+    before, after = q_src[i], q_src[i + 1]
+    after = after * np.where(np.sum(before * after, axis=-1) < 0, -1.0, 1.0)[:, None]
+    out[inside] = normalize((1 - a) * before + a * after)
     return out
 
 

@@ -45,6 +45,9 @@ from .phase import STALE_S, PhaseTracker, pressure_height
 REINIT_GAP_S = 2.0
 # IMU rates below this leave the gyro integration too coarse for good estimates.
 LOW_IMU_RATE_HZ = 20.0
+# Rows estimated per kernel call at most (5.5 min at 400 Hz): an hour-long log's per-sample
+# scratch and diagnostics (cpf-ekf: 29 float64 a row) stay a few tens of MB, not gigabytes.
+STEP_ROWS = 1 << 17
 # A magnetometer sample older than this many of its own intervals (or MAG_STALE_MIN_S) is stale.
 MAG_STALE_PERIODS = 3.0
 MAG_STALE_MIN_S = 0.5
@@ -106,7 +109,7 @@ class Runner:
         self.running = False
         self.events: list[Event] = []
         self.estimates = {n: Growing(4) for n in self.names}  # (N, 4) at the IMU rows estimated
-        self.diagnostics: dict[str, dict[str, list]] = {n: {} for n in self.names}  # key -> arrays
+        self.diagnostics: dict[str, dict[str, Growing]] = {n: {} for n in self.names}  # key -> (N, 1)
         self.in_air = Growing(1)
         self.has_heading = {e.name: e.has_heading_reference(False) for e in self.estimators}
         self._phase: PhaseTracker | None = None
@@ -114,7 +117,8 @@ class Runner:
         self._phase_rows = Growing(1)  # the tracker's row count after each height sample
         self._phase_reported = 0
         self._placer = aid.Placer()
-        self._aiding_chunks: list[aid.Aiding] = []
+        self._aiding_given = {f: Growing(3 if f in ("gps_pos", "gps_vel") else 1) for f in aid.Aiding.COLUMNS}
+        self._rows_expected = 0  # a whole log's IMU rows, once known: room made for them at once
 
     # ------------------------------------------------------------ input
 
@@ -149,6 +153,10 @@ class Runner:
         def arrival(s):
             return s.t if by_time else s.arrival
         self.add_imu(imu.t, imu.gyro, imu.accel, arrival(imu))
+        self._rows_expected = len(imu.t)
+        kept = [*self.estimates.values(), self.in_air, *(self._aiding_given.values() if self.uses_aiding else ())]
+        for series in kept:
+            series.reserve(len(imu.t))  # filled to exactly this size, never doubled
         if mag is not None:
             self.add_mag(mag.t, mag.field, arrival(mag))
         if flight.gps is not None:
@@ -158,9 +166,11 @@ class Runner:
 
     # ------------------------------------------------------------ stepping
 
-    def step(self, final: bool = False) -> Chunk | None:
+    def step(self, final: bool = False, chunk: bool = True) -> Chunk | None:
         """Estimate every IMU row added since the last step that can be: all of them, but for
-        the rows of a run whose alignment is not decided yet (unless ``final``: no more data)."""
+        the rows of a run whose alignment is not decided yet (unless ``final``: no more data).
+        Returns what it estimated as a ``Chunk`` (``chunk=False``: None; a whole log's results
+        are read from the runner, not copied into a chunk)."""
         imu = self.store[IMU].view()
         t = imu[:, 0]
         chunks = []
@@ -174,7 +184,10 @@ class Runner:
             b = a + int(gaps[0]) + 1 if len(gaps) else len(t)
             if not self.running and not self._start_run(a, b, complete=final or b < len(t)):
                 break
-            chunks.append(self._run(a, b))
+            b = min(b, a + STEP_ROWS)
+            done = self._run(a, b)
+            if chunk:
+                chunks.append(done)
             self.done = self.runs[-1].end = b
         return Chunk.join(chunks)
 
@@ -226,21 +239,26 @@ class Runner:
         in_air = self._in_air(a, b)
         aiding = self._aiding(a, b) if self.uses_aiding else None
         if aiding is not None:
-            self._aiding_chunks.append(aiding)
+            for f, kept in self._aiding_given.items():
+                kept.extend(getattr(aiding, f))
         out, diagnostics = {}, {}
         for e in self.estimators:
             q = e.update(t, gyro, accel, mag, in_air, aiding=aiding)
-            out[e.name] = q
-            diagnostics[e.name] = dict(e.diagnostics)
             self.estimates[e.name].extend(q)
-            parts = self.diagnostics[e.name]
-            for key in set(parts) | set(e.diagnostics):
-                if key not in parts:  # rows before the key first appeared: nothing
-                    parts[key] = [_nothing(a, e.diagnostics[key].dtype)]
-                parts[key].append(np.asarray(e.diagnostics[key]) if key in e.diagnostics
-                                  else _nothing(len(t), parts[key][0].dtype))
-            if "reset" in e.diagnostics:
-                for tr in t[np.asarray(e.diagnostics["reset"]) == 1.0]:
+            out[e.name] = self.estimates[e.name].view()[-len(t):]  # one copy of the result, not two
+            # Diagnostics are kept in float32 (for plots and events; half the memory of an hour at 400 Hz)
+            new = {key: _compact(value) for key, value in e.diagnostics.items()}
+            e.diagnostics = new  # the estimator's float64 arrays go now, not at its next update
+            diagnostics[e.name] = new
+            kept = self.diagnostics[e.name]
+            for key in set(kept) | set(new):
+                if key not in kept:  # rows before the key first appeared: nothing
+                    kept[key] = Growing(1, dtype=new[key].dtype)
+                    kept[key].reserve(self._rows_expected)
+                    kept[key].extend(_nothing(a, new[key].dtype))
+                kept[key].extend(new[key] if key in new else _nothing(len(t), kept[key].view().dtype))
+            if "reset" in new:
+                for tr in t[new["reset"] == 1.0]:
                     self.events.append(Event(float(tr), "warn", f"{e.name}: watchdog reset (EKF attitude too "
                                                                 "far from its complementary filter): restarted from it"))
         self.in_air.extend(in_air)
@@ -337,16 +355,14 @@ class Runner:
 
     def diagnostic_series(self, name: str) -> dict[str, np.ndarray]:
         """An estimator's diagnostics at every IMU row estimated so far: key -> (N,)."""
-        return {k: np.concatenate(parts) for k, parts in self.diagnostics[name].items()}
+        return {key: kept.column(0) for key, kept in self.diagnostics[name].items()}
 
     def aiding(self) -> aid.Aiding | None:
         """The GPS and baro measurements handed to the estimators, at every IMU row estimated
         so far (None when no estimator takes them)."""
         if not self.uses_aiding:
             return None
-        chunks = self._aiding_chunks or [aid.Aiding.empty(0)]
-        out = aid.Aiding(*(np.concatenate([getattr(c, f) for c in chunks])
-                           for f in ("gps_pos", "gps_vel", "gps_h_acc", "gps_v_acc", "baro_height")))
+        out = aid.Aiding(*(kept.view() if kept.width > 1 else kept.column(0) for kept in self._aiding_given.values()))
         out.origin, out.baro_zero = self._placer.origin, self._placer.baro_zero
         return out
 
@@ -385,6 +401,12 @@ def held_magnetometer(imu_t: np.ndarray, mag) -> np.ndarray | None:
     return held_field(imu_t, mag.t, mag.field, latest_arrived(mag.t, imu_t))
 
 
+def _compact(values) -> np.ndarray:
+    """A diagnostic series as kept: float32 for measures (7 digits, for plots), codes as they are."""
+    values = np.asarray(values)
+    return values.astype(np.float32) if values.dtype == np.float64 else values
+
+
 def _nothing(n: int, dtype) -> np.ndarray:
     """Diagnostic values where an estimator gave none: 0 for codes, NaN for measures."""
-    return np.zeros(n, dtype) if np.dtype(dtype).kind in "iub" else np.full(n, np.nan)
+    return np.zeros(n, dtype) if np.dtype(dtype).kind in "iub" else np.full(n, np.nan, dtype)

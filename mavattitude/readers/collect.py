@@ -179,12 +179,16 @@ class Collector:
 
     def finish(self) -> None:
         """Call after the last sample: follows the clock and assigns segments."""
-        series = dict(self._chunks)
+        series, self._chunks = self._chunks, {}  # the chunks go as they are merged
         for k, buffer in self._rows.items():
             data = np.frombuffer(buffer, dtype=np.float64).reshape(-1, self._width[k])
             series.setdefault(k, []).append((data[:, 0].astype(np.int64), data[:, 1], data[:, 2:]))
-        merged = {k: (np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks]),
-                      np.concatenate([c[2] for c in chunks])) for k, chunks in series.items()}
+        self._rows = {}
+        merged = {}
+        for k in list(series):
+            chunks = series.pop(k)
+            merged[k] = tuple(chunks[0][i] if len(chunks) == 1 else np.concatenate([c[i] for c in chunks])
+                              for i in range(3))
         if not merged:
             return
         order = np.concatenate([m[0] for m in merged.values()])
@@ -224,15 +228,19 @@ class Collector:
         if (kind, key) not in self._series:
             return Columns(np.empty(0), np.empty((0, 0)), np.empty(0, np.int64), 0, 0)
         arrival, t, values, seg = self._series[(kind, key)]
+
+        def select(rows):  # (an hour of IMU is copied only where something is left out or moved)
+            return (arrival, t, values) if rows is None else (arrival[rows], t[rows], values[rows])
         mine = seg == segment
-        arrival, t, values = arrival[mine], t[mine], values[mine]
+        arrival, t, values = select(None if mine.all() else mine)
         order = np.argsort(arrival, kind="stable")
-        arrival, t, values = arrival[order], t[order], values[order]
+        arrival, t, values = select(None if np.all(order[1:] > order[:-1]) else order)
         before = np.maximum.accumulate(np.concatenate([[-np.inf], t]))[:-1]
         keep = t > before
         repeated = int(np.count_nonzero(t == before))
-        return Columns(t[keep], values[keep], arrival[keep], int(len(t) - np.count_nonzero(keep)) - repeated,
-                       repeated)
+        dropped = int(len(t) - np.count_nonzero(keep))
+        arrival, t, values = select(keep if dropped else None)
+        return Columns(t, values, arrival, dropped - repeated, repeated)
 
 
 class Columns(NamedTuple):

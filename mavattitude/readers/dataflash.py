@@ -43,6 +43,7 @@ from .dfrecords import decode, open_log, scan_log
 
 MILLIGAUSS_TO_TESLA = 1e-7  # 1 mG = 1e-3 G = 1e-7 T
 DEG = math.pi / 180.0
+TEXT_TYPES = ("PARM", "MSG", "VER")  # parameters and who wrote the log, not samples
 MAX_INSTANCE = 9  # sensor instances ArduPilot numbers (0-based); beyond: a corrupt record
 
 WANTED = ["IMU", "IMU2", "IMU3", "GYR", "ACC", "IMT", "IMT2", "IMT3", "MAG", "MAG2", "MAG3", "GPS", "BARO",
@@ -59,28 +60,31 @@ def read_dataflash(path: str, progress=None) -> Decoded:
     if progress is not None:
         progress(0.5)
     warnings = damage_notes(scan, len(data))
-    records = {}
-    for name in scan.offsets:
-        try:
-            records[name] = decode(data, scan, name)
-        except (ValueError, KeyError) as exc:  # a format the firmware or damage got wrong
-            what = f"its format has no column {exc}" if isinstance(exc, KeyError) else str(exc)
-            warnings.append(f"{name}: {what} (a corrupt FMT record?): {len(scan.offsets[name])} "
-                            "records skipped")
-    return _decoded(records, scan.offsets, dict(scan.counts), warnings=warnings)
+
+    def records():  # one message type at a time: an hour of IMU records is let go once collected
+        for name in scan.offsets:
+            try:
+                yield name, decode(data, scan, name)
+            except ValueError as exc:  # a format the firmware or damage got wrong
+                warnings.append(f"{name}: {exc} (a corrupt FMT record?): {len(scan.offsets[name])} records skipped")
+    return _decoded(records(), scan.offsets, dict(scan.counts), warnings=warnings)
 
 
-def _decoded(records: dict, order: dict, counts: dict, **notes) -> Decoded:
-    """Each message type's columns (``records``) and their places in the file (``order``)
-    into the collector, parameters and texts."""
+def _decoded(records, order: dict, counts: dict, **notes) -> Decoded:
+    """Each message type's columns (``records``: (name, columns) pairs) and their places in
+    the file (``order``) into the collector, parameters and texts."""
     col = Collector()
-    for name, r in records.items():
+    texts = {}
+    for name, r in records:
+        if name in TEXT_TYPES:
+            texts[name] = r
+            continue
         try:
             _collect(col, name, r, order[name])
         except KeyError as exc:
             notes.setdefault("warnings", []).append(f"{name}: its format has no column {exc} "
                                                     f"(a corrupt FMT record?): {len(order[name])} records skipped")
-    parm, msg, ver = (records.get(name, {}) for name in ("PARM", "MSG", "VER"))
+    parm, msg, ver = (texts.get(name, {}) for name in TEXT_TYPES)
     params = {name: float(value) for name, value in zip(parm.get("Name", []), parm.get("Value", []))}
     texts = list(msg.get("Message", [])) + list(ver.get("FWS", []))
     return Decoded(col, params, texts, counts, **notes)
@@ -97,13 +101,15 @@ def damage_notes(scan, size: int) -> list[str]:
     if scan.bad_formats:
         notes.append(f"ignored {scan.bad_formats} corrupt message format definition(s) (FMT); "
                      "the messages they define were skipped")
+    if scan.recovered_formats:
+        notes.append(f"repaired {len(scan.recovered_formats)} damaged message format definition(s) (FMT): "
+                     f"{', '.join(scan.recovered_formats)}, one flipped bit each; their records line up with "
+                     "the repair")
     return notes
 
 
 def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
     """One message type's columns into the collector, in SI units (see the table above)."""
-    if name in ("PARM", "MSG", "VER"):
-        return
     if name == "GPS" and "T" in r and "TimeUS" not in r:
         t = r["T"] * 1e-3  # old GPS: TimeMS is GPS time of week, T is the boot clock
     elif "SampleUS" in r:
@@ -196,4 +202,4 @@ def _read_with_pymavlink(path: str, progress, why: str) -> Decoded:
         records[name] = {k: np.array(v, dtype=object if isinstance(v[0], str) else None) for k, v in columns.items()}
     counts = {log.formats[i].name: c for i, c in enumerate(log.counts)
               if c and i in log.formats and log.formats[i].name != "FMT"}
-    return _decoded(records, {k: np.array(v) for k, v in order.items()}, counts, notes=[why])
+    return _decoded(records.items(), {k: np.array(v) for k, v in order.items()}, counts, notes=[why])
