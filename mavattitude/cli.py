@@ -432,13 +432,33 @@ def cmd_bench(args) -> int:
     from .bench import run
 
     names = _estimator_names(args.estimators)
+    if args.log and not args.read:
+        raise UsageError("--log is for --read (the reading figures)")
     with Outputs(force=args.force) as outputs:
         json_out = outputs.file(args.json, "--json", "json")
+        if args.read:
+            return _bench_read(args, json_out)
         code = run(names, args.scenario, args.duration, args.imu_rate, args.seed, args.repeat,
                    args.imufusion_samples, json_out, live_seconds=args.live_seconds if args.live else None)
         if json_out:
             print(f"results written to {json_out.path}")
     return code
+
+
+def _bench_read(args, json_out) -> int:
+    from .bench_read import format_read, run_read_bench
+    from .readers import sniff_format
+
+    for path in args.log or ():
+        sniff_format(path)  # a missing or foreign file: one line, before minutes of work
+    result = run_read_bench(args.log or [], args.scenario, args.duration, args.imu_rate, repeat=args.repeat,
+                            say=lambda text: print(text, file=sys.stderr))
+    print(format_read(result), end="")
+    if json_out:
+        with json_out.writing() as path:
+            Path(path).write_text(json.dumps(result, indent=2) + "\n")
+        print(f"results written to {json_out.path}")
+    return 0 if all(result["met"][k] for k in ("bin_x_pymavlink", "end_to_end_s")) else 1
 
 
 # ---------------------------------------------------------------- parser
@@ -700,6 +720,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "packets dropped and packet-to-estimate latency (targets: 0, p99 <= 10 ms)")
     p.add_argument("--live-seconds", type=POSITIVE, default=60.0, metavar="S",
                    help="how long the live figure streams (default 60)")
+    p.add_argument("--read", action="store_true",
+                   help="instead, the reading figures: .bin and .tlog read speed against pymavlink's "
+                        "type-filtered read (on a simulated .bin of --duration at --imu-rate, by default "
+                        "1 h at 400 Hz, and on each --log), and the wall time and peak memory of "
+                        "'replay --estimators all --rrd' on the simulated log (targets: .bin >= 15x "
+                        "pymavlink, 1 h at 400 Hz <= 30 s)")
+    p.add_argument("--log", action="append", metavar="FILE",
+                   help="with --read: a real log to read too (repeatable)")
     p.set_defaults(func=cmd_bench)
     return parser
 

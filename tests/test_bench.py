@@ -187,3 +187,30 @@ def test_live_figure_runs_and_reports(capsys):
     assert figures["target_met"] in (True, False)
     text = format_live(figures)
     assert "packet-to-estimate latency" in text and "dropped" in text
+
+
+def test_read_figures_run_and_report(capsys, tmp_path):
+    """``bench --read`` on a short simulated log and a sample .tlog: every figure present and
+    consistent (no timed assertion: the speeds are whatever this machine gives)."""
+    from conftest import SAMPLE_LOGS
+
+    path = tmp_path / "read.json"
+    rc = main(["bench", "--read", "--duration", "30", "--imu-rate", "100", "--repeat", "1",
+               "--log", str(SAMPLE_LOGS / "figure8.tlog"), "--json", str(path)])
+    out, err = capsys.readouterr()
+    result = json.loads(path.read_text())
+    assert rc in (0, 1), err
+    reads = {r["format"]: r for r in result["reads"]}
+    assert set(reads) == {"bin", "tlog"} and reads["bin"]["log"].startswith("simulated figure8")
+    for r in reads.values():
+        assert r["x_pymavlink"] == pytest.approx(r["pymavlink_s"] / r["ours_s"], rel=0.05)
+    e2e = result["end_to_end"]
+    assert e2e["wall_s"] > 0 and e2e["peak_rss_mb"] > e2e["decoded_mb"] > 0 and e2e["rrd_mb"] > 0
+    assert result["targets"]["end_to_end_s"] == pytest.approx(30.0 * 30 * 100 / (3600 * 400))
+    assert "Reading the message types replay uses" in out and "End to end" in out
+    assert rc == (0 if result["met"]["bin_x_pymavlink"] and result["met"]["end_to_end_s"] else 1)
+
+
+def test_log_without_read_is_a_usage_error(capsys):
+    assert main(["bench", "--log", "x.bin"]) == 2
+    assert "--log is for --read" in capsys.readouterr().err

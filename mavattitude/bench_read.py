@@ -1,0 +1,163 @@
+"""The reading figures of ``mavattitude bench --read``: how fast logs are read, and what an
+hour-long replay costs end to end.
+
+- ``.bin``: our reader (``readers.dataflash.read_dataflash``: every message type replay uses,
+  decoded into SI columns) against pymavlink's type-filtered read of the same types
+  (``DFReader_binary`` then ``recv_match(type=...)`` until the end), in CPU seconds, in the
+  same run: on a simulated 1-hour 400 Hz log the simulator writes, and on any ``--log`` given.
+- ``.tlog``: our reader (``readers.tlog.read_tlog``) against pymavlink's ``mavmmaplog`` with
+  ``recv_match(type=...)`` of the types replay uses, on any ``--log`` given.
+- End to end: ``mavattitude replay LOG --estimators all --rrd`` on the 1-hour log, in a child
+  process (kernels compiled beforehand): wall time and peak RSS, next to the size of the
+  arrays the reader decoded.
+
+Ours: best of ``repeat`` runs (the first compiles or loads the scan kernels); pymavlink's: one
+run (it takes seconds to minutes).
+
+Targets: ``.bin`` decode at least ``MIN_X_PYMAVLINK`` times pymavlink's; the hour through all
+seven estimators, metrics and recording within ``MAX_END_TO_END_S`` (a shorter simulated log:
+its share of it); its peak RSS is reported
+against ``MAX_RSS_X_DECODED`` times the decoded arrays.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+MIN_X_PYMAVLINK = 15.0
+MAX_END_TO_END_S = 30.0
+MAX_RSS_X_DECODED = 3.0
+
+
+def _cpu(fn, repeat: int) -> float:
+    """The best CPU time of ``repeat`` calls of ``fn``."""
+    best = float("inf")
+    for _ in range(repeat):
+        start = time.process_time()
+        fn()
+        best = min(best, time.process_time() - start)
+    return best
+
+
+def _pymavlink_bin(path: str) -> int:
+    from pymavlink import DFReader
+
+    from .readers.dataflash import WANTED
+
+    log = DFReader.DFReader_binary(path, zero_time_base=True)
+    n = 0
+    while log.recv_match(type=WANTED) is not None:
+        n += 1
+    return n
+
+
+def _pymavlink_tlog(path: str) -> int:
+    from pymavlink import mavutil
+
+    from .readers.tlog import OTHER_MESSAGES, SAMPLE_MESSAGES
+
+    mavutil.set_dialect("ardupilotmega")
+    log = mavutil.mavmmaplog(path)
+    n = 0
+    while log.recv_match(type=list(SAMPLE_MESSAGES + OTHER_MESSAGES)) is not None:
+        n += 1
+    return n
+
+
+def read_figures(path: str, repeat: int = 3) -> dict:
+    """Our reader and pymavlink's on one log: CPU seconds, MB/s and the ratio."""
+    from .readers import sniff_format
+    from .readers.dataflash import read_dataflash
+    from .readers.tlog import read_tlog
+
+    kind = sniff_format(path)
+    ours = _cpu(lambda: (read_dataflash if kind == "bin" else read_tlog)(path), repeat)
+    theirs = _cpu(lambda: (_pymavlink_bin if kind == "bin" else _pymavlink_tlog)(path), 1)
+    mb = os.path.getsize(path) / 1e6
+    return {"log": path, "format": kind, "mb": round(mb, 2), "ours_s": round(ours, 6),
+            "pymavlink_s": round(theirs, 6), "ours_mb_s": round(mb / ours, 1),
+            "pymavlink_mb_s": round(mb / theirs, 1), "x_pymavlink": round(theirs / ours, 1)}
+
+
+def decoded_mb(path: str) -> float:
+    """The size of the arrays the reader hands over for a log (every series of the flight)."""
+    import numpy as np
+
+    from .readers import read_log
+
+    flight = read_log(path)
+    series = [*flight.imu.values(), *flight.mag.values(), flight.gps, flight.baro, flight.attitude, flight.truth]
+    return sum(v.nbytes for s in series if s is not None for v in vars(s).values()
+               if isinstance(v, np.ndarray)) / 1e6
+
+
+def end_to_end(path: str, out_dir: str) -> dict:
+    """``replay --estimators all --rrd`` on ``path`` in a child process: wall s and peak RSS."""
+    command = [sys.executable, "-m", "mavattitude", "replay", path, "--estimators", "all",
+               "--rrd", str(Path(out_dir) / "replay.rrd")]
+    start = time.perf_counter()
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - start
+    if status != 0:
+        raise RuntimeError(f"replay failed: {child.stderr.read().decode(errors='replace').strip()}")
+    child.stderr.close()
+    return {"wall_s": round(wall, 2), "peak_rss_mb": round(usage.ru_maxrss / 1024, 1),  # Linux: kB
+            "rrd_mb": round((Path(out_dir) / "replay.rrd").stat().st_size / 1e6, 1)}
+
+
+def run_read_bench(logs: list[str], scenario: str = "figure8", duration: float = 3600.0,
+                   imu_rate: float = 400.0, repeat: int = 3, say=print) -> dict:
+    """Every figure (see the module docstring); ``logs``: real logs to read besides the
+    simulated one (``duration`` s of ``scenario`` at ``imu_rate``: by default, the hour)."""
+    from .estimators import ESTIMATORS, needs_compile, precompile
+
+    precompile(needs_compile(list(ESTIMATORS))).wait()
+    with tempfile.TemporaryDirectory(prefix="mavattitude-bench-") as tmp:
+        hour = str(Path(tmp) / "simulated.bin")
+        label = f"simulated {scenario} {duration / 60:g} min at {imu_rate:g} Hz"
+        say(f"{label}: writing it ...")
+        subprocess.run([sys.executable, "-m", "mavattitude", "simulate", "--scenario", scenario,
+                        "--duration", str(duration), "--imu-rate", str(imu_rate), "-o", hour],
+                       check=True, stdout=subprocess.DEVNULL)
+        reads = []
+        for path in [*logs, hour]:
+            say(f"reading {path} (ours, then pymavlink's) ...")
+            reads.append(read_figures(path, repeat))
+        reads[-1]["log"] = label
+        say(f"{label}: replaying it with every estimator ...")
+        e2e = end_to_end(hour, tmp)
+        e2e["decoded_mb"] = round(decoded_mb(hour), 1)
+    e2e["rss_x_decoded"] = round(e2e["peak_rss_mb"] / e2e["decoded_mb"], 2)
+    bins = [r for r in reads if r["format"] == "bin"]
+    # the target is for an hour at 400 Hz; a shorter log gets its share
+    end_to_end_s = MAX_END_TO_END_S * (duration * imu_rate) / (3600.0 * 400.0)
+    return {"reads": reads, "end_to_end": e2e, "targets": {
+        "bin_x_pymavlink": MIN_X_PYMAVLINK, "end_to_end_s": round(end_to_end_s, 4), "rss_x_decoded": MAX_RSS_X_DECODED},
+        "met": {"bin_x_pymavlink": all(r["x_pymavlink"] >= MIN_X_PYMAVLINK for r in bins),
+                "end_to_end_s": e2e["wall_s"] <= end_to_end_s,
+                "rss_x_decoded": e2e["rss_x_decoded"] <= MAX_RSS_X_DECODED}}
+
+
+def format_read(result: dict) -> str:
+    def met(key):
+        return "yes" if result["met"][key] else "NO"
+    lines = ["", "Reading the message types replay uses (CPU s; ours best of several runs, pymavlink's one)",
+             f"{'log':58s} {'MB':>7s} {'ours s':>8s} {'MB/s':>7s} {'pymavlink s':>12s} {'MB/s':>6s} {'x':>6s}"]
+    for r in result["reads"]:
+        name = r["log"] if len(r["log"]) <= 58 else "..." + r["log"][-55:]
+        lines.append(f"{name:58s} {r['mb']:7.1f} {r['ours_s']:8.3f} {r['ours_mb_s']:7.0f} "
+                     f"{r['pymavlink_s']:12.2f} {r['pymavlink_mb_s']:6.0f} {r['x_pymavlink']:5.1f}x")
+    e = result["end_to_end"]
+    t = result["targets"]
+    lines += ["", f"End to end: replay --estimators all --rrd on the {result['reads'][-1]['log']} (a child process)",
+              f"  wall {e['wall_s']:.1f} s, peak RSS {e['peak_rss_mb']:.0f} MB = {e['rss_x_decoded']:.1f}x the "
+              f"{e['decoded_mb']:.0f} MB of decoded arrays, recording {e['rrd_mb']:.0f} MB",
+              f"targets: .bin read >= {t['bin_x_pymavlink']:g}x pymavlink: {met('bin_x_pymavlink')}; "
+              f"replay <= {t['end_to_end_s']:g} s ({MAX_END_TO_END_S:g} s for 1 h at 400 Hz): {met('end_to_end_s')}; "
+              f"peak RSS <= {t['rss_x_decoded']:g}x decoded: {met('rss_x_decoded')}"]
+    return "\n".join(lines) + "\n"
