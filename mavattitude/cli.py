@@ -47,35 +47,13 @@ examples:
 """
 
 
-class _Progress:
-    """A one-line progress display on stderr, only when stderr is a terminal."""
-
-    def __init__(self, label: str):
-        self.label = label
-        self.last = 0.0
-        # Our own handle on the terminal: the reader captures stderr while pymavlink decodes.
-        self.stream = os.fdopen(os.dup(sys.stderr.fileno()), "w") if sys.stderr.isatty() else None
-
-    def __call__(self, fraction: float) -> None:
-        now = time.monotonic()
-        if self.stream and (now - self.last > 0.2 or fraction >= 1.0):
-            self.last = now
-            print(f"\r{self.label}: {100 * fraction:5.1f} %", end="", file=self.stream, flush=True)
-
-    def done(self) -> None:
-        if self.stream:
-            print("\r" + " " * (len(self.label) + 10) + "\r", end="", file=self.stream, flush=True)
-            self.stream.close()
-
-
-def _read(path: str, segment: int | None):
+def _read(path: str, segment: int | None, quiet: bool = False):
+    from .progress import ProgressBar
     from .readers import read_log
 
-    progress = _Progress(f"reading {os.path.basename(path)}")
-    try:
+    with ProgressBar(f"reading {os.path.basename(path)}", os.path.getsize(path) if os.path.isfile(path) else None,
+                     "B", quiet) as progress:
         return read_log(path, segment=segment, progress=progress)
-    finally:
-        progress.done()
 
 
 def _compile(names: list[str]):
@@ -99,7 +77,7 @@ def _warn(text: str) -> None:
 def cmd_info(args) -> int:
     from .info import render, summarize
 
-    info = summarize(_read(args.log, args.segment))
+    info = summarize(_read(args.log, args.segment, args.quiet))
     if args.json:
         print(json.dumps(info, indent=2))
     else:
@@ -150,7 +128,8 @@ def _replay_settings(args, names: list[str]):
 
 
 def cmd_replay(args) -> int:
-    from .pipeline import replay_flight
+    from .pipeline import choose_imu, replay_flight
+    from .progress import ProgressBar
     from .report import (csv_file_name, estimator_extras, format_events, format_table, nothing_scored,
                          write_csv, write_json)
     from .sink import open_sink
@@ -164,9 +143,12 @@ def cmd_replay(args) -> int:
         sink = None if args.no_view else _plan_sink(args, outputs, default_rrd=Path(args.log).stem + ".rrd")
         rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
         compiling = _compile(names)  # in other processes, while the log is read
-        flight = _read(args.log, args.segment)
+        flight = _read(args.log, args.segment, args.quiet)
         compiling.wait()
-        result, notes = replay_flight(flight, settings)
+        with ProgressBar(f"estimating with {len(names)} estimator{'s' if len(names) > 1 else ''}",
+                         len(flight.imu[choose_imu(flight, settings.imu, settings.imu_family)].t),
+                         "samples", args.quiet) as progress:
+            result, notes = replay_flight(flight, settings, progress)
         for note in notes:
             print(f"note: {note}")
         for event in result.events:
@@ -233,7 +215,7 @@ def cmd_evaluate(args) -> int:
             f"in {min(args.jobs, len(logs))} process{'es' if min(args.jobs, len(logs)) > 1 else ''}"
         print(f"evaluating {', '.join(names)} on {len(logs)} logs {where}; records in {records_dir}/",
               file=sys.stderr)
-        progress = Progress(len(logs))
+        progress = Progress(len(logs), quiet=args.quiet)
         try:
             records = run_logs(logs, settings, records_dir, args.jobs, scheduler=args.scheduler,
                                ship_logs=args.ship_logs, force=args.force, progress=progress)
@@ -499,6 +481,11 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
+def quiet_arg(p) -> None:
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress display (it shows on a terminal only, for work over 2 s)")
+
+
 def _estimation_args(p, source: str) -> None:
     """The options replay and live share: what to run, with what, against what.
     ``source``: "log" or "vehicle", for the help texts."""
@@ -513,6 +500,7 @@ def _estimation_args(p, source: str) -> None:
                         "(default: the fastest, most precise" + ("; see 'mavattitude info')" if source == "log"
                                                                  else " that arrives; live asks for it)"))
     if source == "log":
+        quiet_arg(p)
         from .flight import DEFAULT_FAMILIES, IMU_FAMILIES
         p.add_argument("--imu-source", choices=list(IMU_FAMILIES), default=None,
                        help="which kind of IMU data to estimate from: " + "; ".join(
@@ -570,6 +558,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("log", help="a .bin (DataFlash) or .tlog (telemetry) file")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     segment_arg(p)
+    quiet_arg(p)
     p.set_defaults(func=cmd_info)
 
     p = sub.add_parser("replay", help="run estimators over a log, score them, write a Rerun recording",

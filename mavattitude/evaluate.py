@@ -23,6 +23,7 @@ import numpy as np
 
 from .errors import InputError, UsageError
 from .pipeline import ReplaySettings
+from .progress import clock
 
 LOG_SUFFIXES = (".bin", ".tlog")
 RECORD_VERSION = 1
@@ -151,19 +152,24 @@ class Progress:
     """Logs done, failures and the time left, on stderr: a line redrawn on a terminal, else
     a line per log."""
 
-    def __init__(self, total: int, stream=None):
+    def __init__(self, total: int, stream=None, quiet: bool = False):
         self.total, self.done, self.failed = total, 0, 0
         self.start = time.monotonic()
         self.stream = stream or sys.stderr
         self.tty = self.stream.isatty()
+        self.quiet = quiet  # failures only
 
     def add(self, record: dict, reused: bool = False) -> None:
         self.done += 1
         self.failed += record["status"] == "failed"
+        if self.quiet:
+            if record["status"] == "failed":
+                print(f"failed: {record['error']}", file=self.stream, flush=True)
+            return
         elapsed = time.monotonic() - self.start
         left = (elapsed / self.done * (self.total - self.done)) if self.done else 0.0
         bar = (f"evaluate: {self.done}/{self.total} logs, {self.failed} failed, "
-               f"{_clock(elapsed)} elapsed, about {_clock(left)} left")
+               f"{clock(elapsed)} elapsed, about {clock(left)} left")
         if self.tty:
             print(f"\r{bar}   ", end="", file=self.stream, flush=True)
             if record["status"] == "failed":
@@ -172,17 +178,11 @@ class Progress:
             status = "already done" if reused else record["status"]
             detail = f": {record['error']}" if record["status"] != "ok" else ""
             print(f"[{self.done}/{self.total}] {record['log']}: {status}{detail} "
-                  f"({record['seconds']:.1f} s; about {_clock(left)} left)", file=self.stream, flush=True)
+                  f"({record['seconds']:.1f} s; about {clock(left)} left)", file=self.stream, flush=True)
 
     def close(self) -> None:
-        if self.tty:
+        if self.tty and not self.quiet:
             print(file=self.stream, flush=True)
-
-
-def _clock(seconds: float) -> str:
-    seconds = int(round(seconds))
-    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}" if seconds >= 3600 \
-        else f"{seconds // 60}:{seconds % 60:02d}"
 
 
 def load_records(folder: Path, settings: ReplaySettings) -> dict[str, dict]:

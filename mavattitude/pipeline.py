@@ -128,15 +128,16 @@ def choose_imu(flight: Flight, imu_source: str | None = None, imu_family: str | 
 
 def run_estimators(flight: Flight, names: list[str], imu_source: str | None = None,
                    declination_deg: float | None = None, params: dict | None = None,
-                   use_mag: bool = True, imu_family: str | None = None) -> tuple[Runner, str]:
+                   use_mag: bool = True, imu_family: str | None = None, progress=None) -> tuple[Runner, str]:
     """Run each named estimator over the chosen IMU of a whole flight (``choose_imu``): (the
-    runner, which holds estimates, diagnostics and events; the declination's source)."""
+    runner, which holds estimates, diagnostics and events; the declination's source).
+    ``progress(fraction)`` is called as it goes."""
     imu_source = choose_imu(flight, imu_source, imu_family)
     mag_source = mag_for_imu(flight, imu_source) if use_mag else None
     declination, dec_source = resolve_declination(flight, declination_deg)
     runner = Runner(names, params, declination, use_mag, imu_source, mag_source)
     runner.add_flight(flight)
-    runner.step(final=True, chunk=False)
+    runner.step(final=True, chunk=False, progress=progress)
     return runner, dec_source
 
 
@@ -164,7 +165,8 @@ def reset_events(t: np.ndarray, reset: np.ndarray) -> dict:
 def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                imu_source: str | None = None, warmup_s: float = 10.0,
                declination_deg: float | None = None, params: dict | None = None,
-               use_mag: bool = True, trim: bool = True, imu_family: str | None = None) -> ReplayResult:
+               use_mag: bool = True, trim: bool = True, imu_family: str | None = None,
+               progress=None) -> ReplayResult:
     """Estimate with every named estimator and score each against the reference.
 
     ``reference``: "autopilot" (ATT / ATTITUDE) or "truth" (SIM / SIMSTATE); with truth the
@@ -182,7 +184,8 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     else:
         raise UsageError(f"unknown reference {reference!r}: use 'autopilot' or 'truth'")
 
-    runner, dec_source = run_estimators(flight, names, imu_source, declination_deg, params, use_mag, imu_family)
+    runner, dec_source = run_estimators(flight, names, imu_source, declination_deg, params, use_mag, imu_family,
+                                        progress)
     estimates = {name: runner.estimate(name) for name in names}
     events = _events(flight, runner, dec_source)
     applied_trim = board_trim(flight) if (trim and reference == "autopilot") else None
@@ -255,7 +258,7 @@ class ReplaySettings:
         build(list(self.names), self.file_values, self.assignments, source=self.params_source)
 
 
-def replay_flight(flight: Flight, settings: ReplaySettings) -> tuple[ReplayResult, list[str]]:
+def replay_flight(flight: Flight, settings: ReplaySettings, progress=None) -> tuple[ReplayResult, list[str]]:
     """``run_replay`` with the parameters a log supplies itself where the user gave none
     (``params.log_defaults``): the result, and a note per such value (also in its events)."""
     names = list(settings.names)
@@ -263,7 +266,7 @@ def replay_flight(flight: Flight, settings: ReplaySettings) -> tuple[ReplayResul
     params = build(names, settings.file_values, settings.assignments, source=settings.params_source,
                    log_values=log_values)
     result = run_replay(flight, names, reference=settings.reference, imu_source=settings.imu,
-                        imu_family=settings.imu_family,
+                        imu_family=settings.imu_family, progress=progress,
                         warmup_s=settings.warmup_s, declination_deg=settings.declination_deg,
                         params=params, use_mag=settings.use_mag, trim=settings.trim)
     result.events += [Event(flight.time_span[0], "info", note) for note in notes]

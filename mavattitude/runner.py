@@ -166,11 +166,12 @@ class Runner:
 
     # ------------------------------------------------------------ stepping
 
-    def step(self, final: bool = False, chunk: bool = True) -> Chunk | None:
+    def step(self, final: bool = False, chunk: bool = True, progress=None) -> Chunk | None:
         """Estimate every IMU row added since the last step that can be: all of them, but for
         the rows of a run whose alignment is not decided yet (unless ``final``: no more data).
         Returns what it estimated as a ``Chunk`` (``chunk=False``: None; a whole log's results
-        are read from the runner, not copied into a chunk)."""
+        are read from the runner, not copied into a chunk). ``progress(fraction of the rows
+        added)`` is called after each kernel call."""
         imu = self.store[IMU].view()
         t = imu[:, 0]
         chunks = []
@@ -189,6 +190,8 @@ class Runner:
             if chunk:
                 chunks.append(done)
             self.done = self.runs[-1].end = b
+            if progress is not None:
+                progress(b / len(t))
         return Chunk.join(chunks)
 
     def _start_run(self, a: int, b: int, complete: bool) -> bool:

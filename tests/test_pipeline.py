@@ -82,3 +82,23 @@ def test_low_imu_rate_warns(sim_logs):
     flight.imu = {"RAW_IMU": ImuSeries("RAW_IMU", imu.t[every], imu.gyro[every], imu.accel[every])}
     result = run_replay(flight, ["mahony"])
     assert any("low IMU rate: 5.0 Hz" in e.text for e in result.events)
+
+
+def test_estimating_in_steps_changes_nothing_and_reports_progress(sim_logs, monkeypatch):
+    """An hour is estimated in steps of ``STEP_ROWS`` (bounded scratch memory): every
+    estimate and diagnostic is bit-identical to one step, and the progress climbs to 1."""
+    from mavattitude import runner
+    from mavattitude.estimators import ESTIMATORS
+
+    flight = read_log(str(sim_logs["figure8.bin"][1]))
+    whole = run_replay(flight, list(ESTIMATORS))
+    monkeypatch.setattr(runner, "STEP_ROWS", 700)
+    seen = []
+    steps = run_replay(flight, list(ESTIMATORS), progress=seen.append)
+    assert len(seen) > 10 and seen == sorted(seen) and seen[-1] == 1.0
+    for name in ESTIMATORS:
+        np.testing.assert_array_equal(steps.estimates[name].q, whole.estimates[name].q)
+        assert steps.diagnostics[name].keys() == whole.diagnostics[name].keys()
+        for key, values in whole.diagnostics[name].items():
+            np.testing.assert_array_equal(steps.diagnostics[name][key], values)
+        assert steps.comparisons[name].axes == whole.comparisons[name].axes

@@ -1,0 +1,51 @@
+"""The progress line: on a terminal only, after a while, with a rate and the time left."""
+from __future__ import annotations
+
+import io
+import os
+
+from mavattitude import progress as progress_module
+from mavattitude.progress import ProgressBar
+
+
+def _terminal_output(monkeypatch, steps, **options) -> str:
+    monkeypatch.setattr(progress_module, "SHOW_AFTER_S", 0.0)
+    monkeypatch.setattr(progress_module, "REDRAW_S", 0.0)
+    master, slave = os.openpty()
+    with os.fdopen(slave, "w") as terminal:
+        with ProgressBar("reading x.bin", quiet=options.get("quiet", False), stream=terminal,
+                         total=options.get("total"), unit="B") as bar:
+            for fraction in steps:
+                bar(fraction)
+    return _drain(master)
+
+
+def _drain(master: int) -> str:
+    """What was written to the terminal (nothing: EIO once its other end is closed)."""
+    os.set_blocking(master, False)
+    try:
+        return os.read(master, 65536).decode()
+    except OSError:  # BlockingIOError, or EIO on Linux when nothing was written
+        return ""
+    finally:
+        os.close(master)
+
+
+def test_on_a_terminal_it_shows_rate_and_time_left_then_erases_itself(monkeypatch):
+    out = _terminal_output(monkeypatch, [0.25, 0.5, 1.0], total=200e6)
+    assert "reading x.bin:  25 %" in out and "MB/s" in out and "left" in out
+    assert out.endswith("\r") and out.split("\r")[-2].strip() == ""  # erased: the next line starts clean
+
+
+def test_quiet_or_not_a_terminal_or_quick_it_says_nothing(monkeypatch):
+    assert _terminal_output(monkeypatch, [0.5, 1.0], quiet=True) == ""
+    stream = io.StringIO()
+    stream.fileno = lambda: 2
+    with ProgressBar("reading", stream=stream) as bar:  # not a terminal
+        bar(0.5)
+    assert stream.getvalue() == ""
+    monkeypatch.setattr(progress_module, "SHOW_AFTER_S", 60.0)
+    master, slave = os.openpty()
+    with os.fdopen(slave, "w") as terminal, ProgressBar("reading", stream=terminal) as bar:
+        bar(0.5)  # a run shorter than SHOW_AFTER_S shows nothing
+    assert _drain(master) == ""
