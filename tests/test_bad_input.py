@@ -30,7 +30,7 @@ from mavattitude.readers.dfrecords import open_log, scan_log
 from mavattitude.sim import simulate, write_log
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-from fuzz_logs import mutate, replay_or_error  # noqa: E402
+from fuzz_logs import KINDS, mutate, replay_or_error  # noqa: E402
 
 LOG = SAMPLE_LOGS / "static.bin"
 
@@ -385,9 +385,9 @@ def test_nan_samples_are_dropped_without_numpy_warnings(capfd, tmp_path):
     assert "RuntimeWarning" not in capfd.readouterr().err
 
 
-# ---------------------------------------------------------------- fuzz: truncations and byte flips
+# ---------------------------------------------------------------- fuzz: truncations, flips, FMT damage
 
-FUZZ_CASES = 16  # per log; scripts/fuzz_logs.py runs thousands
+FUZZ_CASES = 2 * len(KINDS) + 2  # per log, each kind of damage twice; scripts/fuzz_logs.py runs thousands
 
 
 def fuzz_logs():
@@ -408,7 +408,7 @@ def test_fuzzed_logs_read_or_fail_cleanly(tmp_path, log):
         warnings.simplefilter("error", RuntimeWarning)  # numpy must not complain about corrupt data
         for case in range(FUZZ_CASES):
             path = tmp_path / f"case{case}{log.suffix}"
-            path.write_bytes(mutate(data, rng))
+            path.write_bytes(mutate(data, rng, KINDS[case % len(KINDS)]))
             outcomes.append(replay_or_error(path))  # raises on anything but InputError
     assert outcomes.count("read") >= FUZZ_CASES // 2  # damage costs data, not the log
 

@@ -81,9 +81,10 @@ def _decoded(records, order: dict, counts: dict, **notes) -> Decoded:
             continue
         try:
             _collect(col, name, r, order[name])
-        except KeyError as exc:
-            notes.setdefault("warnings", []).append(f"{name}: its format has no column {exc} "
-                                                    f"(a corrupt FMT record?): {len(order[name])} records skipped")
+        except (KeyError, TypeError, ValueError) as exc:  # a column missing or of another type: damage
+            what = f"its format has no column {exc}" if isinstance(exc, KeyError) else f"its columns do not fit ({exc})"
+            notes.setdefault("warnings", []).append(f"{name}: {what} (a corrupt FMT record?): "
+                                                    f"{len(order[name])} records skipped")
     parm, msg, ver = (texts.get(name, {}) for name in TEXT_TYPES)
     params = {name: float(value) for name, value in zip(parm.get("Name", []), parm.get("Value", []))}
     texts = list(msg.get("Message", [])) + list(ver.get("FWS", []))
@@ -102,9 +103,9 @@ def damage_notes(scan, size: int) -> list[str]:
         notes.append(f"ignored {scan.bad_formats} corrupt message format definition(s) (FMT); "
                      "the messages they define were skipped")
     if scan.recovered_formats:
-        notes.append(f"repaired {len(scan.recovered_formats)} damaged message format definition(s) (FMT): "
-                     f"{', '.join(scan.recovered_formats)}, one flipped bit each; their records line up with "
-                     "the repair")
+        notes.append(f"repaired {len(scan.recovered_formats)} damaged message format definition(s) (FMT), "
+                     f"a flipped bit in each: {', '.join(scan.recovered_formats)}; their records line up "
+                     "with the repairs")
     return notes
 
 

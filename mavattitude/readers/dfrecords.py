@@ -6,11 +6,13 @@ pymavlink reads it record by record in Python; here one compiled pass (``scan``)
 records and keeps the offsets of the wanted types, and ``decode`` views all records of a type
 through one numpy structured dtype, as pyulog does for ULog.
 
-Damage: a record counts only if its type has a valid FMT (its Length agrees with its Format)
-and it is followed by another record's header or by the end of the file. Anything else is
-corrupt: the scan steps forward a byte at a time until records line up again, and counts what
-it skipped. pymavlink, by contrast, stops at the first record of an unknown type, so a
-flipped type byte loses the rest of the log.
+Damage: a record counts only if its type has a usable FMT (format characters, a printable
+name) and it is followed by another record's header or by the end of the file. Anything else
+is corrupt: the scan steps forward a byte at a time until records line up again, and counts
+what it skipped. pymavlink, by contrast, stops at the first record of an unknown type, so a
+flipped type byte loses the rest of the log. A damaged FMT record of a wanted message is
+repaired when one flipped bit explains it and the records of its type line up with the repair
+(``_recover``); else its records are skipped as corrupt, and counted.
 
 Values come out exactly as pymavlink gives them (its tests compare field by field): integers
 as integers, ``f``/``d``/``g`` floats widened to float64, the scaled types (``c C e E L``)
@@ -20,7 +22,10 @@ multipliers are not applied (pymavlink does not either): units stay as logged.
 from __future__ import annotations
 
 import mmap
-from dataclasses import dataclass
+import re
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -84,15 +89,31 @@ class Scan:
     skipped_bytes: int = 0  # bytes not part of any valid record
     skipped_stretches: int = 0
     first_skip: int = -1  # offset of the first skipped byte
-    bad_formats: int = 0  # FMT records with characters that are no format
+    bad_formats: int = 0  # FMT records not used: characters that are no format, a name not printable
     tail_bytes: int = 0  # after the last record: a record cut off, unused log space
+    recovered_formats: list[str] = field(default_factory=list)  # "IMU (its Length)": damaged FMTs repaired
+
+
+# What the scan made of each FMT record it met
+USED, UNUSABLE, IGNORED, BAD_HEADER = 0, 1, 2, 3  # IGNORED: its type defined before; BAD_HEADER: not a record
 
 
 @njit(cache=True)
-def _scan(data, wanted_names, char_sizes):
+def _append(values, n, value):
+    """``values`` with ``value`` at ``n``, twice as long when full."""
+    if n == len(values):
+        values = np.concatenate((values, np.empty_like(values)))
+    values[n] = value
+    return values
+
+
+@njit(cache=True)
+def _scan(data, wanted_names, char_sizes, fix_at, fix_types, fix_lengths):
     """One pass over the records. ``wanted_names``: (K, 4) uint8, the names whose records are
-    kept. Returns (offsets, types, type counts, FMT offsets, skipped bytes, stretches, first
-    skip, unusable FMTs, tail bytes)."""
+    kept. ``fix_at``: offsets (ascending) of damaged FMT records to take as defining the wanted
+    types ``fix_types`` of ``fix_lengths`` (what ``_recover`` made of them). Returns (offsets,
+    types, type counts, FMT offsets, what became of each FMT (USED ...), skipped bytes,
+    stretches, first skip, tail bytes)."""
     n = len(data)
     lengths = np.zeros(256, np.int64)
     lengths[FMT_TYPE] = FMT_LENGTH
@@ -101,24 +122,37 @@ def _scan(data, wanted_names, char_sizes):
     offsets = np.empty(max(n // 16, 16), np.int64)
     types = np.empty(len(offsets), np.uint8)
     fmt_offsets = np.empty(256, np.int64)
+    fmt_status = np.empty(256, np.uint8)
     n_kept = 0
     n_fmt = 0
+    k_fix = 0
     skipped = 0
     stretches = 0
     first_skip = -1
-    bad_formats = 0
     in_skip = False
     skip_start = 0
     ofs = 0
+    next_fix = fix_at[0] if len(fix_at) else n
     while ofs + HEADER <= n:
-        t = data[ofs + 2]
+        while ofs > next_fix:  # a fix inside damage: passed by
+            k_fix += 1
+            next_fix = fix_at[k_fix] if k_fix < len(fix_at) else n
+        fixed = ofs == next_fix
+        t = FMT_TYPE if fixed else data[ofs + 2]
         length = lengths[t]
-        ok = data[ofs] == HEAD1 and data[ofs + 1] == HEAD2 and length > 0 and ofs + length <= n
+        ok = (fixed or (data[ofs] == HEAD1 and data[ofs + 1] == HEAD2)) and length > 0 and ofs + length <= n
         if ok:
             nxt = ofs + length
             # the next record must start right after this one (or the file end)
-            ok = nxt + 2 > n or (data[nxt] == HEAD1 and data[nxt + 1] == HEAD2)
+            ok = nxt + 2 > n or (data[nxt] == HEAD1 and data[nxt + 1] == HEAD2) or nxt == next_fix
         if not ok:
+            # one bit off an FMT header, and a record after it: an FMT for ``_recover`` to look at
+            x = (data[ofs] ^ HEAD1) | ((data[ofs + 1] ^ HEAD2) << 8) | ((data[ofs + 2] ^ FMT_TYPE) << 16)
+            nxt = ofs + FMT_LENGTH
+            if x and x & (x - 1) == 0 and nxt + 2 <= n and data[nxt] == HEAD1 and data[nxt + 1] == HEAD2:
+                fmt_offsets = _append(fmt_offsets, n_fmt, ofs)
+                fmt_status = _append(fmt_status, n_fmt, BAD_HEADER)
+                n_fmt += 1
             if not in_skip:
                 stretches += 1
                 in_skip = True
@@ -130,22 +164,34 @@ def _scan(data, wanted_names, char_sizes):
             continue
         in_skip = False
         if t == FMT_TYPE:
-            ftype = data[ofs + 3]
-            flen = data[ofs + 4]
-            size = HEADER
-            valid = True
-            for j in range(16):
-                c = data[ofs + 9 + j]
-                if c == 0:
-                    break
-                if char_sizes[c] == 0:
-                    valid = False
-                size += char_sizes[c]
+            if fixed:
+                ftype, flen, valid = fix_types[k_fix], fix_lengths[k_fix], True
+                k_fix += 1
+                next_fix = fix_at[k_fix] if k_fix < len(fix_at) else n
+            else:
+                ftype, flen = np.int64(data[ofs + 3]), np.int64(data[ofs + 4])
+                valid = data[ofs + 5] != 0  # a name: printable characters, then NULs
+                for j in range(4):
+                    c = data[ofs + 5 + j]
+                    if c == 0:
+                        break
+                    if c < 0x21 or c > 0x7E:
+                        valid = False
+                for j in range(16):
+                    c = data[ofs + 9 + j]
+                    if c == 0:
+                        break
+                    if char_sizes[c] == 0:
+                        valid = False
             # Framing trusts Length, as the firmware and pymavlink do; a Length that disagrees
             # with the Format (a firmware quirk: BAR3 33 for 29 bytes in Copter 3.4) only stops
             # that message from being decoded (see ``decode``).
-            if valid and flen >= HEADER and ftype != FMT_TYPE and lengths[ftype] == 0:
+            status = UNUSABLE
+            if valid:
+                status = USED if flen >= HEADER and ftype != FMT_TYPE and lengths[ftype] == 0 else IGNORED
+            if status == USED:
                 lengths[ftype] = flen  # the first definition stands
+                wanted[ftype] = fixed
                 for k in range(wanted_names.shape[0]):
                     same = True
                     for j in range(4):
@@ -154,17 +200,14 @@ def _scan(data, wanted_names, char_sizes):
                             break
                     if same:
                         wanted[ftype] = True
-                if n_fmt == len(fmt_offsets):
-                    fmt_offsets = np.concatenate((fmt_offsets, np.empty(len(fmt_offsets), np.int64)))
-                fmt_offsets[n_fmt] = ofs
-                n_fmt += 1
-            elif not valid:
-                bad_formats += 1
+            fmt_offsets = _append(fmt_offsets, n_fmt, ofs)
+            fmt_status = _append(fmt_status, n_fmt, status)
+            n_fmt += 1
         counts[t] += 1
         if wanted[t]:
             if n_kept == len(offsets):
-                offsets = np.concatenate((offsets, np.empty(len(offsets), np.int64)))
-                types = np.concatenate((types, np.empty(len(types), np.uint8)))
+                offsets = np.concatenate((offsets, np.empty_like(offsets)))
+                types = np.concatenate((types, np.empty_like(types)))
             offsets[n_kept] = ofs
             types[n_kept] = t
             n_kept += 1
@@ -177,8 +220,30 @@ def _scan(data, wanted_names, char_sizes):
         stretches -= 1
         if first_skip == skip_start:
             first_skip = -1
-    return (offsets[:n_kept], types[:n_kept], counts, fmt_offsets[:n_fmt], skipped, stretches,
-            first_skip, bad_formats, tail)
+    return (offsets[:n_kept], types[:n_kept], counts, fmt_offsets[:n_fmt], fmt_status[:n_fmt], skipped,
+            stretches, first_skip, tail)
+
+
+@njit(cache=True)
+def _line_up(data, starts, types, lengths):
+    """For each candidate k: the headers ``A3 95 types[k]`` from ``starts[k]`` on, and how
+    many of them have another header (or the file end) ``lengths[k]`` bytes further."""
+    n = len(data)
+    candidate = np.zeros(256, np.bool_)
+    for t in types:
+        candidate[t] = True
+    seen = np.zeros(len(types), np.int64)
+    lined = np.zeros(len(types), np.int64)
+    for i in range(starts.min(), n - 2):
+        if data[i] != HEAD1 or data[i + 1] != HEAD2 or not candidate[data[i + 2]]:
+            continue
+        for k in range(len(types)):
+            if data[i + 2] == types[k] and i >= starts[k]:
+                seen[k] += 1
+                end = i + lengths[k]
+                if end == n or (end + 2 <= n and data[end] == HEAD1 and data[end + 1] == HEAD2):
+                    lined[k] += 1
+    return seen, lined
 
 
 def _name(raw: bytes) -> str:
@@ -195,6 +260,12 @@ def _text(raw: bytes) -> str:
     return text.split("\0", 1)[0]
 
 
+def _mostly_text(values: np.ndarray) -> bool:
+    """Whether most of a 4-character field's values (64 of them at most) are ASCII text."""
+    sample = [v.split(b"\0", 1)[0] for v in values[::max(1, len(values) // 64)].tolist()]
+    return 2 * sum(v != b"" and all(0x20 <= c < 0x7F for c in v) for v in sample) >= len(sample)
+
+
 def open_log(path: str) -> np.ndarray:
     """The file's bytes as a read-only uint8 array (memory-mapped, not read into memory)."""
     with open(path, "rb") as f:
@@ -205,27 +276,140 @@ def open_log(path: str) -> np.ndarray:
     return np.frombuffer(mapped, dtype=np.uint8)
 
 
+COLUMN = re.compile(rb"[A-Za-z0-9_]+")
+FMT_FIELDS = (("Type", 0, 1), ("Length", 1, 2), ("Name", 2, 6), ("Format", 6, 22), ("Columns", 22, 86))
+MAX_SUSPECTS = 32  # damaged FMT records looked at per log: a log this damaged is read as it is
+
+
+def _name_of(body: bytes) -> bytes:
+    return body[2:6].split(b"\0", 1)[0]
+
+
+def _printable(name: bytes) -> bool:
+    """A message name, as the scan takes it: printable ASCII, then NULs."""
+    name = name.split(b"\0", 1)[0]
+    return bool(name) and all(0x21 <= c <= 0x7E for c in name)
+
+
+def _sound(body: bytes) -> Format | None:
+    """A FMT record's body (its header left out) as a Format if every field is sound: a
+    printable name, format characters that add up to its Length, one column name per field
+    (letters, digits, _), no two alike. Else None."""
+    name, chars, cols = (body[a:b].split(b"\0", 1)[0] for _, a, b in FMT_FIELDS[2:])
+    columns = cols.split(b",")
+    if not (_printable(name) and chars and all(CHAR_SIZES[c] for c in chars)
+            and body[1] == HEADER + sum(CHAR_SIZES[c] for c in chars) and len(columns) == len(chars)
+            and len(set(columns)) == len(columns) and all(COLUMN.fullmatch(c) for c in columns)):
+        return None
+    return Format(body[0], name.decode(), body[1], chars.decode(), [c.decode() for c in columns])
+
+
+def _recover(data: np.ndarray, found: tuple, wanted: list[str]) -> dict[int, tuple[Format, str]]:
+    """Damaged FMT records of wanted messages, repaired: {offset: (format, what was damaged)}.
+
+    An FMT record is damaged when the scan could not use it, or it is unsound (``_sound``), or
+    (in a log with damage) nothing of its type follows it. A repair puts back one flipped bit
+    (for a damaged header: takes the record as it is) and must give a sound FMT of a wanted
+    message, of a type and name no other FMT record claims. It is made only when it is the one
+    repair of that record, and the records of its type after it line up at its Length (each
+    followed by another record's header): 90 % of them, one at least. Otherwise the record
+    stays ignored and its type's records are skipped as corrupt, as before.
+    """
+    _, _, counts, fmt_offsets, fmt_status, skipped = found[:6]
+    bodies = [data[o + HEADER:o + FMT_LENGTH].tobytes() for o in fmt_offsets]
+    used = {b[0]: b for b, st in zip(bodies, fmt_status) if st == USED}
+    # the types and names each FMT record claims, damaged or not: a repair takes none of another's
+    claims = Counter(b[0] for b in bodies) + Counter(_name_of(b) for b in bodies)
+    layouts = Counter(b[1:2] + b[6:] for b in bodies)  # Length, Format, Columns
+    wanted_names = {name.encode() for name in wanted}
+    candidates = []  # (offset, format, repaired body)
+    suspects = 0
+    for ofs, body, st in zip(fmt_offsets.tolist(), bodies, fmt_status):
+        is_wanted = _name_of(body) in wanted_names
+        if st == USED:  # unsound, or (in a damaged log) its type was one bit off
+            damaged = is_wanted and (_sound(body) is None or (skipped and not counts[body[0]]))
+        elif st == IGNORED:  # a type one bit off, onto a defined one
+            damaged = is_wanted and used.get(body[0]) != body
+        else:  # only a bit of the name can make the others wanted
+            damaged = is_wanted or (st == UNUSABLE and not _printable(body[2:6]))
+        if not damaged:
+            continue
+        suspects += 1
+        if suspects > MAX_SUSPECTS:
+            break
+        if st == BAD_HEADER:
+            repairs = [body]
+        else:
+            where = range(len(body)) if is_wanted else range(2, 6)
+            repairs = [body[:i] + bytes([body[i] ^ (1 << bit)]) + body[i + 1:] for i in where for bit in range(8)]
+        for fixed in repairs:
+            fmt = _sound(fixed)
+            if not fmt or fmt.name not in wanted or fmt.type == FMT_TYPE:
+                continue
+            others = (claims[fmt.type] - (fmt.type == body[0])
+                      + claims[_name_of(fixed)] - (_name_of(fixed) == _name_of(body)))
+            # records of another type may fit another FMT just as well (IMU, IMU2 in old logs)
+            twins = fmt.type != body[0] and layouts[fixed[1:2] + fixed[6:]] > 1
+            if not others and not twins:
+                candidates.append((ofs, fmt, fixed))
+    if not candidates:
+        return {}
+    seen, lined = _line_up(data, np.array([c[0] + FMT_LENGTH for c in candidates], np.int64),
+                           np.array([c[1].type for c in candidates], np.int64),
+                           np.array([c[1].length for c in candidates], np.int64))
+    verified: dict[int, list] = {}
+    for (ofs, fmt, fixed), s, k in zip(candidates, seen, lined):
+        if k and k >= 0.9 * s:
+            verified.setdefault(ofs, []).append((fmt, fixed))
+    fixes: dict[int, tuple[Format, str]] = {}
+    for ofs, repairs in verified.items():
+        fmt, fixed = repairs[0]
+        taken = {(f.type, f.name) for f, _ in fixes.values()}
+        if len(repairs) > 1 or any(fmt.type == t or fmt.name == name for t, name in taken):
+            continue  # more than one way to read it: none
+        body = data[ofs + HEADER:ofs + FMT_LENGTH].tobytes()
+        what = next((f"its {field}" for field, a, b in FMT_FIELDS if body[a:b] != fixed[a:b]), "its header")
+        fixes[ofs] = (fmt, what)
+    return fixes
+
+
 def scan_log(data: np.ndarray, wanted: list[str]) -> Scan:
     """Find the records of the ``wanted`` message names (FMT always) in a log's bytes."""
     names = np.zeros((len(wanted), 4), np.uint8)
     for k, name in enumerate(wanted):
         raw = name.encode()[:4]
         names[k, :len(raw)] = np.frombuffer(raw, np.uint8)
-    offsets, types, counts, fmt_offsets, skipped, stretches, first_skip, bad, tail = _scan(data, names, CHAR_SIZES)
+    none = np.zeros(0, np.int64)
+    found = _scan(data, names, CHAR_SIZES, none, none, none)
+    fixes = _recover(data, found, wanted)
+    if fixes:  # again, each repaired FMT in place of the damaged one
+        at = np.array(sorted(fixes), np.int64)
+        found = _scan(data, names, CHAR_SIZES, at, np.array([fixes[o][0].type for o in at], np.int64),
+                      np.array([fixes[o][0].length for o in at], np.int64))
+    offsets, types, counts, fmt_offsets, fmt_status, skipped, stretches, first_skip, tail = found
     formats: dict[int, Format] = {}
-    for ofs in fmt_offsets:
+    for ofs in fmt_offsets[fmt_status == USED]:
+        if int(ofs) in fixes:
+            formats[fixes[int(ofs)][0].type] = fixes[int(ofs)][0]
+            continue
         body = data[ofs + HEADER:ofs + FMT_LENGTH].tobytes()
         ftype = body[0]
         if ftype in formats:
             continue
         columns = _name(body[22:86]).split(",") if body[22] else []
         formats[ftype] = Format(ftype, _name(body[2:6]), body[1], _name(body[6:22]), columns)
+    first = {}  # name -> the type of its first FMT (damage can give two types one name)
+    for ftype, f in formats.items():
+        first.setdefault(f.name, ftype)
     by_name: dict[str, np.ndarray] = {}
     for ftype in np.unique(types):
-        by_name[formats[int(ftype)].name] = offsets[types == ftype]
+        name = formats[int(ftype)].name
+        if first[name] == ftype:
+            by_name[name] = offsets[types == ftype]
     record_counts = {f.name: int(counts[t]) for t, f in formats.items() if counts[t]}
-    return Scan(formats, by_name, record_counts, int(skipped), int(stretches), int(first_skip), int(bad),
-                int(tail))
+    return Scan(formats, by_name, record_counts, int(skipped), int(stretches), int(first_skip),
+                int(np.count_nonzero(fmt_status == UNUSABLE)), int(tail),
+                [f"{fmt.name} ({what})" for fmt, what in fixes.values()])
 
 
 @njit(cache=True)
@@ -236,26 +420,53 @@ def _gather(data, offsets, start, size):
     return out
 
 
-def decode(data: np.ndarray, scan: Scan, name: str) -> dict[str, np.ndarray]:
+def decode(data: np.ndarray, scan: Scan, name: str) -> Mapping[str, np.ndarray]:
     """Every record of message ``name``: column -> array (len = records), values as pymavlink
-    gives them. ValueError when the format's Length disagrees with its Format (pymavlink
+    gives them, each column converted when first asked for (an hour of IMU has 15 columns; a
+    reader uses 8). ValueError when the format's Length disagrees with its Format (pymavlink
     cannot decode those records either)."""
     offsets = scan.offsets[name]
     fmt = next(f for f in scan.formats.values() if f.name == name)
     dtype = fmt.dtype()
+    if len(fmt.columns) != len(fmt.format):  # a column name split or two joined: the names after it are off
+        raise ValueError(f"its {len(fmt.columns)} column names do not fit its {len(fmt.format)} fields")
     if dtype.itemsize != fmt.length - HEADER:
         raise ValueError(f"its format {fmt.format!r} is {dtype.itemsize} bytes, its records {fmt.length - HEADER}")
     records = _gather(data, offsets, HEADER, dtype.itemsize).view(dtype).reshape(-1)
-    out = {}
-    with np.errstate(invalid="ignore"):  # a corrupt float may be a signalling NaN: NaN it stays
-        for column, i in fmt.named_fields().items():
-            values = records[column]
-            multiplier = FORMAT_TYPES[fmt.format[i]][2]
-            if multiplier is not None:
-                values = values.astype(np.float64) / (1.0 / multiplier)  # pymavlink divides, for accuracy
-            elif values.dtype.kind == "f":
-                values = values.astype(np.float64)
-            elif values.dtype.kind == "S":
-                values = np.array([_text(v) for v in values.tolist()], dtype=object)
-            out[column] = values
-    return out
+    for i, char in enumerate(fmt.format):  # a float read as text: 'f' and 'n' (char[4]) are a bit apart
+        if char == "n" and not _mostly_text(records[dtype.names[i]]):
+            raise ValueError(f"its field {dtype.names[i]} ('n', 4 characters) holds no text")
+    return RecordColumns(fmt, records)
+
+
+class RecordColumns(Mapping):
+    """The columns of one message type's records, converted as pymavlink converts them."""
+
+    def __init__(self, fmt: Format, records: np.ndarray):
+        self._fmt, self._records, self._fields = fmt, records, fmt.named_fields()
+        self._done: dict[str, np.ndarray] = {}
+
+    def __getitem__(self, column: str) -> np.ndarray:
+        if column not in self._done:
+            if column not in self._fields:
+                raise KeyError(column)
+            values = self._records[column]
+            multiplier = FORMAT_TYPES[self._fmt.format[self._fields[column]]][2]
+            with np.errstate(invalid="ignore"):  # a corrupt float may be a signalling NaN: NaN it stays
+                if multiplier is not None:
+                    values = values.astype(np.float64) / (1.0 / multiplier)  # pymavlink divides, for accuracy
+                elif values.dtype.kind == "f":
+                    values = values.astype(np.float64)
+                elif values.dtype.kind == "S":
+                    values = np.array([_text(v) for v in values.tolist()], dtype=object)
+            self._done[column] = values
+        return self._done[column]
+
+    def __contains__(self, column) -> bool:
+        return column in self._fields
+
+    def __iter__(self):
+        return iter(self._fields)
+
+    def __len__(self) -> int:
+        return len(self._fields)
