@@ -111,8 +111,9 @@ def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
     if not flight.imu and unusable:
         raise InputError(path, "IMU data present but none usable: " + "; ".join(unusable))
     if not flight.imu:
-        raise InputError(path, "no IMU data (looked for IMU/IMU2/IMU3 in .bin; RAW_IMU, SCALED_IMU/2/3 "
-                               "and HIGHRES_IMU in .tlog)")
+        damage = f"; the log is damaged: {'; '.join(warnings)}" if warnings else ""
+        raise InputError(path, "no IMU data (looked for IMU/IMU2/IMU3, GYR/ACC and IMT in .bin; RAW_IMU, "
+                               f"SCALED_IMU/2/3 and HIGHRES_IMU in .tlog){damage}")
     return flight
 
 
