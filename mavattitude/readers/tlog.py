@@ -70,7 +70,6 @@ def tlog_start(data: bytes) -> int | None:
     return None
 
 
-
 SCALED_IMUS = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
 
 
@@ -78,6 +77,7 @@ SCALED_IMUS = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
 IMU_MESSAGES = SCALED_IMUS + ("HIGHRES_IMU",)
 SAMPLE_MESSAGES = IMU_MESSAGES + ("GPS_RAW_INT", "SCALED_PRESSURE", "ATTITUDE", "ATTITUDE_QUATERNION", "SIMSTATE")
 OTHER_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "AUTOPILOT_VERSION", "HEARTBEAT")
+VEHICLE_MESSAGES = IMU_MESSAGES + ("ATTITUDE",)  # what only a vehicle sends (``is_vehicle``)
 
 
 # ---------------------------------------------------------------- units, shared by file and link
@@ -210,9 +210,6 @@ def is_vehicle(msg) -> bool:
             or name in VEHICLE_MESSAGES)
 
 
-VEHICLE_MESSAGES = IMU_MESSAGES + ("ATTITUDE",)
-
-
 def read_tlog(path: str, progress=None) -> Decoded:
     """Decode a .tlog in bulk (``tlogrecords``). ``progress(fraction)`` is called as it goes."""
     data = open_log(path)
@@ -227,9 +224,9 @@ def read_tlog(path: str, progress=None) -> Decoded:
     rows_of = {name: np.flatnonzero(packets.msgids == i) for i, name in names.items()}
     columns = {name: SimpleNamespace(**decode(data, packets, name, rows))
                for name, rows in rows_of.items() if len(rows) and name in SAMPLE_MESSAGES}
-    others = np.sort(np.concatenate([rows_of[name] for name in OTHER_MESSAGES]))
-    mav = dialect.MAVLink(None)
-    notes = {i: mav.decode(packet_bytes(data, packets, i)) for i in others.tolist()}
+    text_rows = np.sort(np.concatenate([rows_of[name] for name in OTHER_MESSAGES]))
+    mav = dialect.MAVLink(None)  # the few text and identity messages: pymavlink decodes them
+    notes = {i: mav.decode(packet_bytes(data, packets, i)) for i in text_rows.tolist()}
 
     # The vehicle: the first system that says it is an autopilot, or that sends IMU or attitude data.
     said_so = [rows_of[name] for name in VEHICLE_MESSAGES]
@@ -238,7 +235,8 @@ def read_tlog(path: str, progress=None) -> Decoded:
     if first is None:
         return Decoded(Collector(), {}, [], packets.counts, warnings=_damage(packets))
     vehicle = int(packets.sysids[first])
-    mine = (packets.sysids == vehicle) & (np.arange(len(packets.msgids)) >= first)
+    after_first = np.arange(len(packets.msgids)) >= first
+    mine = (packets.sysids == vehicle) & after_first
 
     decoder = MessageDecoder()
     for i, msg in notes.items():
@@ -247,7 +245,7 @@ def read_tlog(path: str, progress=None) -> Decoded:
     col = Collector()
     _collect(col, packets, columns, rows_of, mine)
     out = Decoded(col, decoder.params, decoder.texts, packets.counts, warnings=_damage(packets))
-    others = sorted(set(packets.sysids[~mine & (np.arange(len(mine)) >= first)].tolist()) - {vehicle})
+    others = sorted(set(packets.sysids[~mine & after_first].tolist()) - {vehicle})
     if others:
         out.notes.append(f"ignored messages from other MAVLink systems {others} (vehicle is system {vehicle})")
     return out
