@@ -78,3 +78,43 @@ def test_telemetry_samples_equal_pymavlinks(path):
             assert _same(a.t, b.t) and _same(a.values, b.values), (kind, key, segment)
     assert decoded.params == theirs.params
     assert decoded.texts == theirs.texts
+
+
+def _record(msg, sysid: int, t_us: int) -> bytes:
+    """One .tlog record: the receive time, then ``msg`` packed by pymavlink as system ``sysid``."""
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    link = mav.MAVLink(None, srcSystem=sysid, srcComponent=1)
+    return t_us.to_bytes(8, "big") + msg.pack(link)
+
+
+def test_a_tlog_keeps_the_vehicle_and_counts_bad_packets(tmp_path):
+    """Another system's packets are ignored (and said so); a packet whose checksum is wrong is
+    skipped whole and counted; the rest reads as before."""
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    data = (SAMPLE_LOGS / "figure8.tlog").read_bytes()
+    clean = read_tlog(str(SAMPLE_LOGS / "figure8.tlog"))
+    clean.collector.finish()
+    t0 = int.from_bytes(data[:8], "big")
+    intruder = _record(mav.MAVLink_raw_imu_message(5_000_000, 1, 2, 3, 4, 5, 6, 7, 8, 9, 0, 0), 42, t0)
+    damaged = bytearray(_record(mav.MAVLink_raw_imu_message(5_000_000, 1, 2, 3, 4, 5, 6, 7, 8, 9, 0, 0), 1, t0))
+    damaged[20] ^= 0x10  # inside the payload: the checksum no longer fits
+    path = tmp_path / "mixed.tlog"
+    half = _record_boundary(data, len(data) // 2)
+    path.write_bytes(data[:half] + intruder + bytes(damaged) + data[half:])
+    decoded = read_tlog(str(path))
+    decoded.collector.finish()
+    assert any("other MAVLink systems [42]" in note for note in decoded.notes)
+    assert any("1 with a wrong checksum" in w for w in decoded.warnings)
+    for kind, key in clean.collector._series:
+        a, b = decoded.collector.columns(kind, key, 0), clean.collector.columns(kind, key, 0)
+        assert _same(a.t, b.t) and _same(a.values, b.values), (kind, key)
+
+
+def _record_boundary(data: bytes, near: int) -> int:
+    """The offset of the first .tlog record at or after ``near``."""
+    from mavattitude.readers.tlogrecords import scan
+
+    offsets = scan(np.frombuffer(data, np.uint8), 0, ["RAW_IMU"]).offsets
+    return int(offsets[np.searchsorted(offsets, near)])
