@@ -359,7 +359,7 @@ def _simulate_live(args) -> int:
 def cmd_live(args) -> int:
     from .estimators import warm_up
     from .live import LiveOptions, default_record_path, run_live
-    from .live.session import check_ended_with_vehicle
+    from .live.session import check_ended_with_vehicle, loss_text
     from .params import build, load_file
     from .report import format_table, nothing_scored, write_json
 
@@ -380,9 +380,9 @@ def cmd_live(args) -> int:
             timeout=args.timeout, record=str(record) if record else None, warmup=args.warmup,
             declination=args.declination, reference=args.reference, use_mag=not args.no_mag,
             duration=args.duration, sink=sink))
-        m = result.monitor
-        print(f"session: {result.seconds:.1f} s, {m.packets} packets ({m.lost} lost by sequence number, "
-              f"{m.bad} corrupt), {result.estimation.samples} IMU samples estimated"
+        print(f"session: {result.seconds:.1f} s, {result.monitor.packets} packets ("
+              + loss_text(result.monitor, result.estimation.samples_lost, result.kernel_drops)
+              + f"), {result.estimation.samples} IMU samples estimated"
               + (f"; {result.recorded} packets recorded to {record}" if record else ""))
         check_ended_with_vehicle(result, args.url)
         if result.comparisons:
@@ -399,7 +399,7 @@ def cmd_live(args) -> int:
                                         else "no reference attitude (ATTITUDE / SIMSTATE) arrived"))
         if json_out:
             with json_out.writing() as path:
-                write_json(path, args.url, result.reference or "none", result.comparisons)
+                write_json(path, args.url, result.reference or "none", result.comparisons, link=result.link())
             print(f"metrics written to {json_out.path}")
         if sink is not None and sink.kind == "rrd":
             sink.file.commit()

@@ -163,11 +163,15 @@ def format_events(result) -> str:
 
 
 def write_json(path, log: str, reference: str, comparisons: dict[str, Comparison],
-               extras: dict[str, dict] | None = None, scoring: dict | None = None) -> Path:
-    """Write ``to_json_dict`` to ``path`` (strict JSON: no NaN), creating its directory."""
+               extras: dict[str, dict] | None = None, scoring: dict | None = None, link: dict | None = None) -> Path:
+    """Write ``to_json_dict`` to ``path`` (strict JSON: no NaN), creating its directory;
+    ``link``: a live session's link figures, as "link"."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(to_json_dict(log, reference, comparisons, extras, scoring), indent=2, allow_nan=False)
+    data = to_json_dict(log, reference, comparisons, extras, scoring)
+    if link is not None:
+        data["link"] = link
+    text = json.dumps(data, indent=2, allow_nan=False)
     path.write_text(text + "\n", encoding="utf-8")
     return path
 

@@ -73,10 +73,10 @@ class Tap:
         self.conn.close()
 
 
-def sender(port: int, plan, sim, garbage_every: int = 0):
+def sender(port: int, plan, sim, garbage_every: int = 0, tap_class=None):
     """A thread running ``plan(autopilot, tap)`` against udpout:127.0.0.1:port; returns
     (thread, tap, holder) where holder["done"] is set at the end."""
-    tap = Tap(open_link(f"udpout:127.0.0.1:{port}"), garbage_every)
+    tap = (tap_class or Tap)(open_link(f"udpout:127.0.0.1:{port}"), garbage_every)
     holder = {"done": False, "error": None}
 
     def run():
@@ -575,3 +575,38 @@ def test_a_tcp_peer_that_goes_away_and_comes_back(tmp_path, flight):
     texts = [e.text for e in result.estimation.events]
     assert any(t.startswith("link lost") for t in texts) and any(t.startswith("reconnected") for t in texts)
     assert result.estimation.estimate_series("mahony").t[-1] > 27.0
+
+
+class BurstyTap(Tap):
+    """A tap that loses bursts of ``BURST`` packets on the way (every ``EVERY`` packets, after
+    the first ``AFTER``), as a radio fade does, and counts the IMU samples it lost."""
+    BURST, EVERY, AFTER = 200, 1000, 3000
+
+    def __init__(self, conn, garbage_every: int = 0):
+        super().__init__(conn, garbage_every)
+        self.seen = 0
+        self.lost_imu = 0
+
+    def write(self, packet: bytes) -> None:
+        self.seen += 1
+        k = self.seen - self.AFTER
+        if k > 0 and k % self.EVERY < self.BURST:
+            self.lost_imu += packet[7] == mavlink2.MAVLINK_MSG_ID_RAW_IMU  # MAVLink 2: the id's low byte
+            return
+        super().write(packet)
+
+
+@pytest.mark.slow
+def test_bursts_of_loss_are_counted_by_the_autopilot_clock(tmp_path, flight):
+    """200-packet bursts lost: the 8-bit sequence number cannot see them (a gap of 200 looks
+    like a jump back); the IMU samples missing from the autopilot's clock are counted."""
+    port = free_udp_port()
+    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=4.0), flight, tap_class=BurstyTap)
+    result = listen(port, thread, holder, tmp_path)
+    loss = result.estimation.samples_lost
+    assert tap.lost_imu > 100
+    assert loss.lost == pytest.approx(tap.lost_imu, rel=0.01)
+    assert result.monitor.lost < 0.5 * tap.lost_imu  # what the sequence number saw
+    link = result.link()
+    assert link["imu_samples_lost_by_clock"] == loss.lost and link["kernel_drops"] == 0
+    assert link["packets_received"] == result.monitor.packets and link["peak_rss_mb"] > 0

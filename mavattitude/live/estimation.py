@@ -37,6 +37,7 @@ from ..readers import IMU_LIMITS, MAG_LIMITS, earth_field_power, pick_imu, pick_
 from ..readers.collect import CORRUPT, HELD, ClockTracker
 from ..readers.tlog import MessageDecoder
 from ..runner import Chunk, Runner
+from .loss import SampleLoss
 
 ALIGN_S = 3.0  # s of IMU data before the sources are chosen
 DECLINATION_WAIT_S = 2.0  # s more of IMU data to wait for a COMPASS_DEC that was asked for
@@ -101,6 +102,14 @@ class LiveEstimation:
         self.expect_declination = expect_declination  # COMPASS_DEC was asked for: wait a little for it
         self._now = 0.0
         self._warned_imu = False
+        self.imu_loss: dict[str, SampleLoss] = {}  # IMU samples lost by the autopilot clock, per stream
+
+    @property
+    def samples_lost(self) -> SampleLoss | None:
+        """The estimated IMU stream's samples lost on the link, by the autopilot's clock (the
+        stream with most samples until one is chosen)."""
+        key = self.seg.imu_key or max(self.imu_loss, key=lambda k: self.imu_loss[k].received, default=None)
+        return self.imu_loss.get(key) if key else None
 
     @property
     def seg(self) -> _Segment:
@@ -120,6 +129,11 @@ class LiveEstimation:
 
     def _sample(self, kind: str, key: str, t: float, row: tuple) -> None:
         """One decoded sample: its place in the arrival order, then its clock."""
+        if kind == "imu":
+            loss = self.imu_loss.get(key)
+            if loss is None:
+                loss = self.imu_loss[key] = SampleLoss()
+            loss.add(t)
         arrival = self.clock.seen
         labels, decided = self.clock.push([t])
         for g, label in decided:

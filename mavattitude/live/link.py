@@ -15,6 +15,7 @@ from __future__ import annotations
 import errno
 import os
 import socket
+import sys
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -143,11 +144,16 @@ def close_link(conn) -> None:
         pass
 
 
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33 if sys.platform.startswith("linux") else None)
+
+
 def _enlarge_receive_buffer(conn) -> None:
+    """Ask for UDP_RECEIVE_BUFFER: forced past the system's limit where the process may (Linux,
+    CAP_NET_ADMIN), else as much as the limit allows. ``receive_buffer`` says what was granted."""
     port = getattr(conn, "port", None)
     if not isinstance(port, socket.socket) or port.type != socket.SOCK_DGRAM:
         return
-    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+    for option in (SO_RCVBUFFORCE, socket.SO_RCVBUF):
         if option is None:
             continue
         try:
@@ -155,6 +161,38 @@ def _enlarge_receive_buffer(conn) -> None:
             return
         except OSError:
             continue
+
+
+def receive_buffer(conn) -> int | None:
+    """Bytes of receive buffer the system granted a UDP link (Linux counts its bookkeeping
+    too: twice what was asked); None for other links."""
+    port = getattr(conn, "port", None)
+    if not isinstance(port, socket.socket) or port.type != socket.SOCK_DGRAM:
+        return None
+    return port.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+
+
+def kernel_drops(conn) -> int | None:
+    """Datagrams the system dropped for a UDP link because its receive buffer was full: the
+    'drops' column of Linux's /proc/net/udp for this socket. None where it is not known."""
+    port = getattr(conn, "port", None)
+    if not isinstance(port, socket.socket) or port.type != socket.SOCK_DGRAM:
+        return None
+    try:
+        inode = str(os.fstat(port.fileno()).st_ino)
+    except OSError:
+        return None
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            with open(table) as f:
+                rows = f.read().splitlines()[1:]
+        except OSError:
+            continue
+        for row in rows:
+            fields = row.split()  # sl local rem st tx:rx tr:when retrnsmt uid timeout inode ref pointer drops
+            if len(fields) > 12 and fields[9] == inode:
+                return int(fields[12])
+    return None
 
 
 def _check_udp_port_free(url: str) -> None:
@@ -278,11 +316,6 @@ class LinkMonitor:
             self.lost_since = None
             return "back"
         return None
-
-    @property
-    def loss_percent(self) -> float:
-        total = self.packets + self.lost
-        return 100.0 * self.lost / total if total else 0.0
 
 
 @dataclass

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+import resource
 import signal
 import threading
 import time
@@ -25,8 +26,8 @@ from ..sink import Sink
 from .estimation import LiveEstimation
 from ..readers import enum_name, identify_vehicle
 from ..readers.tlog import is_vehicle
-from .link import (LinkMonitor, RateRequester, close_link, mavlink2, open_link,
-                   request_identity, wait_readable)
+from .link import (UDP_RECEIVE_BUFFER, LinkMonitor, RateRequester, close_link, kernel_drops, mavlink2,
+                   open_link, receive_buffer, request_identity, wait_readable)
 from .recorder import TlogRecorder
 
 TICK_S = 0.2  # s of wall time between the periodic jobs
@@ -88,6 +89,16 @@ class LiveResult:
     seconds: float
     ended_by: str  # "signal", "duration", "stop"
     segment: int | None = None  # the clock segment the comparisons score (reboots start new ones)
+    kernel_drops: int | None = None  # datagrams the system dropped (receive buffer full); None: unknown
+
+    def link(self) -> dict:
+        """The link's figures, as ``live --json`` writes them ("link")."""
+        m, loss = self.monitor, self.estimation.samples_lost
+        return {"packets_received": m.packets, "packets_lost_by_sequence": m.lost,
+                "imu_samples_received": loss.received if loss else 0,
+                "imu_samples_lost_by_clock": loss.lost if loss else 0,
+                "corrupt": m.bad, "kernel_drops": self.kernel_drops, "duration_s": round(self.seconds, 3),
+                "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}
 
 
 def _wanted_rates(opts: LiveOptions) -> dict[str, float]:
@@ -112,6 +123,10 @@ def run_live(opts: LiveOptions, stop=lambda: False, status=None, say=None) -> Li
     try:
         session.say(f"listening on {opts.url}" + (f", recording to {opts.record}" if opts.record else "")
                     + "; waiting for a vehicle's HEARTBEAT (Ctrl-C to stop)")
+        granted = receive_buffer(session.conn)
+        if granted is not None and granted < UDP_RECEIVE_BUFFER:
+            session.say(f"receive buffer {granted / 1024:.0f} KB ({UDP_RECEIVE_BUFFER >> 20} MB asked; the system "
+                        "allows no more: sysctl net.core.rmem_max): a stall of the session may drop packets")
         if not opts.sink:
             session.say("no Rerun viewer: add --spawn, --connect URL or --web to watch, or --rrd FILE")
         while True:
@@ -169,6 +184,7 @@ class _Session:
         self.last_wait_note = self.start
         self.events_shown = 0
         self.before_vehicle: deque = deque(maxlen=BEFORE_VEHICLE_PACKETS)  # (message, arrival)
+        self.kernel_drops: int | None = None  # read as the link closes
 
     def receive(self, limit: int) -> int:
         """Handle up to ``limit`` packets waiting on the link, then step the estimators.
@@ -300,7 +316,8 @@ class _Session:
         if show or to_view:
             rolling = est.rolling_mae(opts.window)
             if show:
-                self.status.show(_status_text(est, monitor, rolling, now, self.vehicle, opts), now)
+                self.status.show(_status_text(est, monitor, rolling, now, self.vehicle, opts,
+                                              kernel_drops(self.conn)), now)
             if to_view:
                 self.live_view.status(est.seg.clock_max, _shown_rates(est, monitor, now),
                                       monitor.lost, monitor.bad, rolling)
@@ -314,6 +331,7 @@ class _Session:
         """Close the recording and the link (whatever happened)."""
         if self.recorder is not None:
             self.recorder.close()
+        self.kernel_drops = kernel_drops(self.conn)
         close_link(self.conn)
         self.status.end()
 
@@ -334,7 +352,8 @@ class _Session:
         ref = est.reference_series(seg) if seg is not None else None
         return LiveResult(est, self.monitor, comparisons, ref.source if ref is not None else None,
                           self.vehicle, self.firmware, self.recorder.packets if self.recorder else 0,
-                          time.monotonic() - self.start, ended_by, seg.index if seg is not None else None)
+                          time.monotonic() - self.start, ended_by, seg.index if seg is not None else None,
+                          self.kernel_drops)
 
 
 def _session_event(est: LiveEstimation, level: str, text: str) -> None:
@@ -376,7 +395,19 @@ def _report_rates(est: LiveEstimation, monitor: LinkMonitor, wanted: dict[str, f
                                     f"{LOW_IMU_RATE_HZ:.0f} Hz; raise the stream rate, or use --imu-rate)")
 
 
-def _status_text(est: LiveEstimation, monitor: LinkMonitor, rolling: dict, now: float, vehicle, opts) -> str:
+def loss_text(monitor: LinkMonitor, samples, drops: int | None) -> str:
+    """'lost 3 packets by sequence number, 250 IMU samples by clock (1.2 %), 0 dropped by the
+    system, bad 0': the sequence number misses bursts of 128 and more, the clock does not."""
+    parts = [f"lost {monitor.lost} packets by sequence number"]
+    if samples is not None:
+        parts.append(f"{samples.lost} IMU samples by clock ({samples.percent:.1f} %)")
+    if drops is not None:
+        parts.append(f"{drops} dropped by the system")
+    return ", ".join(parts) + f", bad {monitor.bad}"
+
+
+def _status_text(est: LiveEstimation, monitor: LinkMonitor, rolling: dict, now: float, vehicle, opts,
+                 drops: int | None = None) -> str:
     if vehicle is None:
         return f"waiting for a vehicle on {opts.url} ({monitor.packets} packets)"
     link = "LINK LOST" if monitor.lost_since is not None else "link ok"
@@ -384,7 +415,7 @@ def _status_text(est: LiveEstimation, monitor: LinkMonitor, rolling: dict, now: 
     rates = _shown_rates(est, monitor, now)
     rate_text = ", ".join(f"{n} {r:.0f} Hz" for n, r in rates.items())
     parts = [f"t {t:7.1f} s" if math.isfinite(t) else "t -", link, rate_text,
-             f"lost {monitor.lost} ({monitor.loss_percent:.1f} %), bad {monitor.bad}"]
+             loss_text(monitor, est.samples_lost, drops)]
     if rolling:
         parts.append(f"MAE {opts.window:g} s r/p/y: " + "; ".join(
             f"{n} {r:.2f}/{p:.2f}/{y:.2f}" for n, (r, p, y) in rolling.items()))
