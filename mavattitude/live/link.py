@@ -220,6 +220,13 @@ def _check_udp_port_free(url: str) -> None:
         probe.close()
 
 
+def is_corrupt(msg) -> bool:
+    """pymavlink's BAD_DATA, or a packet of a message id the dialect does not know: its checksum
+    cannot be checked (that needs the message's CRC_EXTRA), so it is as likely noise that
+    happened to start with a MAVLink magic byte. Counted as corrupt, never recorded."""
+    return msg.get_type() == "BAD_DATA" or msg.get_type().startswith("UNKNOWN_")
+
+
 @dataclass
 class LinkMonitor:
     """What arrived and whether the link is alive. Times are wall-clock monotonic s.
@@ -233,7 +240,7 @@ class LinkMonitor:
     RADIO_STATUS, another ground station)."""
     timeout_s: float = 5.0
     packets: int = 0  # valid MAVLink packets, every sender
-    bad: int = 0  # corrupt data: garbage bytes, bad CRC, unknown messages (pymavlink's BAD_DATA)
+    bad: int = 0  # corrupt data: garbage bytes, bad CRC, unknown message ids (``is_corrupt``)
     lost: int = 0  # packets missing by sequence number
     first_at: float | None = None  # the vehicle's first and last packet
     last_at: float | None = None
@@ -244,7 +251,7 @@ class LinkMonitor:
     _arrivals: dict = field(default_factory=dict)  # message name -> deque of arrival times
 
     def count(self, msg, now: float) -> None:
-        if msg.get_type() == "BAD_DATA":
+        if is_corrupt(msg):
             self.bad += 1
             return
         self.packets += 1

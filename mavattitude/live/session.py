@@ -26,8 +26,8 @@ from ..sink import Sink
 from .estimation import LiveEstimation
 from ..readers import enum_name, identify_vehicle
 from ..readers.tlog import is_vehicle
-from .link import (UDP_RECEIVE_BUFFER, LinkMonitor, RateRequester, close_link, kernel_drops, mavlink2,
-                   open_link, receive_buffer, request_identity, wait_readable)
+from .link import (UDP_RECEIVE_BUFFER, LinkMonitor, RateRequester, close_link, is_corrupt, kernel_drops,
+                   mavlink2, open_link, receive_buffer, request_identity, wait_readable)
 from .recorder import TlogRecorder
 
 TICK_S = 0.2  # s of wall time between the periodic jobs
@@ -36,6 +36,7 @@ WAIT_NOTE_EVERY_S = 10.0
 MAX_BATCH = 500  # packets decoded before the estimators step, at most
 DRAIN_S = 2.0  # s at most spent, after a stop, on the packets still in the socket
 GCS_HEARTBEAT_S = 1.0  # a ground station says it is there once a second
+FIRMWARE_WAIT_S = 1.0  # s after the vehicle is found: its version and texts have come, say the firmware
 BEFORE_VEHICLE_PACKETS = 20_000  # kept until the vehicle's first HEARTBEAT says which system it is
 # Heartbeats from these are not the vehicle, whatever autopilot field they carry.
 NOT_VEHICLES = {getattr(mavlink2, f"MAV_TYPE_{n}") for n in (
@@ -185,6 +186,9 @@ class _Session:
         self.events_shown = 0
         self.before_vehicle: deque = deque(maxlen=BEFORE_VEHICLE_PACKETS)  # (message, arrival)
         self.kernel_drops: int | None = None  # read as the link closes
+        self.others: set = set()  # (sysid, compid) of other senders, said once each
+        self.found_at: float | None = None
+        self.firmware_said = False
 
     def receive(self, limit: int) -> int:
         """Handle up to ``limit`` packets waiting on the link, then step the estimators.
@@ -202,9 +206,9 @@ class _Session:
             got += 1
             now = time.monotonic()
             self.monitor.count(msg, now)
-            name = msg.get_type()
-            if name == "BAD_DATA":
+            if is_corrupt(msg):
                 continue
+            name = msg.get_type()
             if self.recorder is not None:
                 self.recorder.write(msg.get_msgbuf())
             src = (msg.get_srcSystem(), msg.get_srcComponent())
@@ -216,6 +220,10 @@ class _Session:
                 self._found_vehicle(msg, now)
                 self._catch_up()
             if src != self.vehicle:
+                if src not in self.others:
+                    self.others.add(src)
+                    self.say(f"also on the link: system {src[0]} component {src[1]} ({name}); ignored"
+                             + ("" if self.opts.sysid is not None else ", --sysid to choose another vehicle"))
                 continue
             self.monitor.heard(msg, now)
             if self.requester is not None:
@@ -227,10 +235,7 @@ class _Session:
                 self._ask(now)
             fresh = True
             if name in ("STATUSTEXT", "AUTOPILOT_VERSION"):
-                firmware = identify_vehicle(est.decoder.texts)[1]
-                if firmware and firmware != self.firmware:
-                    self.firmware = firmware
-                    self.say(f"firmware: {firmware}")
+                self.firmware = identify_vehicle(est.decoder.texts)[1] or self.firmware
         if fresh:
             chunk = est.step()
             if chunk is not None and self.live_view is not None:
@@ -252,6 +257,7 @@ class _Session:
     def _found_vehicle(self, heartbeat, now: float) -> None:
         src = heartbeat.get_srcSystem()
         self.vehicle = (src, heartbeat.get_srcComponent())
+        self.found_at = now
         self.say(f"vehicle: system {src} component {self.vehicle[1]}, "
                  f"{enum_name('MAV_TYPE', heartbeat.type)} on {enum_name('MAV_AUTOPILOT', heartbeat.autopilot)}")
         self._ask(now)
@@ -307,6 +313,9 @@ class _Session:
                     self.requester is None or self.requester.done):
                 self.rates_reported = True
                 _report_rates(est, monitor, self.requester.wanted if self.requester else {}, now)
+        if self.firmware and not self.firmware_said and now - self.found_at >= FIRMWARE_WAIT_S:
+            self.firmware_said = True  # once: the version and the status texts answer one after another
+            self.say(f"firmware: {self.firmware}")
         self._show_events()
         if self.live_view is not None:
             self.live_view.flush(now)
@@ -323,7 +332,7 @@ class _Session:
                                       monitor.lost, monitor.bad, rolling)
 
     def _show_events(self) -> None:
-        for event in self.est.events[self.events_shown:]:
+        for event in sorted(self.est.events[self.events_shown:], key=lambda e: e.t):  # in time order
             self.say(f"[{event.t:8.1f} s] " + ("warning: " if event.level == "warn" else "") + event.text)
         self.events_shown = len(self.est.events)
 
