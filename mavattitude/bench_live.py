@@ -7,13 +7,19 @@ and ATTITUDE at 50 Hz. Measured:
 
 - packets dropped: sent by the child minus received here (and, separately, the losses the
   session counts from sequence numbers);
+- loss you can trust: the child loses ``FADE_BURST``-packet bursts on purpose (a radio fade, every
+  ``FADE_EVERY`` packets once the rates are set) and counts the IMU samples in them; the session
+  should count as many from the autopilot's clock (the 8-bit sequence number cannot see a burst
+  of 128 or more). Those samples are left out of the latency figures;
+- memory: this process's RSS, sampled every second while the stream runs, as MB per hour;
 - packet-to-estimate latency per IMU sample: from the moment the child handed the packet to
   the socket to the moment every estimator had produced its attitude for that sample. Both
   are ``time.monotonic()`` (CLOCK_MONOTONIC, one clock for all processes of the machine), so
   the difference includes the network stack, the wait in the socket buffer, decoding and
   estimation. Only samples sent after the requested rates took effect count.
 
-Targets: no packet dropped, 99th percentile latency at most ``TARGET_P99_MS``.
+Targets: no packet dropped, 99th percentile latency at most ``TARGET_P99_MS``; the clock's
+count of the faded samples within ``TARGET_LOSS_AGREEMENT`` of the truth.
 """
 from __future__ import annotations
 
@@ -21,6 +27,7 @@ import io
 import json
 import multiprocessing
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -31,6 +38,41 @@ LIVE_ATT_HZ = 50.0
 TARGET_P99_MS = 10.0
 TARGET_DROPPED = 0
 SETTLE_S = 3.0  # s of the stream before the measured span: the rate requests take effect
+FADE_BURST, FADE_EVERY = 200, 10_000  # packets lost on purpose: bursts of 200 every 10,000 (~10 s)
+TARGET_LOSS_AGREEMENT = 0.01  # the clock's count of the faded IMU samples: within 1 %
+RSS_EVERY_S = 1.0
+
+
+class _Fade:
+    """The child's link, losing ``FADE_BURST`` packets every ``FADE_EVERY`` once the stream runs
+    at full rate. Counts the packets and the IMU samples (by time) it lost; a burst at the very
+    end, which nothing after it can reveal, does not count."""
+
+    def __init__(self, conn, after: int):
+        self.conn, self.after = conn, after
+        self.seen = self.dropped = 0
+        self.lost_imu_us: list[int] = []
+        self._pending: list[int] = []
+        self._after_burst = 0
+
+    def write(self, packet: bytes) -> None:
+        self.seen += 1
+        k = self.seen - self.after
+        imu = packet[0] == 0xFD and packet[7] == 27 and packet[8] == 0 and packet[9] == 0  # RAW_IMU, MAVLink 2
+        if k >= 0 and k % FADE_EVERY < FADE_BURST:
+            self.dropped += 1
+            if imu:
+                self._pending.append(int.from_bytes(packet[10:18], "little"))  # time_usec: the first field
+            self._after_burst = 0
+            return
+        self._after_burst += imu
+        if self._pending and self._after_burst > 3:
+            self.lost_imu_us += self._pending
+            self._pending = []
+        self.conn.write(packet)
+
+    def __getattr__(self, name):
+        return getattr(self.conn, name)
 
 
 def _sender(port: int, seconds: float, out_dir: str) -> None:
@@ -41,11 +83,14 @@ def _sender(port: int, seconds: float, out_dir: str) -> None:
 
     sim = simulate("figure8", seconds + SETTLE_S, seed=0, imu_rate=LIVE_IMU_HZ)
     conn = open_link(f"udpout:127.0.0.1:{port}")
-    autopilot = SimAutopilot(sim, conn, record_imu_times=True)
+    link = _Fade(conn, after=int(SETTLE_S * (LIVE_IMU_HZ + LIVE_ATT_HZ)) + 2000)
+    autopilot = SimAutopilot(sim, link, record_imu_times=True)
     stats = autopilot.serve(speed=1.0)
     conn.close()
     np.save(Path(out_dir) / "imu_sent_at.npy", np.array(stats.imu_sent_at, dtype=float).reshape(-1, 2))
-    (Path(out_dir) / "sent.json").write_text(json.dumps({"sent": stats.sent, "requests": stats.requests}))
+    (Path(out_dir) / "sent.json").write_text(json.dumps({
+        "sent": stats.sent, "requests": stats.requests, "faded_packets": link.dropped,
+        "faded_imu_us": link.lost_imu_us + link._pending, "faded_imu_seen_after": len(link.lost_imu_us)}))
 
 
 def run_live_bench(names: list[str], seconds: float = 60.0, say=print) -> dict:
@@ -72,21 +117,56 @@ def run_live_bench(names: list[str], seconds: float = 60.0, say=print) -> dict:
         say(f"live: streaming {seconds:g} s of RAW_IMU at {LIVE_IMU_HZ:g} Hz and ATTITUDE at "
             f"{LIVE_ATT_HZ:g} Hz over loopback UDP to a live session ({', '.join(names)}) ...")
         quiet = StatusLine(io.StringIO())
-        result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ,
-                                      record=str(Path(tmp) / "bench.tlog"), record_latency=True,
-                                      duration=seconds + SETTLE_S + 60.0),
-                          stop=child_done, status=quiet, say=on_line)
+        rss = []  # (monotonic s, MB) while the stream runs
+        sampling = threading.Event()
+
+        def sample_rss() -> None:
+            while not sampling.wait(RSS_EVERY_S):
+                rss.append((time.monotonic(), _rss_mb()))
+        sampler = threading.Thread(target=sample_rss, daemon=True)
+        sampler.start()
+        try:
+            result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ,
+                                          record=str(Path(tmp) / "bench.tlog"), record_latency=True,
+                                          duration=seconds + SETTLE_S + 60.0),
+                              stop=child_done, status=quiet, say=on_line)
+        finally:
+            sampling.set()
+            sampler.join()
         child.join(10)
         if child.exitcode != 0:
             raise RuntimeError(f"the simulated autopilot failed (exit {child.exitcode})")
         sent_at = np.load(Path(tmp) / "imu_sent_at.npy")
         sent = json.loads((Path(tmp) / "sent.json").read_text())
-    return _figures(names, seconds, result, sent_at, sent)
+    return _figures(names, seconds, result, sent_at, sent, rss)
 
 
-def _figures(names, seconds, result, sent_at: np.ndarray, sent: dict) -> dict:
+def _rss_mb() -> float:
+    """This process's resident memory now, MB (Linux; NaN elsewhere)."""
+    try:
+        with open("/proc/self/status") as f:
+            return int(f.read().split("VmRSS:")[1].split()[0]) / 1024
+    except (OSError, IndexError, ValueError):
+        return float("nan")
+
+
+def _growth_mb_per_hour(rss: list, after_s: float) -> float:
+    """The slope of RSS over the stream's second half (the session's start-up allocations
+    done), MB per hour."""
+    if len(rss) < 4:
+        return float("nan")
+    t, mb = np.array(rss).T
+    late = t >= t[0] + after_s
+    if np.count_nonzero(late) < 3:
+        late = t >= t[len(t) // 2]
+    return float(np.polyfit(t[late] - t[0], mb[late], 1)[0] * 3600.0)
+
+
+def _figures(names, seconds, result, sent_at: np.ndarray, sent: dict, rss: list) -> dict:
     est = result.estimation
     done = {int(round(t * 1e6)): (arrival, estimated) for t, arrival, estimated in est.latency}
+    faded = np.isin(sent_at[:, 0].astype(np.int64), np.array(sent["faded_imu_us"], np.int64))
+    sent_at = sent_at[~faded]  # lost on purpose: no latency to measure
     usec = sent_at[:, 0].astype(np.int64)
     # the measured span: after the rates took effect (the IMU at full rate), and after the
     # estimators started: until its alignment is decided (the vehicle moved, or 10 s still) a
@@ -106,21 +186,31 @@ def _figures(names, seconds, result, sent_at: np.ndarray, sent: dict) -> dict:
         latency.append(got[1] - t_send)
         in_process.append(got[1] - got[0])
     latency_ms = np.array(latency) * 1e3
-    total_sent = int(sum(sent["sent"].values()))
+    total_sent = int(sum(sent["sent"].values())) - sent["faded_packets"]
     dropped = total_sent - result.monitor.packets
+    loss = est.samples_lost
+    faded_imu = sent["faded_imu_seen_after"]
+    counted = loss.lost if loss else 0
+    agrees = abs(counted - faded_imu) <= TARGET_LOSS_AGREEMENT * faded_imu
     p99 = float(np.percentile(latency_ms, 99)) if len(latency_ms) else float("nan")
     return {
         "imu_rate_hz": LIVE_IMU_HZ, "attitude_rate_hz": LIVE_ATT_HZ, "seconds": seconds,
         "estimators": names,
         "packets_sent": total_sent, "packets_received": result.monitor.packets,
         "packets_dropped": dropped, "lost_by_sequence": result.monitor.lost,
+        "kernel_drops": result.kernel_drops,
+        "faded_packets": sent["faded_packets"], "faded_imu_samples": faded_imu,
+        "imu_samples_lost_by_clock": counted,
+        "rss_mb": {"start": rss[0][1] if rss else None, "end": rss[-1][1] if rss else None,
+                   "growth_mb_per_hour": _growth_mb_per_hour(rss, SETTLE_S + 10.0)},
         "imu_samples_measured": int(np.count_nonzero(measured)), "imu_samples_not_estimated": missing,
         "alignment_wait_s": waited,
         "requests": sent["requests"],
         "latency_ms": _stats(latency_ms),
         "in_process_ms": _stats(np.array(in_process) * 1e3),
-        "targets": {"packets_dropped": TARGET_DROPPED, "p99_latency_ms": TARGET_P99_MS},
-        "target_met": dropped <= TARGET_DROPPED and missing == 0 and p99 <= TARGET_P99_MS,
+        "targets": {"packets_dropped": TARGET_DROPPED, "p99_latency_ms": TARGET_P99_MS,
+                    "loss_agreement": TARGET_LOSS_AGREEMENT},
+        "target_met": dropped <= TARGET_DROPPED and missing == 0 and p99 <= TARGET_P99_MS and agrees,
     }
 
 
@@ -143,11 +233,22 @@ def format_live(figures: dict) -> str:
         f"  packet-to-estimate latency over {figures['imu_samples_measured']:,} IMU samples from then: "
         f"p50 {_ms(lat['p50'])}, p99 {_ms(lat['p99'])}, max {_ms(lat['max'])} "
         f"(of which in this process: p50 {_ms(inproc['p50'])}, p99 {_ms(inproc['p99'])})",
-        f"  targets: 0 dropped, p99 ≤ {TARGET_P99_MS:g} ms: {met}"
+        f"  loss: {figures['faded_packets']:,} packets lost on purpose in {FADE_BURST}-packet bursts, "
+        f"{figures['faded_imu_samples']:,} of them IMU samples: counted {figures['imu_samples_lost_by_clock']:,} by "
+        f"the autopilot's clock, {figures['lost_by_sequence']:,} packets by sequence number"
+        + (f"; {figures['kernel_drops']:,} dropped by the system" if figures["kernel_drops"] is not None else ""),
+        f"  memory: RSS {_mb(figures['rss_mb']['start'])} when streaming began, {_mb(figures['rss_mb']['end'])} "
+        f"at the end: {figures['rss_mb']['growth_mb_per_hour']:+.0f} MB per hour at {figures['imu_rate_hz']:g} Hz",
+        f"  targets: 0 dropped, p99 ≤ {TARGET_P99_MS:g} ms, loss counted within "
+        f"{100 * TARGET_LOSS_AGREEMENT:g} %: {met}"
         + (f" ({figures['imu_samples_not_estimated']} samples never estimated)"
            if figures["imu_samples_not_estimated"] else ""),
     ]
     return "\n".join(lines) + "\n"
+
+
+def _mb(x) -> str:
+    return "–" if x is None else f"{x:.0f} MB"
 
 
 def _ms(x) -> str:

@@ -185,8 +185,13 @@ def test_live_figure_runs_and_reports(capsys):
     lat = figures["latency_ms"]
     assert 0 < lat["p50"] <= lat["p99"] <= lat["max"]
     assert figures["target_met"] in (True, False)
+    # 10 s of 1 kHz: one 200-packet burst lost on purpose, its IMU samples seen by the clock
+    assert figures["faded_packets"] == 200 and figures["faded_imu_samples"] > 100
+    assert abs(figures["imu_samples_lost_by_clock"] - figures["faded_imu_samples"]) <= 2
+    assert figures["lost_by_sequence"] < 128  # what the sequence number saw of it
+    assert figures["rss_mb"]["end"] > 0
     text = format_live(figures)
-    assert "packet-to-estimate latency" in text and "dropped" in text
+    assert "packet-to-estimate latency" in text and "dropped" in text and "by the autopilot's clock" in text
 
 
 def test_read_figures_run_and_report(capsys, tmp_path):
