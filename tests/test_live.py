@@ -642,3 +642,21 @@ def test_a_second_system_and_unknown_packets_on_the_port(tmp_path, flight):
     assert [p for p in recorded if p[5] == 1] == tap.sent  # the vehicle's, byte for byte
     assert {p[5] for p in recorded} == {1, 42}  # and the other system's: a recording keeps the link
     assert all(int.from_bytes(p[7:10], "little") in mavlink2.mavlink_map for p in recorded)  # no unknown
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("after_s", [1.0, 4.0])
+def test_ctrl_c_while_the_first_run_compiles_ends_cleanly(tmp_path, after_s):
+    """A first run compiles before it listens (nothing is lost unannounced); Ctrl-C then, from
+    a terminal (the whole process group, compiling children too), is one line and exit 130."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cold-cache"))
+    proc = subprocess.Popen([sys.executable, "-m", "mavattitude", "live", f"udpin:127.0.0.1:{free_udp_port()}",
+                             "--estimators", "all", "--no-record"], env=env, cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    time.sleep(after_s)
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "listening" not in err + out
+    assert err.strip().splitlines()[-1] == "interrupted"
