@@ -99,14 +99,16 @@ def end_to_end(path: str, out_dir: str) -> dict:
     """``replay --estimators all --rrd`` on ``path`` in a child process: wall s and peak RSS."""
     command = [sys.executable, "-m", "mavattitude", "replay", path, "--estimators", "all",
                "--rrd", str(Path(out_dir) / "replay.rrd")]
+    errors = Path(out_dir) / "replay.err"  # a file, not a pipe: a full pipe would stall the child
     start = time.perf_counter()
-    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(child.pid, 0)
+    with open(errors, "w") as err:
+        child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(child.pid, 0)
     wall = time.perf_counter() - start
     if status != 0:
-        raise RuntimeError(f"replay failed: {child.stderr.read().decode(errors='replace').strip()}")
-    child.stderr.close()
-    return {"wall_s": round(wall, 2), "peak_rss_mb": round(usage.ru_maxrss / 1024, 1),  # Linux: kB
+        raise RuntimeError(f"replay failed: {errors.read_text(errors='replace').strip()}")
+    peak_mb = usage.ru_maxrss / (1 << 20 if sys.platform == "darwin" else 1 << 10)  # macOS: bytes; Linux: kB
+    return {"wall_s": round(wall, 2), "peak_rss_mb": round(peak_mb, 1),
             "rrd_mb": round((Path(out_dir) / "replay.rrd").stat().st_size / 1e6, 1)}
 
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import math
 import os
-import resource
 import signal
+import sys
 import threading
 import time
 from collections import deque
@@ -99,7 +99,17 @@ class LiveResult:
                 "imu_samples_received": loss.received if loss else 0,
                 "imu_samples_lost_by_clock": loss.lost if loss else 0,
                 "corrupt": m.bad, "kernel_drops": self.kernel_drops, "duration_s": round(self.seconds, 3),
-                "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}
+                "peak_rss_mb": _peak_rss_mb()}
+
+
+def _peak_rss_mb() -> float | None:
+    """This process's peak resident memory, MB (None where the system does not say: Windows)."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return round(peak / (1 << 20 if sys.platform == "darwin" else 1 << 10), 1)  # macOS: bytes; Linux: kB
 
 
 def _wanted_rates(opts: LiveOptions) -> dict[str, float]:
