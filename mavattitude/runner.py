@@ -104,6 +104,8 @@ class Runner:
         self.use_mag = use_mag
         self.imu_source, self.mag_source = imu_source, mag_source
         self.store = {kind: Growing(width) for kind, width in WIDTH.items()}
+        # kinds whose rows, in time order, also arrived in that order (a log's and a link's do)
+        self._in_arrival_order = set(WIDTH)
         self.done = 0  # IMU rows estimated
         self.runs: list[Run] = []
         self.running = False
@@ -140,6 +142,11 @@ class Runner:
 
     def _add(self, kind: str, rows: np.ndarray) -> None:
         if len(rows):
+            last = self.store[kind].last
+            arrival = rows[:, -1]
+            if kind in self._in_arrival_order and not (
+                    (last is None or arrival[0] >= last[-1]) and np.all(arrival[1:] >= arrival[:-1])):
+                self._in_arrival_order.discard(kind)
             self.store[kind].extend(rows)
 
     def add_flight(self, flight) -> None:
@@ -273,6 +280,9 @@ class Runner:
         """For IMU rows [a, b): the index of the latest sample of ``kind`` to have arrived
         before each, among the ``usable`` ones; -1 where none had."""
         rows = self.store[kind].view()
+        if usable is None and kind in self._in_arrival_order:
+            # a search, not a sort of every row so far: a session of hours steps a few times a second
+            return np.searchsorted(rows[:, -1], self.store[IMU].view()[a:b, -1], side="right") - 1
         index = np.arange(len(rows)) if usable is None else np.flatnonzero(usable)
         k = latest_arrived(rows[index, -1], self.store[IMU].view()[a:b, -1])
         return np.where(k >= 0, index[np.maximum(k, 0)], -1) if len(index) else k

@@ -52,6 +52,7 @@ def open_link(url: str, baud: int = 115200):
     Raises InputError (one line, naming the link) for a port in use, a missing device or a
     refused TCP connection; UsageError for a string pymavlink does not understand."""
     _check_udp_port_free(url)
+    mavutil.set_dialect("ardupilotmega")  # MAVLink 2's, whatever imported pymavlink first
     try:
         # one connection attempt (retries=0): pymavlink's own retries sleep and print;
         # reconnecting a TCP link is the session's job (``TcpReconnect``)
