@@ -12,6 +12,9 @@ and ATTITUDE at 50 Hz. Measured:
   should count as many from the autopilot's clock (the 8-bit sequence number cannot see a burst
   of 128 or more). Those samples are left out of the latency figures;
 - memory: this process's RSS, sampled every second while the stream runs, as MB per hour;
+- rate held: ``rate_probe`` streams the same flight at ``RATE_PROBE_SPEED`` times real time
+  (22,440 packets/s) for ``RATE_PROBE_S`` s to a session with no recording: held when every
+  packet sent was received and the system dropped none (target: ``TARGET_RATE`` packets/s);
 - packet-to-estimate latency per IMU sample: from the moment the child handed the packet to
   the socket to the moment every estimator had produced its attitude for that sample. Both
   are ``time.monotonic()`` (CLOCK_MONOTONIC, one clock for all processes of the machine), so
@@ -41,6 +44,8 @@ SETTLE_S = 3.0  # s of the stream before the measured span: the rate requests ta
 FADE_BURST, FADE_EVERY = 200, 10_000  # packets lost on purpose: bursts of 200 every 10,000 (~10 s)
 TARGET_LOSS_AGREEMENT = 0.01  # the clock's count of the faded IMU samples: within 1 %
 RSS_EVERY_S = 1.0
+RATE_PROBE_SPEED, RATE_PROBE_S = 20.0, 30.0
+TARGET_RATE = 20_000  # packets/s a session holds
 
 
 class _Fade:
@@ -93,8 +98,50 @@ def _sender(port: int, seconds: float, out_dir: str) -> None:
         "faded_imu_us": link.lost_imu_us + link._pending, "faded_imu_seen_after": len(link.lost_imu_us)}))
 
 
-def run_live_bench(names: list[str], seconds: float = 60.0, say=print) -> dict:
-    """Stream ``seconds`` of 1 kHz IMU to a live session running ``names``; the figures as a dict."""
+def _probe_sender(port: int, speed: float, sim_seconds: float, out: str) -> None:
+    from .live.link import open_link
+    from .sim import simulate
+    from .sim.autopilot import SimAutopilot
+
+    sim = simulate("figure8", sim_seconds, seed=0, imu_rate=LIVE_IMU_HZ)
+    conn = open_link(f"udpout:127.0.0.1:{port}")
+    stats = SimAutopilot(sim, conn, rates={"RAW_IMU": LIVE_IMU_HZ, "ATTITUDE": LIVE_ATT_HZ}).serve(speed=speed)
+    Path(out).write_text(json.dumps(sum(stats.sent.values())))
+
+
+def rate_probe(names: list[str], speed: float = RATE_PROBE_SPEED, seconds: float = RATE_PROBE_S) -> dict:
+    """The flight streamed at ``speed`` times real time for ``seconds`` of wall time to a live
+    session running ``names`` (no recording, no rate requests): what was sent and received."""
+    from .live import LiveOptions, run_live
+    from .live.display import StatusLine
+
+    port = _free_port()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = str(Path(tmp) / "sent.json")
+        child = multiprocessing.get_context("spawn").Process(
+            target=_probe_sender, args=(port, speed, seconds * speed, out), daemon=True)
+        started = []
+
+        def on_line(line: str) -> None:  # the first line comes once the port is bound
+            if not started:
+                child.start()
+                started.append(True)
+        result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ,
+                                      record=None, request=False, duration=seconds + 120.0),
+                          stop=lambda: bool(started) and child.exitcode is not None,
+                          status=StatusLine(io.StringIO()), say=on_line)
+        child.join(10)
+        if child.exitcode != 0:
+            raise RuntimeError(f"the simulated autopilot failed (exit {child.exitcode})")
+        sent = json.loads(Path(out).read_text())
+    received, drops = result.monitor.packets, result.kernel_drops
+    return {"speed": speed, "seconds": seconds, "packets_per_s": round(sent / seconds), "sent": sent,
+            "received": received, "kernel_drops": drops, "held": received == sent and not drops}
+
+
+def run_live_bench(names: list[str], seconds: float = 60.0, say=print, probe_seconds: float = RATE_PROBE_S) -> dict:
+    """Stream ``seconds`` of 1 kHz IMU to a live session running ``names``, then probe the rate
+    it holds for ``probe_seconds``; the figures as a dict."""
     from .estimators import warm_up
     from .live import LiveOptions, run_live
     from .live.display import StatusLine
@@ -138,7 +185,11 @@ def run_live_bench(names: list[str], seconds: float = 60.0, say=print) -> dict:
             raise RuntimeError(f"the simulated autopilot failed (exit {child.exitcode})")
         sent_at = np.load(Path(tmp) / "imu_sent_at.npy")
         sent = json.loads((Path(tmp) / "sent.json").read_text())
-    return _figures(names, seconds, result, sent_at, sent, rss)
+    figures = _figures(names, seconds, result, sent_at, sent, rss)
+    say(f"live: streaming at {RATE_PROBE_SPEED:g}x real time for {probe_seconds:g} s ...")
+    figures["rate_probe"] = probe = rate_probe(names, seconds=probe_seconds)
+    figures["target_met"] = figures["target_met"] and probe["packets_per_s"] >= TARGET_RATE and probe["held"]
+    return figures
 
 
 def _rss_mb() -> float:
@@ -239,12 +290,21 @@ def format_live(figures: dict) -> str:
         + (f"; {figures['kernel_drops']:,} dropped by the system" if figures["kernel_drops"] is not None else ""),
         f"  memory: RSS {_mb(figures['rss_mb']['start'])} when streaming began, {_mb(figures['rss_mb']['end'])} "
         f"at the end: {figures['rss_mb']['growth_mb_per_hour']:+.0f} MB per hour at {figures['imu_rate_hz']:g} Hz",
+        _probe_line(figures.get("rate_probe")),
         f"  targets: 0 dropped, p99 ≤ {TARGET_P99_MS:g} ms, loss counted within "
-        f"{100 * TARGET_LOSS_AGREEMENT:g} %: {met}"
+        f"{100 * TARGET_LOSS_AGREEMENT:g} %, {TARGET_RATE:,} packets/s held: {met}"
         + (f" ({figures['imu_samples_not_estimated']} samples never estimated)"
            if figures["imu_samples_not_estimated"] else ""),
     ]
     return "\n".join(lines) + "\n"
+
+
+def _probe_line(probe: dict | None) -> str:
+    if probe is None:
+        return "  rate: not probed"
+    drops = "" if probe["kernel_drops"] is None else f", {probe['kernel_drops']:,} dropped by the system"
+    return (f"  rate: {probe['packets_per_s']:,} packets/s for {probe['seconds']:g} s: {probe['sent']:,} sent, "
+            f"{probe['received']:,} received{drops}: {'held' if probe['held'] else 'NOT held'}")
 
 
 def _mb(x) -> str:

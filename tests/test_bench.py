@@ -177,7 +177,7 @@ def test_live_figure_runs_and_reports(capsys):
     from mavattitude.bench_live import format_live, run_live_bench
 
     # the simulated vehicle sits still for its first seconds: estimates begin when it moves
-    figures = run_live_bench(["mahony"], seconds=10.0, say=lambda line: None)
+    figures = run_live_bench(["mahony"], seconds=10.0, say=lambda line: None, probe_seconds=2.0)
     assert figures["packets_sent"] > 10000 and figures["packets_received"] > 0
     assert 2.0 < figures["alignment_wait_s"] < 10.0
     assert figures["imu_samples_measured"] > 1000
@@ -190,8 +190,11 @@ def test_live_figure_runs_and_reports(capsys):
     assert abs(figures["imu_samples_lost_by_clock"] - figures["faded_imu_samples"]) <= 2
     assert figures["lost_by_sequence"] < 128  # what the sequence number saw of it
     assert figures["rss_mb"]["end"] > 0
+    probe = figures["rate_probe"]  # 2 s at 20x real time
+    assert probe["sent"] > 30_000 and probe["received"] <= probe["sent"] and probe["held"] in (True, False)
     text = format_live(figures)
     assert "packet-to-estimate latency" in text and "dropped" in text and "by the autopilot's clock" in text
+    assert "packets/s for 2 s" in text
 
 
 def test_read_figures_run_and_report(capsys, tmp_path):
