@@ -59,7 +59,7 @@ class _Segment:
         self.gps = Growing(12)  # t, lat, lon, alt, vn, ve, vd, fix, sats, h_acc, v_acc, arrival
         self.baro = Growing(4)  # t, pressure Pa, alt, arrival
         self.att: dict[str, Growing] = {}  # "autopilot", "autopilot_q", "truth" -> rows t, q (4)
-        self.wall: dict[str, list[float]] = {}  # IMU source -> arrival wall time of each row
+        self.wall: dict[str, list[float]] = {}  # IMU source -> arrival wall time of each row (record_latency)
         self.imu_key: str | None = None
         self.mag_key: str | None = None
         self.runner: Runner | None = None
@@ -157,13 +157,16 @@ class LiveEstimation:
         seg = self.seg
         seg.clock_max = max(seg.clock_max, t)
         if kind == "imu":
+            if seg.imu_key is not None and key != seg.imu_key:
+                return  # the sources are chosen: the other IMUs are not kept (a session runs for hours)
             if not any(row) or not _within(row, IMU_LIMITS):
                 self.dropped += 1
                 return
-            if self._append(seg.imu, key, 8, t, (*row, arrival)):
+            if self._append(seg.imu, key, 8, t, (*row, arrival)) and self.record_latency:
                 seg.wall.setdefault(key, []).append(wall)
         elif kind == "mag":
-            self._add_mag(seg, key, t, row, arrival)
+            if seg.runner is None or key == seg.mag_key:
+                self._add_mag(seg, key, t, row, arrival)
         elif kind == "gps":
             gps = (*row[:8], row[8], math.nan)  # GPS_RAW_INT has no vertical accuracy
             self._append_one(seg.gps, t, (*gps, arrival))
