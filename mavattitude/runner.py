@@ -92,14 +92,18 @@ class Runner:
     Feed it with ``add_imu``, ``add_mag``, ``add_gps``, ``add_baro`` in any order, as long as
     every sample that arrived before an IMU sample is added before the ``step`` that runs it
     (a log: everything, then ``step(final=True)``; a link: each packet as it comes, ``step``
-    now and then). ``declination``: rad, east positive.
+    now and then). ``declination``: rad, east positive. ``keep_history``: keep every row's
+    diagnostics and aiding for ``diagnostic_series`` and ``aiding`` (replay); a live session
+    takes them from each step's ``Chunk`` instead, and keeps only the attitudes.
     """
 
     def __init__(self, names: list[str], params: dict | None = None, declination: float = 0.0,
-                 use_mag: bool = True, imu_source: str = "IMU", mag_source: str | None = None):
+                 use_mag: bool = True, imu_source: str = "IMU", mag_source: str | None = None,
+                 keep_history: bool = True):
         self.names = list(names)
         self.estimators = [est.create(n, (params or {}).get(n), declination) for n in self.names]
         self.uses_aiding = any(e.uses_aiding for e in self.estimators)
+        self.keep_history = keep_history
         self.declination = declination
         self.use_mag = use_mag
         self.imu_source, self.mag_source = imu_source, mag_source
@@ -248,7 +252,7 @@ class Runner:
         mag = self._mag_held(a, b)
         in_air = self._in_air(a, b)
         aiding = self._aiding(a, b) if self.uses_aiding else None
-        if aiding is not None:
+        if aiding is not None and self.keep_history:
             for f, kept in self._aiding_given.items():
                 kept.extend(getattr(aiding, f))
         out, diagnostics = {}, {}
@@ -261,7 +265,7 @@ class Runner:
             e.diagnostics = new  # the estimator's float64 arrays go now, not at its next update
             diagnostics[e.name] = new
             kept = self.diagnostics[e.name]
-            for key in set(kept) | set(new):
+            for key in (set(kept) | set(new)) if self.keep_history else ():
                 if key not in kept:  # rows before the key first appeared: nothing
                     kept[key] = Growing(1, dtype=new[key].dtype)
                     kept[key].reserve(self._rows_expected)

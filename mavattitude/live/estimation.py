@@ -262,7 +262,8 @@ class LiveEstimation:
         seg.mag_key = pick_mag(list(seg.mag), seg.imu_key) if self.use_mag else None
         if self.declination is None:
             self._choose_declination(first + span, bool(seg.mag_key))
-        seg.runner = Runner(self.names, self.params, self.declination, self.use_mag, seg.imu_key, seg.mag_key)
+        seg.runner = Runner(self.names, self.params, self.declination, self.use_mag, seg.imu_key, seg.mag_key,
+                            keep_history=False)  # the view takes diagnostics from each step
         return True
 
     def _choose_declination(self, t: float, has_mag: bool) -> None:
