@@ -11,10 +11,11 @@ and ATTITUDE at 50 Hz. Measured:
   ``FADE_EVERY`` packets once the rates are set) and counts the IMU samples in them; the session
   should count as many from the autopilot's clock (the 8-bit sequence number cannot see a burst
   of 128 or more). Those samples are left out of the latency figures;
-- memory: this process's RSS, sampled every second while the stream runs, as MB per hour;
 - rate held: ``rate_probe`` streams the same flight at ``RATE_PROBE_SPEED`` times real time
   (22,440 packets/s) for ``RATE_PROBE_S`` s to a session with no recording: held when every
   packet sent was received and the system dropped none (target: ``TARGET_RATE`` packets/s);
+- memory: how much this process's RSS grew over that probe (10 minutes of 1 kHz data in 30 s),
+  per hour of 1 kHz data (the latency run records per-sample timings, which would count too);
 - packet-to-estimate latency per IMU sample: from the moment the child handed the packet to
   the socket to the moment every estimator had produced its attitude for that sample. Both
   are ``time.monotonic()`` (CLOCK_MONOTONIC, one clock for all processes of the machine), so
@@ -30,7 +31,6 @@ import io
 import json
 import multiprocessing
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -43,7 +43,6 @@ TARGET_DROPPED = 0
 SETTLE_S = 3.0  # s of the stream before the measured span: the rate requests take effect
 FADE_BURST, FADE_EVERY = 200, 10_000  # packets lost on purpose: bursts of 200 every 10,000 (~10 s)
 TARGET_LOSS_AGREEMENT = 0.01  # the clock's count of the faded IMU samples: within 1 %
-RSS_EVERY_S = 1.0
 RATE_PROBE_SPEED, RATE_PROBE_S = 20.0, 30.0
 TARGET_RATE = 20_000  # packets/s a session holds
 
@@ -124,19 +123,23 @@ def rate_probe(names: list[str], speed: float = RATE_PROBE_SPEED, seconds: float
 
         def on_line(line: str) -> None:  # the first line comes once the port is bound
             if not started:
+                started.append(_rss_mb())
                 child.start()
-                started.append(True)
         result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ,
                                       record=None, request=False, duration=seconds + 120.0),
                           stop=lambda: bool(started) and child.exitcode is not None,
                           status=StatusLine(io.StringIO()), say=on_line)
+        grown_mb = _rss_mb() - started[0]  # the session's state is still held by ``result``
         child.join(10)
         if child.exitcode != 0:
             raise RuntimeError(f"the simulated autopilot failed (exit {child.exitcode})")
         sent = json.loads(Path(out).read_text())
     received, drops = result.monitor.packets, result.kernel_drops
+    samples = result.estimation.samples
     return {"speed": speed, "seconds": seconds, "packets_per_s": round(sent / seconds), "sent": sent,
-            "received": received, "kernel_drops": drops, "held": received == sent and not drops}
+            "received": received, "kernel_drops": drops, "held": received == sent and not drops,
+            "imu_samples": samples, "rss_growth_mb": round(grown_mb, 1),
+            "mb_per_hour_at_1khz": round(grown_mb / samples * 3.6e6, 1) if samples else None}
 
 
 def run_live_bench(names: list[str], seconds: float = 60.0, say=print, probe_seconds: float = RATE_PROBE_S) -> dict:
@@ -164,28 +167,16 @@ def run_live_bench(names: list[str], seconds: float = 60.0, say=print, probe_sec
         say(f"live: streaming {seconds:g} s of RAW_IMU at {LIVE_IMU_HZ:g} Hz and ATTITUDE at "
             f"{LIVE_ATT_HZ:g} Hz over loopback UDP to a live session ({', '.join(names)}) ...")
         quiet = StatusLine(io.StringIO())
-        rss = []  # (monotonic s, MB) while the stream runs
-        sampling = threading.Event()
-
-        def sample_rss() -> None:
-            while not sampling.wait(RSS_EVERY_S):
-                rss.append((time.monotonic(), _rss_mb()))
-        sampler = threading.Thread(target=sample_rss, daemon=True)
-        sampler.start()
-        try:
-            result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ,
-                                          record=str(Path(tmp) / "bench.tlog"), record_latency=True,
-                                          duration=seconds + SETTLE_S + 60.0),
-                              stop=child_done, status=quiet, say=on_line)
-        finally:
-            sampling.set()
-            sampler.join()
+        result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ,
+                                      record=str(Path(tmp) / "bench.tlog"), record_latency=True,
+                                      duration=seconds + SETTLE_S + 60.0),
+                          stop=child_done, status=quiet, say=on_line)
         child.join(10)
         if child.exitcode != 0:
             raise RuntimeError(f"the simulated autopilot failed (exit {child.exitcode})")
         sent_at = np.load(Path(tmp) / "imu_sent_at.npy")
         sent = json.loads((Path(tmp) / "sent.json").read_text())
-    figures = _figures(names, seconds, result, sent_at, sent, rss)
+    figures = _figures(names, seconds, result, sent_at, sent)
     say(f"live: streaming at {RATE_PROBE_SPEED:g}x real time for {probe_seconds:g} s ...")
     figures["rate_probe"] = probe = rate_probe(names, seconds=probe_seconds)
     figures["target_met"] = figures["target_met"] and probe["packets_per_s"] >= TARGET_RATE and probe["held"]
@@ -201,19 +192,7 @@ def _rss_mb() -> float:
         return float("nan")
 
 
-def _growth_mb_per_hour(rss: list, after_s: float) -> float:
-    """The slope of RSS over the stream's second half (the session's start-up allocations
-    done), MB per hour."""
-    if len(rss) < 4:
-        return float("nan")
-    t, mb = np.array(rss).T
-    late = t >= t[0] + after_s
-    if np.count_nonzero(late) < 3:
-        late = t >= t[len(t) // 2]
-    return float(np.polyfit(t[late] - t[0], mb[late], 1)[0] * 3600.0)
-
-
-def _figures(names, seconds, result, sent_at: np.ndarray, sent: dict, rss: list) -> dict:
+def _figures(names, seconds, result, sent_at: np.ndarray, sent: dict) -> dict:
     est = result.estimation
     done = {int(round(t * 1e6)): (arrival, estimated) for t, arrival, estimated in est.latency}
     faded = np.isin(sent_at[:, 0].astype(np.int64), np.array(sent["faded_imu_us"], np.int64))
@@ -252,8 +231,6 @@ def _figures(names, seconds, result, sent_at: np.ndarray, sent: dict, rss: list)
         "kernel_drops": result.kernel_drops,
         "faded_packets": sent["faded_packets"], "faded_imu_samples": faded_imu,
         "imu_samples_lost_by_clock": counted,
-        "rss_mb": {"start": rss[0][1] if rss else None, "end": rss[-1][1] if rss else None,
-                   "growth_mb_per_hour": _growth_mb_per_hour(rss, SETTLE_S + 10.0)},
         "imu_samples_measured": int(np.count_nonzero(measured)), "imu_samples_not_estimated": missing,
         "alignment_wait_s": waited,
         "requests": sent["requests"],
@@ -288,9 +265,7 @@ def format_live(figures: dict) -> str:
         f"{figures['faded_imu_samples']:,} of them IMU samples: counted {figures['imu_samples_lost_by_clock']:,} by "
         f"the autopilot's clock, {figures['lost_by_sequence']:,} packets by sequence number"
         + (f"; {figures['kernel_drops']:,} dropped by the system" if figures["kernel_drops"] is not None else ""),
-        f"  memory: RSS {_mb(figures['rss_mb']['start'])} when streaming began, {_mb(figures['rss_mb']['end'])} "
-        f"at the end: {figures['rss_mb']['growth_mb_per_hour']:+.0f} MB per hour at {figures['imu_rate_hz']:g} Hz",
-        _probe_line(figures.get("rate_probe")),
+        *_probe_lines(figures.get("rate_probe")),
         f"  targets: 0 dropped, p99 ≤ {TARGET_P99_MS:g} ms, loss counted within "
         f"{100 * TARGET_LOSS_AGREEMENT:g} %, {TARGET_RATE:,} packets/s held: {met}"
         + (f" ({figures['imu_samples_not_estimated']} samples never estimated)"
@@ -299,16 +274,16 @@ def format_live(figures: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _probe_line(probe: dict | None) -> str:
+def _probe_lines(probe: dict | None) -> list[str]:
     if probe is None:
-        return "  rate: not probed"
+        return ["  rate: not probed"]
     drops = "" if probe["kernel_drops"] is None else f", {probe['kernel_drops']:,} dropped by the system"
-    return (f"  rate: {probe['packets_per_s']:,} packets/s for {probe['seconds']:g} s: {probe['sent']:,} sent, "
-            f"{probe['received']:,} received{drops}: {'held' if probe['held'] else 'NOT held'}")
-
-
-def _mb(x) -> str:
-    return "–" if x is None else f"{x:.0f} MB"
+    per_hour = probe["mb_per_hour_at_1khz"]
+    return [f"  rate: {probe['packets_per_s']:,} packets/s for {probe['seconds']:g} s: {probe['sent']:,} sent, "
+            f"{probe['received']:,} received{drops}: {'held' if probe['held'] else 'NOT held'}",
+            f"  memory: RSS grew {probe['rss_growth_mb']:.0f} MB over those {probe['imu_samples']:,} IMU samples "
+            f"({probe['imu_samples'] / LIVE_IMU_HZ / 60:.0f} min at {LIVE_IMU_HZ:g} Hz, no recording): "
+            + (f"{per_hour:.0f} MB per hour at {LIVE_IMU_HZ:g} Hz" if per_hour is not None else "–")]
 
 
 def _ms(x) -> str:
