@@ -31,7 +31,6 @@ import io
 import json
 import multiprocessing
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -108,31 +107,38 @@ def _probe_sender(port: int, speed: float, sim_seconds: float, out: str) -> None
     Path(out).write_text(json.dumps(sum(stats.sent.values())))
 
 
-def rate_probe(names: list[str], speed: float = RATE_PROBE_SPEED, seconds: float = RATE_PROBE_S) -> dict:
-    """The flight streamed at ``speed`` times real time for ``seconds`` of wall time to a live
-    session running ``names`` (no recording, no rate requests): what was sent and received."""
+def _session_against(sender, args: tuple, names: list[str], **options):
+    """A live session running ``names`` (more ``LiveOptions`` in ``options``) while a child
+    process runs ``sender(port, *args)``: started once the session listens, the session ends
+    when it is done. Returns (the session's result, this process's RSS MB when it started)."""
     from .live import LiveOptions, run_live
     from .live.display import StatusLine
 
     port = _free_port()
+    child = multiprocessing.get_context("spawn").Process(target=sender, args=(port, *args), daemon=True)
+    began = []
+
+    def on_line(line: str) -> None:  # the first line comes once the port is bound
+        if not began:
+            began.append(_rss_mb())
+            child.start()
+    result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ, **options),
+                      stop=lambda: bool(began) and child.exitcode is not None,
+                      status=StatusLine(io.StringIO()), say=on_line)
+    child.join(10)
+    if child.exitcode != 0:
+        raise RuntimeError(f"the simulated autopilot failed (exit {child.exitcode})")
+    return result, began[0]
+
+
+def rate_probe(names: list[str], speed: float = RATE_PROBE_SPEED, seconds: float = RATE_PROBE_S) -> dict:
+    """The flight streamed at ``speed`` times real time for ``seconds`` of wall time to a live
+    session running ``names`` (no recording, no rate requests): what was sent and received."""
     with tempfile.TemporaryDirectory() as tmp:
         out = str(Path(tmp) / "sent.json")
-        child = multiprocessing.get_context("spawn").Process(
-            target=_probe_sender, args=(port, speed, seconds * speed, out), daemon=True)
-        started = []
-
-        def on_line(line: str) -> None:  # the first line comes once the port is bound
-            if not started:
-                started.append(_rss_mb())
-                child.start()
-        result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ,
-                                      record=None, request=False, duration=seconds + 120.0),
-                          stop=lambda: bool(started) and child.exitcode is not None,
-                          status=StatusLine(io.StringIO()), say=on_line)
-        grown_mb = _rss_mb() - started[0]  # the session's state is still held by ``result``
-        child.join(10)
-        if child.exitcode != 0:
-            raise RuntimeError(f"the simulated autopilot failed (exit {child.exitcode})")
+        result, rss_before = _session_against(_probe_sender, (speed, seconds * speed, out), names,
+                                              record=None, request=False, duration=seconds + 120.0)
+        grown_mb = _rss_mb() - rss_before  # the session's state is still held by ``result``
         sent = json.loads(Path(out).read_text())
     received, drops = result.monitor.packets, result.kernel_drops
     samples = result.estimation.samples
@@ -146,34 +152,13 @@ def run_live_bench(names: list[str], seconds: float = 60.0, say=print, probe_sec
     """Stream ``seconds`` of 1 kHz IMU to a live session running ``names``, then probe the rate
     it holds for ``probe_seconds``; the figures as a dict."""
     from .estimators import warm_up
-    from .live import LiveOptions, run_live
-    from .live.display import StatusLine
 
     warm_up(names)
+    say(f"live: streaming {seconds:g} s of RAW_IMU at {LIVE_IMU_HZ:g} Hz and ATTITUDE at "
+        f"{LIVE_ATT_HZ:g} Hz over loopback UDP to a live session ({', '.join(names)}) ...")
     with tempfile.TemporaryDirectory() as tmp:
-        port = _free_port()
-        child = multiprocessing.get_context("spawn").Process(target=_sender, args=(port, seconds, tmp),
-                                                              daemon=True)
-        started = []
-
-        def on_line(line: str) -> None:  # the first line comes once the port is bound
-            if not started:
-                child.start()
-                started.append(time.monotonic())
-
-        def child_done() -> bool:
-            return bool(started) and child.exitcode is not None
-
-        say(f"live: streaming {seconds:g} s of RAW_IMU at {LIVE_IMU_HZ:g} Hz and ATTITUDE at "
-            f"{LIVE_ATT_HZ:g} Hz over loopback UDP to a live session ({', '.join(names)}) ...")
-        quiet = StatusLine(io.StringIO())
-        result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ,
-                                      record=str(Path(tmp) / "bench.tlog"), record_latency=True,
-                                      duration=seconds + SETTLE_S + 60.0),
-                          stop=child_done, status=quiet, say=on_line)
-        child.join(10)
-        if child.exitcode != 0:
-            raise RuntimeError(f"the simulated autopilot failed (exit {child.exitcode})")
+        result, _ = _session_against(_sender, (seconds, tmp), names, record=str(Path(tmp) / "bench.tlog"),
+                                     record_latency=True, duration=seconds + SETTLE_S + 60.0)
         sent_at = np.load(Path(tmp) / "imu_sent_at.npy")
         sent = json.loads((Path(tmp) / "sent.json").read_text())
     figures = _figures(names, seconds, result, sent_at, sent)

@@ -25,7 +25,7 @@ from ..runner import LOW_IMU_RATE_HZ
 from ..sink import Sink
 from .estimation import LiveEstimation
 from ..readers import enum_name, identify_vehicle
-from ..readers.tlog import is_vehicle
+from ..readers.tlog import IMU_MESSAGES, is_vehicle
 from .link import (UDP_RECEIVE_BUFFER, LinkMonitor, RateRequester, close_link, is_corrupt, kernel_drops,
                    mavlink2, open_link, receive_buffer, request_identity, wait_readable)
 from .recorder import TlogRecorder
@@ -47,7 +47,6 @@ NOT_VEHICLES = {getattr(mavlink2, f"MAV_TYPE_{n}") for n in (
     "GCS", "ANTENNA_TRACKER", "ONBOARD_CONTROLLER", "GIMBAL", "ADSB", "CAMERA", "CHARGING_STATION",
     "FLARM", "SERVO", "ODID", "BATTERY", "PARACHUTE", "LOG", "OSD", "IMU", "GPS", "WINCH")
     if hasattr(mavlink2, f"MAV_TYPE_{n}")}
-IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
 
 
 def default_record_path() -> str:

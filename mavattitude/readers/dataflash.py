@@ -46,6 +46,15 @@ DEG = math.pi / 180.0
 TEXT_TYPES = ("PARM", "MSG", "VER")  # parameters and who wrote the log, not samples
 MAX_INSTANCE = 9  # sensor instances ArduPilot numbers (0-based); beyond: a corrupt record
 
+# The sensor messages kept per instance: the collector's kind and the columns of their values
+# (IMT: delta angles and velocities, made rates in ``_sensor_values``).
+SENSORS = {
+    "IMU": ("imu", ("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ")),
+    "IMT": ("imu", ("DelAX", "DelAY", "DelAZ", "DelVX", "DelVY", "DelVZ")),
+    "GYR": ("gyr", ("GyrX", "GyrY", "GyrZ")),
+    "ACC": ("acc", ("AccX", "AccY", "AccZ")),
+    "MAG": ("mag", ("MagX", "MagY", "MagZ")),
+}
 WANTED = ["IMU", "IMU2", "IMU3", "GYR", "ACC", "IMT", "IMT2", "IMT3", "MAG", "MAG2", "MAG3", "GPS", "BARO",
           "ATT", "SIM", "PARM", "MSG", "VER"]
 
@@ -126,10 +135,9 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
     else:
         instance = np.full(len(t), int(name[-1]) - 1 if name[-1].isdigit() else 0)
     plausible = (instance >= 0) & (instance <= MAX_INSTANCE)
-    per_instance = {"IMU": ("imu", "IMU"), "MAG": ("mag", "MAG"), "IMT": ("imu", "IMT"), "GYR": ("gyr", "GYR"),
-                    "ACC": ("acc", "ACC")}.get(name.rstrip("23"))
-    if per_instance:
-        kind, prefix = per_instance
+    prefix = name.rstrip("23")  # IMU2 and MAG3 of old logs: IMU and MAG
+    if prefix in SENSORS:
+        kind, _ = SENSORS[prefix]
         values = _sensor_values(prefix, r)
         for i in np.unique(instance[plausible]):
             mine = instance == i
@@ -158,14 +166,13 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
 
 def _sensor_values(prefix: str, r: dict) -> np.ndarray:
     """The SI values of one sensor message type's records (see the table above)."""
-    if prefix == "IMT":
+    values = np.column_stack([r[c] for c in SENSORS[prefix][1]])
+    if prefix == "MAG":
+        return values * MILLIGAUSS_TO_TESLA
+    if prefix == "IMT":  # delta angle and velocity over their intervals: rates
         with np.errstate(divide="ignore", invalid="ignore"):  # a zero interval: not finite, dropped later
-            gyro = np.column_stack([r[c] for c in ("DelAX", "DelAY", "DelAZ")]) / r["DelaT"][:, None]
-            accel = np.column_stack([r[c] for c in ("DelVX", "DelVY", "DelVZ")]) / r["DelvT"][:, None]
-        return np.hstack([gyro, accel])
-    columns = {"IMU": ("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"), "MAG": ("MagX", "MagY", "MagZ"),
-               "GYR": ("GyrX", "GyrY", "GyrZ"), "ACC": ("AccX", "AccY", "AccZ")}[prefix]
-    return np.column_stack([r[c] for c in columns]) * (MILLIGAUSS_TO_TESLA if prefix == "MAG" else 1.0)
+            return values / np.column_stack([r["DelaT"]] * 3 + [r["DelvT"]] * 3)
+    return values
 
 
 def _read_with_pymavlink(path: str, progress, why: str) -> Decoded:

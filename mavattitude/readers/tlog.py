@@ -70,11 +70,8 @@ def tlog_start(data: bytes) -> int | None:
     return None
 
 
-SCALED_IMUS = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
-
-
 # The messages whose samples we keep, by kind, and those read for their text or numbers only.
-IMU_MESSAGES = SCALED_IMUS + ("HIGHRES_IMU",)
+IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
 SAMPLE_MESSAGES = IMU_MESSAGES + ("GPS_RAW_INT", "SCALED_PRESSURE", "ATTITUDE", "ATTITUDE_QUATERNION", "SIMSTATE")
 OTHER_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "AUTOPILOT_VERSION", "HEARTBEAT")
 VEHICLE_MESSAGES = IMU_MESSAGES + ("ATTITUDE",)  # what only a vehicle sends (``is_vehicle``)
@@ -236,8 +233,6 @@ def read_tlog(path: str, progress=None) -> Decoded:
         progress(0.5)
     names = {msgid(name): name for name in SAMPLE_MESSAGES + OTHER_MESSAGES}
     rows_of = {name: np.flatnonzero(packets.msgids == i) for i, name in names.items()}
-    columns = {name: SimpleNamespace(**decode(data, packets, name, rows))
-               for name, rows in rows_of.items() if len(rows) and name in SAMPLE_MESSAGES}
     text_rows = np.sort(np.concatenate([rows_of[name] for name in OTHER_MESSAGES]))
     mav = dialect.MAVLink(None)  # the few text and identity messages: pymavlink decodes them
     notes = {i: mav.decode(packet_bytes(data, packets, i)) for i in text_rows.tolist()}
@@ -256,8 +251,14 @@ def read_tlog(path: str, progress=None) -> Decoded:
     for i, msg in notes.items():
         if mine[i]:
             decoder.note(msg)
+    columns, order = {}, {}
+    for name in SAMPLE_MESSAGES:  # only the vehicle's packets are decoded
+        rows = rows_of[name][mine[rows_of[name]]]
+        if len(rows):
+            columns[name] = SimpleNamespace(**decode(data, packets, name, rows))
+            order[name] = packets.offsets[rows]
     col = Collector()
-    _collect(col, packets, columns, rows_of, mine)
+    _collect(col, columns, order)
     out = Decoded(col, decoder.params, decoder.texts, packets.counts, warnings=_damage(packets))
     others = sorted(set(packets.sysids[~mine & after_first].tolist()) - {vehicle})
     if others:
@@ -265,43 +266,37 @@ def read_tlog(path: str, progress=None) -> Decoded:
     return out
 
 
-def _collect(col: Collector, packets, columns: dict, rows_of: dict, mine: np.ndarray) -> None:
-    """The vehicle's sample messages into the collector, a message type at a time, each sample
-    on the boot clock (``MessageDecoder`` says how a message without a time gets one)."""
-    times = {}
-    for name, m in columns.items():
-        keep = mine[rows_of[name]]
-        columns[name] = SimpleNamespace(**{k: v[keep] for k, v in vars(m).items()})
-        rows_of[name] = rows_of[name][keep]
-        times[name] = boot_time(columns[name])
+def _collect(col: Collector, columns: dict, order: dict) -> None:
+    """The vehicle's sample messages (name -> columns; ``order``: each packet's offset in the
+    file) into the collector, each sample on the boot clock (``MessageDecoder`` says how a
+    message without a time gets one)."""
+    times = {name: boot_time(m) for name, m in columns.items()}
     # the latest time of the vehicle's other sample messages, in file order
-    clock_rows = np.concatenate([rows_of[n][np.isfinite(t)] for n, t in times.items() if n != "GPS_RAW_INT"]
-                                + [np.empty(0, np.int64)])
-    clock_t = np.concatenate([t[np.isfinite(t)] for n, t in times.items() if n != "GPS_RAW_INT"] + [np.empty(0)])
-    by_row = np.argsort(clock_rows)
-    clock_rows, clock_t = clock_rows[by_row], clock_t[by_row]
+    timed = [(order[n][np.isfinite(t)], t[np.isfinite(t)]) for n, t in times.items() if n != "GPS_RAW_INT"]
+    clock_at = np.concatenate([at for at, _ in timed] + [np.empty(0, np.int64)])
+    clock_t = np.concatenate([t for _, t in timed] + [np.empty(0)])
+    by_place = np.argsort(clock_at)
+    clock_at, clock_t = clock_at[by_place], clock_t[by_place]
     for name, m in columns.items():
-        t, rows = times[name], rows_of[name]
+        t, at = times[name], order[name]
         missing = ~np.isfinite(t)
         if missing.any():
-            before = np.searchsorted(clock_rows, rows[missing]) - 1
+            before = np.searchsorted(clock_at, at[missing]) - 1
             t[missing] = np.where(before >= 0, clock_t[np.maximum(before, 0)], np.nan)
         has_time = np.isfinite(t)
-        order = packets.offsets[rows]
         if name in IMU_MESSAGES:
-            instance = np.asarray(imu_instance(name, m)) * np.ones(len(t), np.int64)
-            imu, mag = imu_values(name, m)
-            imu, mag = np.column_stack(imu), np.column_stack(mag)
+            instance = np.broadcast_to(imu_instance(name, m), t.shape)
+            imu, mag = (np.column_stack(v) for v in imu_values(name, m))
             for i in np.unique(instance):
                 sel = (instance == i) & has_time
-                col.add_columns("imu", imu_key(name, int(i)), order[sel], t[sel], imu[sel])
+                col.add_columns("imu", imu_key(name, int(i)), at[sel], t[sel], imu[sel])
                 # after the IMU sample of its packet, as a link decodes them (record offsets are
                 # ≥ 16 bytes apart: one more is still before the next packet)
-                col.add_columns("mag", imu_key(name, int(i)), order[sel] + 1, t[sel], mag[sel])
+                col.add_columns("mag", imu_key(name, int(i)), at[sel] + 1, t[sel], mag[sel])
         else:
             kind, values = sample_values(name, m)
             values = np.column_stack([np.broadcast_to(np.asarray(v, np.float64), t.shape) for v in values])
-            col.add_columns(kind, name, order[has_time], t[has_time], values[has_time])
+            col.add_columns(kind, name, at[has_time], t[has_time], values[has_time])
 
 
 def _damage(packets) -> list[str]:
