@@ -160,6 +160,13 @@ class Placer:
             values = np.column_stack([pos, rows[:, 4:7], h_acc, v_acc])
         self._placed[kind] = np.vstack([self._placed[kind], np.column_stack([row, values])])
 
+    def forget(self, rows: int, done: int) -> None:
+        """The IMU clock lost its first ``rows`` rows (``done`` of those left are taken)."""
+        for kind, placed in self._placed.items():
+            placed = placed.copy()
+            placed[:, 0] -= rows
+            self._placed[kind] = placed[placed[:, 0] >= done]  # an earlier row is never taken
+
     def take(self, a: int, b: int) -> Aiding:
         """The measurements fused at IMU rows [a, b); of two on one row, the newer."""
         out = Aiding.empty(b - a)

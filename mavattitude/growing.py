@@ -1,7 +1,9 @@
 """An append-only table of rows (float64 unless told) for data that arrives a little at a time.
 
 Appending is amortised O(1) (the storage doubles when full); ``view()`` is the filled part, a
-numpy view that stays valid (it keeps the storage it was taken from) even after later appends.
+numpy view that stays valid (it keeps the storage it was taken from) even after later appends
+and ``forget``. ``forget`` drops the oldest rows (a live session keeps a window, not hours);
+``forgotten`` counts them, ``appended`` every row ever appended.
 """
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ class Growing:
         self.width = width
         self._data = np.empty((capacity, width), dtype)
         self.n = 0
+        self.forgotten = 0
 
     def __len__(self) -> int:
         return self.n
@@ -34,6 +37,21 @@ class Growing:
         """Room for ``rows`` rows in all (a log's known length: no doubling past it)."""
         if rows > len(self._data):
             self._grow(rows, exact=True)
+
+    def forget(self, rows: int) -> None:
+        """Drop the first ``rows`` rows (into new storage: views taken before keep theirs)."""
+        rows = min(max(rows, 0), self.n)
+        if not rows:
+            return
+        kept = self.n - rows
+        data = np.empty((max(2 * kept, 1024), self.width), self._data.dtype)
+        data[:kept] = self._data[rows:self.n]
+        self._data, self.n = data, kept
+        self.forgotten += rows
+
+    @property
+    def appended(self) -> int:
+        return self.forgotten + self.n
 
     def _grow(self, need: int, exact: bool = False) -> None:
         data = np.empty((need if exact else max(need, 2 * len(self._data)), self.width), self._data.dtype)

@@ -63,6 +63,7 @@ class Comparison:
     # restart): nothing was estimated there, so they are not scored.
     n_in_gaps: int = 0
     n_excluded: int = 0  # reference samples inside an excluded (suspect) span, not scored
+    overlap_s: float | None = None  # s from the first reference time inside the estimate to the last; None: none
 
 
 def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float = 10.0,
@@ -165,6 +166,7 @@ def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float
         n_nan_estimate=int(np.count_nonzero(~est_ok)),
         n_in_gaps=int(np.count_nonzero(in_gap)),
         n_excluded=int(np.count_nonzero(excluded)),
+        overlap_s=float(t[-1] - t[0]) if len(t) else None,
     )
 
 

@@ -147,6 +147,20 @@ class PhaseTracker:
     def n(self) -> int:
         return len(self._rows)
 
+    def forget(self, rows: int) -> None:
+        """Drop the first ``rows`` phase rows, and the heights no later sample reads: those
+        after the first START_S and before the last SMOOTH_S (a live session of hours)."""
+        self._rows.forget(rows)
+        h = self._heights.view()
+        if not len(h):
+            return
+        first = int(np.searchsorted(h[:, 0], h[0, 0] + START_S, side="right"))
+        recent = int(np.searchsorted(h[:, 0], h[-1, 0] - SMOOTH_S, side="left"))
+        if recent > first:
+            kept = np.vstack([h[:first], h[recent:]])
+            self._heights = Growing(2)
+            self._heights.extend(kept)
+
     def series(self) -> PhaseSeries:
         rows = self._rows.view()
         return PhaseSeries(self.source, rows[:, 0], rows[:, 1], rows[:, 2])

@@ -137,7 +137,7 @@ def nothing_scored(comparisons: dict[str, Comparison], warmup_s: float) -> str |
     warm-up, or an estimate that never overlaps the reference. None when something was."""
     if not comparisons or any(a is not None for c in comparisons.values() for a in c.axes.values()):
         return None
-    spans = [float(c.t[-1] - c.t[0]) for c in comparisons.values() if len(c.t)]
+    spans = [c.overlap_s for c in comparisons.values() if c.overlap_s is not None]
     if not spans:
         return "nothing scored: the estimates and the reference never overlap in time"
     return (f"nothing scored: the estimates overlap the reference for {max(spans):.1f} s, no more than the "

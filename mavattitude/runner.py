@@ -83,7 +83,10 @@ class Run:
     """One stretch of IMU data without a gap: [start, end) rows, and how it began."""
     start: int
     alignment: est.Alignment
-    end: int = 0
+    end: int
+    t_start: float  # s, its first IMU sample
+    gap: float  # s, from the IMU sample before it (0 for the first run)
+    has_heading: dict[str, bool]  # estimator -> whether it had a heading reference in this run
 
 
 class Runner:
@@ -116,7 +119,6 @@ class Runner:
         self.events: list[Event] = []
         self.estimates = {n: Growing(4) for n in self.names}  # (N, 4) at the IMU rows estimated
         self.diagnostics: dict[str, dict[str, Growing]] = {n: {} for n in self.names}  # key -> (N, 1)
-        self.in_air = Growing(1)
         self.has_heading = {e.name: e.has_heading_reference(False) for e in self.estimators}
         self._phase: PhaseTracker | None = None
         self._heights_seen = 0  # height samples given to the phase tracker
@@ -165,7 +167,7 @@ class Runner:
             return s.t if by_time else s.arrival
         self.add_imu(imu.t, imu.gyro, imu.accel, arrival(imu))
         self._rows_expected = len(imu.t)
-        kept = [*self.estimates.values(), self.in_air, *(self._aiding_given.values() if self.uses_aiding else ())]
+        kept = [*self.estimates.values(), *(self._aiding_given.values() if self.uses_aiding else ())]
         for series in kept:
             series.reserve(len(imu.t))  # filled to exactly this size, never doubled
         if mag is not None:
@@ -225,7 +227,8 @@ class Runner:
                 q0 = quat.from_euler(roll, pitch, quat.to_euler(previous.last)[2])
             e.initialize(q0, alignment.gyro_bias)
             self.has_heading[e.name] = e.has_heading_reference(mag is not None)
-        self.runs.append(Run(a, alignment, a))
+        gap = float(t[0] - self.store[IMU].view()[a - 1, 0]) if a > 0 else 0.0
+        self.runs.append(Run(a, alignment, a, float(t[0]), gap, dict(self.has_heading)))
         self.running = True
         return True
 
@@ -275,8 +278,62 @@ class Runner:
                 for tr in t[new["reset"] == 1.0]:
                     self.events.append(Event(float(tr), "warn", f"{e.name}: watchdog reset (EKF attitude too "
                                                                 "far from its complementary filter): restarted from it"))
-        self.in_air.extend(in_air)
         return Chunk(t, out, diagnostics, in_air)
+
+    # ------------------------------------------------------------ forgetting (a live session)
+
+    def forget(self, before: float) -> None:
+        """Drop the IMU rows estimated before ``before`` (s) with their estimates, and the
+        compass, GPS and baro samples that no later IMU row can be given: a session of hours
+        keeps a window, not everything. What is estimated after it is what a runner that kept
+        everything estimates, to the bit (tested). Nothing is dropped with ``keep_history``
+        (replay), or once a kind's rows have not arrived in time order (never on a link:
+        samples are delivered in arrival order), where the latest to arrive is no longer
+        among the latest rows."""
+        if self.keep_history or self._in_arrival_order != set(WIDTH):
+            return
+        imu = self.store[IMU]
+        # two estimated rows stay: the gap check reads the one before, the aiding's IMU interval two
+        k = min(int(np.searchsorted(imu.column(0), before)), self.done - 2)
+        if k <= 0:
+            return
+        key = imu.view()[k, -1]  # IMU rows arrive in order: every later one arrived after this
+        tracked = (BARO if self._phase.source == "baro height" else GPS) if self._phase is not None else None
+        for kind in (MAG, GPS, BARO):
+            rows = self.store[kind]
+            first = int(np.searchsorted(rows.column(rows.width - 1), key, side="right")) - 1  # held at row k
+            if kind == MAG:
+                first -= 1  # its staleness reads the interval before it
+            if kind != MAG and self.uses_aiding:
+                first = min(first, self._placer.done[kind])
+            if kind == tracked:
+                first = min(first, self._heights_seen)
+            first = max(first, 0)
+            rows.forget(first)
+            if kind != MAG:
+                self._placer.done[kind] -= first
+            if kind == tracked:
+                self._heights_seen -= first
+                self._phase_rows.forget(first)
+        if tracked is not None and self._phase_rows.n:
+            # the phase rows still looked up (the latest at each kept height sample), and the
+            # one before the first not yet reported (its change is an event)
+            r = max(min(int(self._phase_rows.view()[0, 0]) - 1, self._phase_reported - 1), 0)
+            self._phase.forget(r)
+            self._phase_rows.view()[:] -= r
+            self._phase_reported -= r
+        imu.forget(k)
+        for kept in self.estimates.values():
+            kept.forget(k)
+        self.done -= k
+        for run in self.runs:
+            run.start, run.end = run.start - k, run.end - k
+        self._placer.forget(k, self.done)
+
+    @property
+    def estimated(self) -> int:
+        """IMU rows estimated since the start, forgotten ones included."""
+        return self.done + self.store[IMU].forgotten
 
     # ------------------------------------------------------------ what each IMU sample is given
 
@@ -363,8 +420,7 @@ class Runner:
     @property
     def restarts(self) -> list[tuple[float, float]]:
         """(time, gap before it) of every run after the first."""
-        t = self.store[IMU].column(0)
-        return [(float(t[r.start]), float(t[r.start] - t[r.start - 1])) for r in self.runs[1:]]
+        return [(r.t_start, r.gap) for r in self.runs[1:]]
 
     @property
     def alignment(self) -> est.Alignment | None:

@@ -114,20 +114,26 @@ def listen(port: int, thread, holder, tmp_path, **options):
 ALL = list(ESTIMATORS)
 
 
-def assert_live_equals_replay(result, recording, names, reference="autopilot"):
-    """A live session's estimates equal those of ``replay`` of its own recording (the same IMU
-    source: live chooses it from its first seconds, replay from the whole log)."""
-    est = result.estimation
-    seg = est.segments[result.segment]
+def assert_live_equals_replay(est, segment, comparisons, recording, names, reference="autopilot"):
+    """A live session's estimates (the last of them it keeps) equal those of ``replay`` of its
+    own recording (the same IMU source: live chooses it from its first seconds, replay from the
+    whole log), and so do its final metrics (the quantiles within the running sketch's 0.1 %)."""
+    seg = est.segments[segment]
     replay = run_replay(read_log(str(recording)), names, reference=reference, imu_source=seg.imu_key)
     for name in names:
         live, again = est.estimate_series(name, seg), replay.estimates[name]
-        assert len(live.t) > 100 and np.array_equal(live.t, again.t[:len(live.t)]), name
-        angle = 2 * np.arcsin(np.clip(np.linalg.norm(quat.multiply(quat.conjugate(again.q[:len(live.t)]),
-                                                                     live.q)[:, 1:], axis=1), 0, 1))
+        start = int(np.searchsorted(again.t, live.t[0]))
+        again_t, again_q = again.t[start:start + len(live.t)], again.q[start:start + len(live.t)]
+        assert len(live.t) > 100 and np.array_equal(live.t, again_t), name
+        angle = 2 * np.arcsin(np.clip(np.linalg.norm(quat.multiply(quat.conjugate(again_q), live.q)[:, 1:], axis=1),
+                                      0, 1))
         assert angle.max() <= 1e-9, (name, angle.max())
-        assert result.comparisons[name].axes["roll"].mae == pytest.approx(
-            replay.comparisons[name].axes["roll"].mae, abs=1e-9), name
+    assert list(comparisons) == list(replay.comparisons)
+    for name, c in comparisons.items():
+        for axis in ("roll", "pitch", "yaw"):
+            a, b = c.axes[axis], replay.comparisons[name].axes[axis]
+            assert a.n == b.n > 100 and a.mae == pytest.approx(b.mae, abs=1e-9), (name, axis)
+            assert a.max == pytest.approx(b.max, abs=1e-9) and a.sigma3 == pytest.approx(b.sigma3, rel=1e-3)
 
 
 def recorded_packets(path) -> list[bytes]:
@@ -169,7 +175,8 @@ def test_live_against_the_simulator_matches_replay_of_the_same_data(tmp_path, fl
     # every packet sent is in the recording, byte for byte, in order
     assert recorded_packets(tmp_path / "live.tlog") == tap.sent
     # replaying that recording gives the same estimates, to the bit
-    assert_live_equals_replay(result, tmp_path / "live.tlog", ALL, reference="truth")
+    assert_live_equals_replay(result.estimation, result.segment, result.comparisons, tmp_path / "live.tlog", ALL,
+                              reference="truth")
     assert result.comparisons["cpf-ekf"].axes["roll"].mae < 0.3
 
 
@@ -200,7 +207,7 @@ def test_a_sender_that_stops_and_comes_back(tmp_path, flight):
     assert any(t.startswith("link lost") for t in texts) and any(t.startswith("link back") for t in texts)
     assert any(t.startswith("IMU gap of 3.0 s") for t in texts)
     seg = result.estimation.seg
-    assert seg.restarts and 17.9 < seg.restarts[0] < 18.1
+    assert seg.runner.restarts and 17.9 < seg.runner.restarts[0][0] < 18.1
     q = result.estimation.estimate_series("mahony").q
     assert np.isfinite(q).all() and result.estimation.estimate_series("mahony").t[-1] > 29.0
     assert recorded_packets(tmp_path / "live.tlog") == tap.sent
@@ -288,7 +295,7 @@ def test_live_against_mavplayback_of_a_shared_sitl_log(tmp_path):
     result = listen(port, threading.Thread(target=play, daemon=True), holder, tmp_path, names=ALL)
     est = result.estimation
     assert result.vehicle == (1, 1) and result.firmware
-    assert_live_equals_replay(result, tmp_path / "live.tlog", ALL)
+    assert_live_equals_replay(result.estimation, result.segment, result.comparisons, tmp_path / "live.tlog", ALL)
     assert est.samples > 100 and "RAW_IMU" in est.seg.imu
     assert any("falling back to REQUEST_DATA_STREAM" in line for line in result.lines)  # it cannot answer
     assert any("IMU rate" in e.text and "too low" in e.text for e in est.events)
@@ -470,6 +477,28 @@ def _feed(est, path, edit=lambda msg: msg, every=7):
     return est
 
 
+@pytest.mark.parametrize("reference", ["autopilot", "truth"])
+def test_a_session_keeps_only_its_last_seconds_and_scores_as_replay(monkeypatch, reference):
+    """Constant memory: a session keeping 2 s of history, forgetting and scoring often,
+    estimates what replay of the same packets does, to the bit, and its final metrics
+    (scored as it went) are replay's."""
+    from mavattitude.live import estimation
+    from mavattitude.runner import IMU
+
+    monkeypatch.setattr(estimation, "FORGET_EVERY_S", 0.7)
+    monkeypatch.setattr(estimation, "SCORE_EVERY_S", 0.3)
+    path = ROOT / "sample_logs" / "figure8.tlog"
+    est = _feed(estimation.LiveEstimation(ALL, history_s=2.0, reference=reference), path)
+    est.step(final=True)
+    comparisons, seg = est.final_comparisons()
+    runner = seg.runner
+    assert runner.store[IMU].forgotten > 4500 and runner.store[IMU].n < 200  # 50 Hz: 2 s and a little
+    assert all(s.forgotten > 0 for s in runner.store.values()) and seg.imu[seg.imu_key].n < 500
+    assert runner._phase._rows.forgotten > 0  # the ground/air phase too
+    assert list(comparisons) == ALL + (["autopilot"] if reference == "truth" else [])
+    assert_live_equals_replay(est, seg.index, comparisons, path, ALL, reference=reference)
+
+
 @pytest.mark.slow
 def test_a_gps_that_loses_its_fix_does_not_look_like_a_reboot():
     """ArduPilot's GPS_RAW_INT carries the time of the last fix: without a fix it stops moving.
@@ -488,7 +517,7 @@ def test_a_gps_that_loses_its_fix_does_not_look_like_a_reboot():
         return msg
     est = _feed(LiveEstimation(["mahony", "cpf-ekf"]), ROOT / "sample_logs" / "figure8.tlog", edit)
     assert len(est.segments) == 1 and not any("went back" in e.text for e in est.events)
-    assert est.samples == est.seg.imu["RAW_IMU"].n >= 4990  # all but the two corrupt ones
+    assert est.samples == est.seg.imu["RAW_IMU"].appended >= 4990  # all but the two corrupt ones
     assert est.seg.gps.column(0)[-1] <= 30.0 + 1e-9
 
 

@@ -16,6 +16,7 @@ import numpy as np
 import rerun as rr
 
 from .. import view
+from ..growing import Growing
 from ..metrics import AXES
 from ..runner import Chunk
 from .estimation import LiveEstimation
@@ -69,8 +70,8 @@ class LiveView:
         self._diag_sent_at = -np.inf
         self._status_at = -np.inf
         self._ref_sent = {"autopilot": -np.inf, "truth": -np.inf}
-        self._err_sent = {name: -np.inf for name in self.series}
-        self._gps_sent = 0
+        self._gps_sent = 0  # GPS rows taken (of every one the segment received)
+        self._track = Growing(2)  # lat, lon of the GPS track, thinned to GPS_TRACK_MAX_POINTS or so
         self._events_sent = 0
         self._segment = 0
 
@@ -98,7 +99,6 @@ class LiveView:
         if seg.index != self._segment:  # a reboot: the clock starts again
             self._segment = seg.index
             self._ref_sent = {k: -np.inf for k in self._ref_sent}
-            self._err_sent = {k: -np.inf for k in self._err_sent}
             self._gps_sent = 0
         chunks, self._pending = self._pending, []
         self._diag_pending += chunks
@@ -122,11 +122,9 @@ class LiveView:
                                           scalar_max_hz=SCALAR_HZ, transform_max_hz=TRANSFORM_HZ)
                 self._ref_sent[key] = float(series.t[-1])
         for name in est.names:
-            got = est.errors(name, self._err_sent[name])
+            got = est.take_errors(name)
             if got is not None:
-                t, err, scored = got
-                view.log_error_columns(rec, name, t, err, scored, max_hz=SCALAR_HZ)
-                self._err_sent[name] = float(t[-1])
+                view.log_error_columns(rec, name, *got, max_hz=SCALAR_HZ)
         self._flush_gps()
         self._flush_events()
 
@@ -151,28 +149,28 @@ class LiveView:
 
     def _flush_gps(self) -> None:
         g = self.est.seg.gps
-        if g.n <= self._gps_sent:
+        if g.appended <= self._gps_sent:
             return
-        rows = g.view()
+        rows = g.view()[max(self._gps_sent - g.forgotten, 0):]
+        self._gps_sent = g.appended
         ok = (rows[:, 7] >= 2) & np.isfinite(rows[:, 1]) & ~((rows[:, 1] == 0) & (rows[:, 2] == 0))
         if not ok.any():
-            self._gps_sent = g.n
             return
         if not self.has_gps:
             self.has_gps = True
             self._send_blueprint()
             self.rec.log("map/position", rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(7.0),
                                                                   colors=[view.POSITION_COLOR]), static=True)
-        track = rows[ok][:, 1:3]
-        self.rec.log("map/track", rr.GeoLineStrings(lat_lon=[view._thin(track, view.GPS_TRACK_MAX_POINTS)],
+        self._track.extend(rows[ok][:, 1:3])
+        if self._track.n > 2 * view.GPS_TRACK_MAX_POINTS:  # every other point: a session of hours stays small
+            thinned = self._track.view()[::2].copy()
+            self._track = Growing(2)
+            self._track.extend(thinned)
+        self.rec.log("map/track", rr.GeoLineStrings(lat_lon=[view._thin(self._track.view(), view.GPS_TRACK_MAX_POINTS)],
                                                     radii=rr.Radius.ui_points(2.0), colors=[view.TRACK_COLOR]),
                      static=True)
-        new = ok.copy()
-        new[:self._gps_sent] = False
-        if new.any():
-            self.rec.send_columns("map/position", indexes=[view._time(rows[new, 0])],
-                                  columns=rr.GeoPoints.columns(positions=rows[new][:, 1:3]))
-        self._gps_sent = g.n
+        self.rec.send_columns("map/position", indexes=[view._time(rows[ok, 0])],
+                              columns=rr.GeoPoints.columns(positions=rows[ok][:, 1:3]))
 
     def _flush_events(self) -> None:
         events = self.est.events[self._events_sent:]

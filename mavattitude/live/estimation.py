@@ -20,6 +20,11 @@ On the autopilot's clock, per clock segment:
   shown up by then; ``imu_source`` chooses), and, when a compass is there and the session
   asked for COMPASS_DEC, once it has arrived or ``DECLINATION_WAIT_S`` more have passed. A log
   chooses on all of its data: pass the same ``imu_source`` to compare the two.
+
+Memory stays flat however long a session runs: each estimate is scored as it comes
+(``running_metrics``: the final metrics are replay's of the same data, the quantiles within
+0.1 %), and only the last ``history_s`` of samples, estimates and references is kept (the
+rolling metrics and the view read them); the runner forgets the rest (``Runner.forget``).
 """
 from __future__ import annotations
 
@@ -32,16 +37,20 @@ from .. import quaternion as quat
 from ..events import Event
 from ..flight import AttitudeSeries
 from ..growing import Growing
-from ..metrics import AXES, Comparison, circular_mean_deg, compare
+from ..metrics import AXES, Comparison, compare
 from ..readers import IMU_LIMITS, MAG_LIMITS, earth_field_power, pick_imu, pick_mag
 from ..readers.collect import CORRUPT, HELD, ClockTracker
 from ..readers.tlog import MessageDecoder
 from ..runner import Chunk, Runner
+from ..running_metrics import RunningComparison
 from .loss import SampleLoss
 
 ALIGN_S = 3.0  # s of IMU data before the sources are chosen
 DECLINATION_WAIT_S = 2.0  # s more of IMU data to wait for a COMPASS_DEC that was asked for
 MAG_SCALE_SAMPLES = 5  # compass samples that decide its unit
+HISTORY_S = 60.0  # s of samples, estimates and references kept (at least the rolling window)
+SCORE_EVERY_S = 0.5  # s of estimates between scorings (each one computes errors for every estimator)
+FORGET_EVERY_S = 10.0  # s of estimates between forgetting what is older than the history
 REFERENCE_KINDS = {"att_euler": "autopilot", "att_quat": "autopilot_q", "truth_euler": "truth"}
 REFERENCE_SOURCES = {"autopilot": "ATTITUDE", "autopilot_q": "ATTITUDE_QUATERNION", "truth": "SIMSTATE"}
 
@@ -65,11 +74,9 @@ class _Segment:
         self.runner: Runner | None = None
         self.fed: dict[str, int] = {}  # rows of each store handed to the runner
         self.events_taken = 0  # of the runner's events
-        self.yaw_offset: dict[str, float] = {}  # no-heading estimators: yaw offset shown (display)
-
-    @property
-    def restarts(self) -> list[float]:
-        return [t for t, _ in self.runner.restarts] if self.runner else []
+        self.scores: dict[str, RunningComparison] = {}  # estimator (or "autopilot" against truth) -> its score
+        self.scored_at = -math.inf  # s, the latest estimate when last scored
+        self.forgot_at = -math.inf  # s, the latest estimate when last forgotten
 
 
 class LiveEstimation:
@@ -77,11 +84,14 @@ class LiveEstimation:
 
     ``declination_deg``: None takes the vehicle's COMPASS_DEC when it has arrived by the
     start, else 0 with a warning. ``reference``: "autopilot" or "truth" (SIMSTATE).
-    ``record_latency``: keep (time_usec, monotonic s when estimated) per IMU sample."""
+    ``record_latency``: keep (time_usec, monotonic s when estimated) per IMU sample (a bench:
+    it grows). ``history_s``: s of data kept. ``errors_for_view``: keep each estimator's errors
+    as they are scored, for ``take_errors``."""
 
     def __init__(self, names: list[str], params: dict | None = None, declination_deg: float | None = None,
                  use_mag: bool = True, imu_source: str | None = None, reference: str = "autopilot",
-                 warmup_s: float = 10.0, record_latency: bool = False, expect_declination: bool = False):
+                 warmup_s: float = 10.0, record_latency: bool = False, expect_declination: bool = False,
+                 history_s: float = HISTORY_S, errors_for_view: bool = False):
         self.names = list(names)
         self.params = params or {}
         self.declination_deg = declination_deg
@@ -103,6 +113,8 @@ class LiveEstimation:
         self._now = 0.0
         self._warned_imu = False
         self.imu_loss: dict[str, SampleLoss] = {}  # IMU samples lost by the autopilot clock, per stream
+        self.history_s = history_s
+        self._errors: dict[str, list] | None = {n: [] for n in self.names} if errors_for_view else None
 
     @property
     def samples_lost(self) -> SampleLoss | None:
@@ -225,17 +237,29 @@ class LiveEstimation:
         if seg.runner is None and not self._start(seg):
             return None
         self._feed(seg)
-        done = seg.runner.done
+        done = seg.runner.estimated
         chunk = seg.runner.step(final=final)
         self.events += seg.runner.events[seg.events_taken:]
         seg.events_taken = len(seg.runner.events)
-        if chunk is None:
-            return None
-        self.samples += len(chunk.t)
-        if self.record_latency:
-            estimated = time.monotonic()
-            wall = seg.wall[seg.imu_key][done:done + len(chunk.t)]
-            self.latency.extend((t, w, estimated) for t, w in zip(chunk.t.tolist(), wall))
+        for old in self.segments[:-1]:  # a reboot: score what the last segment estimated
+            if old.scored_at != math.inf:
+                self._score(old)
+                old.scored_at = math.inf
+        if chunk is not None:
+            self.samples += len(chunk.t)
+            if self.record_latency:
+                estimated = time.monotonic()
+                wall = seg.wall[seg.imu_key][done:done + len(chunk.t)]
+                self.latency.extend((t, w, estimated) for t, w in zip(chunk.t.tolist(), wall))
+            latest = float(chunk.t[-1])
+            if latest - seg.scored_at >= SCORE_EVERY_S:
+                seg.scored_at = latest
+                self._score(seg)
+            if latest - seg.forgot_at >= FORGET_EVERY_S:
+                seg.forgot_at = latest
+                self._forget(seg, latest)
+        if final:
+            self._score(seg)
         return chunk
 
     def _start(self, seg: _Segment) -> bool:
@@ -278,6 +302,55 @@ class LiveEstimation:
         if has_mag and source is None:
             self.events.append(Event(t, "warn", "no COMPASS_DEC from the vehicle and no --declination: using 0°; "
                                                 "yaw compares magnetic with true heading"))
+
+    def _score(self, seg: _Segment) -> None:
+        """Score the estimates (against truth, the autopilot too) at the reference samples they
+        now cover (``running_metrics``)."""
+        runner, ref = seg.runner, self.reference_series(seg)
+        if runner is None or not runner.done or ref is None:
+            return
+        restarts = [t for t, _ in runner.restarts]
+        pairs = [(name, runner.estimate(name), restarts, [not r.has_heading[name] for r in runner.runs])
+                 for name in self.names]
+        autopilot = self.autopilot_series(seg) if self.reference == "truth" else None
+        if autopilot is not None:
+            pairs.append(("autopilot", autopilot, (), (False,)))
+        for name, estimate, restarts, align in pairs:
+            score = seg.scores.get(name)
+            if score is None:
+                score = seg.scores[name] = RunningComparison(name, ref.source, self.warmup_s)
+            got = score.update(ref, estimate, restarts, align)
+            if got is not None and self._errors is not None and name in self._errors:
+                self._errors[name].append(got)
+
+    def take_errors(self, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """An estimator's errors scored since the last call (``errors_for_view``): (t, (N, 3)
+        estimate - reference in degrees, scored), yaw without a heading reference with its
+        offset removed (as the final metrics), NaN until that offset is known."""
+        parts, self._errors[name] = self._errors[name], []
+        return tuple(np.concatenate(c) for c in zip(*parts)) if parts else None
+
+    def _forget(self, seg: _Segment, latest: float) -> None:
+        """Drop what is older than the history and no longer needed: what was handed to the
+        runner, and what was scored."""
+        before = latest - self.history_s
+        if seg.scores:  # the estimate sample before the next reference sample to score stays
+            before = min(before, min(s.until for s in seg.scores.values()) - 1.0)
+        seg.runner.forget(before)
+        for store in seg.att.values():
+            store.forget(min(int(np.searchsorted(store.column(0), before)), store.n - 1))
+        seg.imu = {seg.imu_key: seg.imu[seg.imu_key]}  # the others stopped at the choice
+        seg.mag = {k: m for k, m in seg.mag.items() if k == seg.mag_key}
+        for name, store in (("imu", seg.imu[seg.imu_key]), ("mag", seg.mag.get(seg.mag_key)),
+                            ("gps", seg.gps), ("baro", seg.baro)):
+            if store is None:
+                continue
+            # fed rows go but the last (the next must be newer); the view reads recent GPS
+            k = min(seg.fed.get(name, 0), store.n - 1)
+            if name == "gps":
+                k = min(k, int(np.searchsorted(store.column(0), before)))
+            store.forget(k)
+            seg.fed[name] = seg.fed.get(name, 0) - max(k, 0)
 
     def _feed(self, seg: _Segment) -> None:
         """Hand the runner what arrived since the last step."""
@@ -346,50 +419,15 @@ class LiveEstimation:
             out[name] = tuple(c.axes[a].mae if c.axes[a] is not None else math.nan for a in AXES)
         return out
 
-    def errors(self, name: str, t_from: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """Estimate - reference (degrees) at the reference times after ``t_from`` the estimate
-        covers: (t, (N, 3) error, scored). Yaw without a heading reference has the offset of its
-        run's first scored second removed (as the final metrics do)."""
-        seg = self.seg
-        ref, e = self.reference_series(), self.estimate_series(name)
-        if ref is None or e is None:
-            return None
-        r0 = int(np.searchsorted(ref.t, t_from, side="right"))
-        r1 = int(np.searchsorted(ref.t, e.t[-1], side="right"))
-        if r1 <= r0:
-            return None
-        e0 = max(int(np.searchsorted(e.t, ref.t[r0])) - 1, 0)
-        c = compare(AttitudeSeries(ref.source, ref.t[r0:r1], ref.q[r0:r1]),
-                    AttitudeSeries(name, e.t[e0:], e.q[e0:]), warmup_s=0.0, name=name)
-        err = c.error_deg
-        scored = np.isfinite(err).all(axis=1) & (c.t >= float(e.t[0]) + self.warmup_s)
-        if not self.has_heading.get(name, True):
-            offset = seg.yaw_offset.get(name)
-            if offset is None and scored.any():
-                first = scored & (c.t < c.t[scored][0] + 1.0)
-                offset = seg.yaw_offset[name] = circular_mean_deg(err[first, 2])
-            err = err.copy()
-            err[:, 2] = quat.wrap_deg(err[:, 2] - (offset or 0.0))
-        return c.t, err, scored
-
     def final_comparisons(self) -> tuple[dict[str, Comparison], _Segment | None]:
         """Each estimator (and, against truth, the autopilot) scored over the clock segment
         with most estimates, as replay scores a log: (comparisons, that segment)."""
         candidates = [s for s in self.segments if s.runner is not None and s.runner.done]
         if not candidates:
             return {}, None
-        seg = max(candidates, key=lambda s: s.runner.done)
-        ref = self.reference_series(seg)
-        out = {}
-        if ref is None:
-            return out, seg
-        for name in self.names:
-            out[name] = compare(ref, seg.runner.estimate(name), warmup_s=self.warmup_s, name=name,
-                                align_yaw=not seg.runner.has_heading[name], restarts=seg.restarts)
-        ap = self.autopilot_series(seg)
-        if self.reference == "truth" and ap is not None:
-            out["autopilot"] = compare(ref, ap, warmup_s=self.warmup_s, name="autopilot")
-        return out, seg
+        seg = max(candidates, key=lambda s: s.runner.estimated)
+        self._score(seg)
+        return {name: score.result() for name, score in seg.scores.items()}, seg
 
 
 def _attitude(kind: str, row: tuple) -> np.ndarray | None:

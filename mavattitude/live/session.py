@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..events import Event
 from ..runner import LOW_IMU_RATE_HZ
 from ..sink import Sink
-from .estimation import LiveEstimation
+from .estimation import HISTORY_S, LiveEstimation
 from ..readers import enum_name, identify_vehicle
 from ..readers.tlog import IMU_MESSAGES, is_vehicle
 from .link import (UDP_RECEIVE_BUFFER, LinkMonitor, RateRequester, close_link, is_corrupt, kernel_drops,
@@ -183,7 +183,8 @@ class _Session:
         self.monitor = LinkMonitor(timeout_s=opts.timeout)
         self.est = LiveEstimation(opts.names, opts.params, opts.declination, opts.use_mag, opts.imu_source,
                                   opts.reference, opts.warmup, record_latency=opts.record_latency,
-                                  expect_declination=opts.request)
+                                  expect_declination=opts.request, history_s=max(HISTORY_S, 2 * opts.window),
+                                  errors_for_view=bool(opts.sink))
         self.rec = self.live_view = None
         if opts.sink:
             from ..sink import open_sink
