@@ -14,8 +14,12 @@ and ATTITUDE at 50 Hz. Measured:
 - rate held: ``rate_probe`` streams the same flight at ``RATE_PROBE_SPEED`` times real time
   (22,440 packets/s) for ``RATE_PROBE_S`` s to a session with no recording: held when every
   packet sent was received and the system dropped none (target: ``TARGET_RATE`` packets/s);
-- memory: how much this process's RSS grew over that probe (10 minutes of 1 kHz data in 30 s),
-  per hour of 1 kHz data (the latency run records per-sample timings, which would count too);
+- memory: this process's RSS through that probe (10 minutes of 1 kHz data in 30 s; the
+  latency run records per-sample timings, which would count too): at the start of the stream,
+  half-way and at the end, and its growth per hour of 1 kHz data from the slope over the
+  second half (a session fills its ``history_s`` of data in the first minute; after that it
+  should not grow). A least-squares slope, since RSS wanders a few MB as large arrays come and
+  go (target: ``TARGET_MB_PER_HOUR``);
 - packet-to-estimate latency per IMU sample: from the moment the child handed the packet to
   the socket to the moment every estimator had produced its attitude for that sample. Both
   are ``time.monotonic()`` (CLOCK_MONOTONIC, one clock for all processes of the machine), so
@@ -31,6 +35,8 @@ import io
 import json
 import multiprocessing
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +50,8 @@ FADE_BURST, FADE_EVERY = 200, 10_000  # packets lost on purpose: bursts of 200 e
 TARGET_LOSS_AGREEMENT = 0.01  # the clock's count of the faded IMU samples: within 1 %
 RATE_PROBE_SPEED, RATE_PROBE_S = 20.0, 30.0
 TARGET_RATE = 20_000  # packets/s a session holds
+TARGET_MB_PER_HOUR = 50.0  # RSS growth per hour of 1 kHz data, all estimators
+RSS_EVERY_S = 0.25  # s between RSS samples during the probe
 
 
 class _Fade:
@@ -103,8 +111,10 @@ def _probe_sender(port: int, speed: float, sim_seconds: float, out: str) -> None
 
     sim = simulate("figure8", sim_seconds, seed=0, imu_rate=LIVE_IMU_HZ)
     conn = open_link(f"udpout:127.0.0.1:{port}")
+    started_at = time.monotonic()  # one clock for every process of the machine
     stats = SimAutopilot(sim, conn, rates={"RAW_IMU": LIVE_IMU_HZ, "ATTITUDE": LIVE_ATT_HZ}).serve(speed=speed)
-    Path(out).write_text(json.dumps(sum(stats.sent.values())))
+    Path(out).write_text(json.dumps({"sent": sum(stats.sent.values()), "started_at": started_at,
+                                     "ended_at": time.monotonic()}))
 
 
 def _session_against(sender, args: tuple, names: list[str], **options):
@@ -134,18 +144,46 @@ def _session_against(sender, args: tuple, names: list[str], **options):
 def rate_probe(names: list[str], speed: float = RATE_PROBE_SPEED, seconds: float = RATE_PROBE_S) -> dict:
     """The flight streamed at ``speed`` times real time for ``seconds`` of wall time to a live
     session running ``names`` (no recording, no rate requests): what was sent and received."""
+    rss: list[tuple[float, float]] = []  # (monotonic s, MB)
+    done = threading.Event()
+
+    def sample_rss():
+        while not done.wait(RSS_EVERY_S):
+            rss.append((time.monotonic(), _rss_mb()))
+    sampler = threading.Thread(target=sample_rss, daemon=True)
+    sampler.start()
     with tempfile.TemporaryDirectory() as tmp:
         out = str(Path(tmp) / "sent.json")
-        result, rss_before = _session_against(_probe_sender, (speed, seconds * speed, out), names,
-                                              record=None, request=False, duration=seconds + 120.0)
-        grown_mb = _rss_mb() - rss_before  # the session's state is still held by ``result``
+        try:
+            result, _ = _session_against(_probe_sender, (speed, seconds * speed, out), names,
+                                         record=None, request=False, duration=seconds + 120.0)
+        finally:
+            done.set()
         sent = json.loads(Path(out).read_text())
     received, drops = result.monitor.packets, result.kernel_drops
     samples = result.estimation.samples
-    return {"speed": speed, "seconds": seconds, "packets_per_s": round(sent / seconds), "sent": sent,
-            "received": received, "kernel_drops": drops, "held": received == sent and not drops,
-            "imu_samples": samples, "rss_growth_mb": round(grown_mb, 1),
-            "mb_per_hour_at_1khz": round(grown_mb / samples * 3.6e6, 1) if samples else None}
+    return {"speed": speed, "seconds": seconds, "packets_per_s": round(sent["sent"] / seconds), "sent": sent["sent"],
+            "received": received, "kernel_drops": drops, "held": received == sent["sent"] and not drops,
+            "imu_samples": samples, **_rss_figures(rss, sent["started_at"], sent["ended_at"], samples)}
+
+
+def _rss_figures(rss: list[tuple[float, float]], start: float, end: float, samples: int) -> dict:
+    """RSS at the start of the stream, half-way and at the end (MB; the median of the samples
+    within 5 % of the stream's span there), and the growth per hour of 1 kHz data from the
+    least-squares slope over the second half."""
+    t, mb = (np.array(c) for c in zip(*rss)) if rss else (np.zeros(0), np.zeros(0))
+    span = end - start
+
+    def at(when: float) -> float | None:
+        near = np.abs(t - when) <= 0.05 * span
+        return round(float(np.median(mb[near])), 1) if near.any() else None
+    second_half = (t >= start + span / 2) & (t <= end)
+    per_hour = None
+    if np.count_nonzero(second_half) >= 3 and samples:
+        slope = np.polyfit(t[second_half], mb[second_half], 1)[0]  # MB per s of wall time
+        per_hour = round(float(slope * span / samples * 3.6e6 * (LIVE_IMU_HZ / 1000.0)), 1)
+    return {"rss_mb": {"start": at(start), "half": at(start + span / 2), "end": at(end)},
+            "mb_per_hour_at_1khz": per_hour}
 
 
 def run_live_bench(names: list[str], seconds: float = 60.0, say=print, probe_seconds: float = RATE_PROBE_S) -> dict:
@@ -164,7 +202,9 @@ def run_live_bench(names: list[str], seconds: float = 60.0, say=print, probe_sec
     figures = _figures(names, seconds, result, sent_at, sent)
     say(f"live: streaming at {RATE_PROBE_SPEED:g}x real time for {probe_seconds:g} s ...")
     figures["rate_probe"] = probe = rate_probe(names, seconds=probe_seconds)
-    figures["target_met"] = figures["target_met"] and probe["packets_per_s"] >= TARGET_RATE and probe["held"]
+    figures["target_met"] = (figures["target_met"] and probe["packets_per_s"] >= TARGET_RATE and probe["held"]
+                             and probe["mb_per_hour_at_1khz"] is not None
+                             and probe["mb_per_hour_at_1khz"] <= TARGET_MB_PER_HOUR)
     return figures
 
 
@@ -252,7 +292,8 @@ def format_live(figures: dict) -> str:
         + (f"; {figures['kernel_drops']:,} dropped by the system" if figures["kernel_drops"] is not None else ""),
         *_probe_lines(figures.get("rate_probe")),
         f"  targets: 0 dropped, p99 ≤ {TARGET_P99_MS:g} ms, loss counted within "
-        f"{100 * TARGET_LOSS_AGREEMENT:g} %, {TARGET_RATE:,} packets/s held: {met}"
+        f"{100 * TARGET_LOSS_AGREEMENT:g} %, {TARGET_RATE:,} packets/s held, ≤ {TARGET_MB_PER_HOUR:g} MB "
+        f"per hour: {met}"
         + (f" ({figures['imu_samples_not_estimated']} samples never estimated)"
            if figures["imu_samples_not_estimated"] else ""),
     ]
@@ -263,11 +304,16 @@ def _probe_lines(probe: dict | None) -> list[str]:
     if probe is None:
         return ["  rate: not probed"]
     drops = "" if probe["kernel_drops"] is None else f", {probe['kernel_drops']:,} dropped by the system"
-    per_hour = probe["mb_per_hour_at_1khz"]
+    per_hour, rss = probe["mb_per_hour_at_1khz"], probe["rss_mb"]
+    minutes = probe["imu_samples"] / LIVE_IMU_HZ / 60
+
+    def mb(x):
+        return "–" if x is None else f"{x:.0f} MB"
     return [f"  rate: {probe['packets_per_s']:,} packets/s for {probe['seconds']:g} s: {probe['sent']:,} sent, "
             f"{probe['received']:,} received{drops}: {'held' if probe['held'] else 'NOT held'}",
-            f"  memory: RSS grew {probe['rss_growth_mb']:.0f} MB over those {probe['imu_samples']:,} IMU samples "
-            f"({probe['imu_samples'] / LIVE_IMU_HZ / 60:.0f} min at {LIVE_IMU_HZ:g} Hz, no recording): "
+            f"  memory over those {probe['imu_samples']:,} IMU samples ({minutes:.0f} min at {LIVE_IMU_HZ:g} Hz, "
+            f"no recording): RSS {mb(rss['start'])} at the start, {mb(rss['half'])} after {minutes / 2:.0f} min, "
+            f"{mb(rss['end'])} at the end; growth over the second half: "
             + (f"{per_hour:.0f} MB per hour at {LIVE_IMU_HZ:g} Hz" if per_hour is not None else "–")]
 
 

@@ -192,9 +192,23 @@ def test_live_figure_runs_and_reports(capsys):
     probe = figures["rate_probe"]  # 2 s at 20x real time
     assert probe["sent"] > 30_000 and probe["received"] <= probe["sent"] and probe["held"] in (True, False)
     assert probe["imu_samples"] > 20_000 and probe["mb_per_hour_at_1khz"] is not None
+    assert probe["rss_mb"]["start"] > 0 and probe["rss_mb"]["end"] > 0
     text = format_live(figures)
     assert "packet-to-estimate latency" in text and "dropped" in text and "by the autopilot's clock" in text
     assert "packets/s for 2 s" in text
+
+
+def test_rss_growth_is_the_slope_of_the_second_half():
+    """A session that fills its history, then stays flat, grows 0 MB an hour; one that keeps
+    growing is extrapolated from its slope (10 min of 1 kHz data in 30 s here)."""
+    from mavattitude.bench_live import _rss_figures
+
+    t = np.arange(0.0, 30.0, 0.25) + 100.0
+    flat = np.minimum(300.0 + 10.0 * (t - 100.0), 350.0) + np.where(np.arange(len(t)) % 2, 3.0, -3.0)
+    got = _rss_figures(list(zip(t, flat)), 100.0, 130.0, 600_000)
+    assert abs(got["mb_per_hour_at_1khz"]) < 5 and got["rss_mb"]["start"] < got["rss_mb"]["end"] == 350.0
+    growing = 300.0 + 0.5 * (t - 100.0)  # 15 MB per 10 min of data: 90 MB an hour
+    assert _rss_figures(list(zip(t, growing)), 100.0, 130.0, 600_000)["mb_per_hour_at_1khz"] == pytest.approx(90.0)
 
 
 def test_read_figures_run_and_report(capsys, tmp_path):
