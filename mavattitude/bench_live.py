@@ -143,7 +143,19 @@ def _session_against(sender, args: tuple, names: list[str], **options):
 
 def rate_probe(names: list[str], speed: float = RATE_PROBE_SPEED, seconds: float = RATE_PROBE_S) -> dict:
     """The flight streamed at ``speed`` times real time for ``seconds`` of wall time to a live
-    session running ``names`` (no recording, no rate requests): what was sent and received."""
+    session running ``names`` (no recording, no rate requests): what was sent and received, and
+    the memory it took. The session runs in a fresh process, so its RSS is its own, not the
+    high-water mark of what ran before it in this one."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return pool.submit(_rate_probe, names, speed, seconds).result()
+
+
+def _rate_probe(names: list[str], speed: float, seconds: float) -> dict:
+    from .estimators import warm_up
+
+    warm_up(names)
     rss: list[tuple[float, float]] = []  # (monotonic s, MB)
     done = threading.Event()
 

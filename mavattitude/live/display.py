@@ -11,6 +11,7 @@ second), so a 1 kHz IMU does not mean a thousand calls a second.
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 
 import numpy as np
 import rerun as rr
@@ -21,18 +22,24 @@ from ..metrics import AXES
 from ..runner import Chunk
 from .estimation import LiveEstimation
 
-# s of wall time between sends: a viewer watching gets a smooth picture, a file fewer, larger
-# chunks (each send is a chunk with its own schema: many small ones make a large file)
-FLUSH_PERIOD_S = 0.25
-FILE_FLUSH_PERIOD_S = 2.0
-# What the viewer gets of a live session (the metrics always use every sample): plots and
-# diagnostics at most this often, the 3D boxes at most SCALAR_HZ / 2.
-SCALAR_HZ = 100.0
-TRANSFORM_HZ = 25.0
-DIAGNOSTIC_HZ = 20.0
-# Diagnostics (a tab of their own, many series per filter) go out less often: every send is a
-# chunk in the recording, and small chunks cost more than their samples.
-DIAGNOSTIC_PERIOD_S = 2.0
+@dataclass(frozen=True)
+class Rates:
+    """What the view gets of a live session (the metrics always use every sample): wall
+    seconds between sends (each send is a chunk with its own schema: many small ones make a
+    large file), and the most samples a second of plots (min and max per bin, so a spike
+    stays visible: twice that many points), of the 3D boxes and of diagnostics."""
+    flush_s: float
+    scalar_hz: float
+    transform_hz: float
+    diagnostic_hz: float
+    diagnostic_flush_s: float  # diagnostics (many series per filter) go out less often
+
+
+# A viewer watching gets a smooth picture; a file (``--rrd``) what reads well when zoomed to a
+# second, for about 310 MB an hour of 1 kHz data with all seven estimators
+# (``scripts/live_rrd_size.py``; 700 MB at the viewer's rates).
+VIEWER = Rates(flush_s=0.25, scalar_hz=100.0, transform_hz=25.0, diagnostic_hz=20.0, diagnostic_flush_s=2.0)
+FILE = Rates(flush_s=10.0, scalar_hz=25.0, transform_hz=10.0, diagnostic_hz=5.0, diagnostic_flush_s=10.0)
 STATUS_PERIOD_S = 1.0  # rolling metrics and link figures
 
 
@@ -42,7 +49,7 @@ class LiveView:
     def __init__(self, rec: rr.RecordingStream, estimation: LiveEstimation, window_s: float,
                  to_file: bool = False):
         self.rec = rec
-        self.flush_period = FILE_FLUSH_PERIOD_S if to_file else FLUSH_PERIOD_S
+        self.rates = FILE if to_file else VIEWER
         self._flushed_at = -np.inf
         self.est = estimation
         self.window_s = window_s
@@ -91,7 +98,7 @@ class LiveView:
     def flush(self, now: float | None = None) -> None:
         """Send what arrived since the last flush, if the flush period has passed since then
         (``now``: monotonic s; None: now, whatever the period)."""
-        if now is not None and now - self._flushed_at < self.flush_period:
+        if now is not None and now - self._flushed_at < self.rates.flush_s:
             return
         self._flushed_at = now if now is not None else self._flushed_at
         rec, est = self.rec, self.est
@@ -106,9 +113,9 @@ class LiveView:
             t = np.concatenate([c.t for c in chunks])
             for name in est.names:
                 q = np.vstack([c.q[name] for c in chunks])
-                view.log_attitude_columns(rec, name, t, q, scalar_max_hz=SCALAR_HZ,
-                                          transform_max_hz=TRANSFORM_HZ)
-        if now is None or now - self._diag_sent_at >= DIAGNOSTIC_PERIOD_S:
+                view.log_attitude_columns(rec, name, t, q, scalar_max_hz=self.rates.scalar_hz,
+                                          transform_max_hz=self.rates.transform_hz)
+        if now is None or now - self._diag_sent_at >= self.rates.diagnostic_flush_s:
             self._diag_sent_at = now if now is not None else self._diag_sent_at
             self._flush_diagnostics()
         for key, series in (("truth", est.reference_series() if self.ref_key == "truth" else None),
@@ -119,12 +126,13 @@ class LiveView:
             if new.any():
                 ghosts = [k for k in self.series if k != self.ref_key] if key == self.ref_key else ()
                 view.log_attitude_columns(rec, key, series.t[new], series.q[new], ghost_in=ghosts,
-                                          scalar_max_hz=SCALAR_HZ, transform_max_hz=TRANSFORM_HZ)
+                                          scalar_max_hz=self.rates.scalar_hz,
+                                          transform_max_hz=self.rates.transform_hz)
                 self._ref_sent[key] = float(series.t[-1])
         for name in est.names:
             got = est.take_errors(name)
             if got is not None:
-                view.log_error_columns(rec, name, *got, max_hz=SCALAR_HZ)
+                view.log_error_columns(rec, name, *got, max_hz=self.rates.scalar_hz)
         self._flush_gps()
         self._flush_events()
 
@@ -145,7 +153,7 @@ class LiveView:
         for name in names:
             keys = chunks[-1].diagnostics.get(name, {})
             diagnostics = {k: np.concatenate([c.diagnostics[name][k] for c in chunks]) for k in keys}
-            view.log_diagnostic_columns(rec, name, t, diagnostics, max_hz=DIAGNOSTIC_HZ)
+            view.log_diagnostic_columns(rec, name, t, diagnostics, max_hz=self.rates.diagnostic_hz)
 
     def _flush_gps(self) -> None:
         g = self.est.seg.gps
