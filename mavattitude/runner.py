@@ -310,7 +310,7 @@ class Runner:
                 first = min(first, self._heights_seen)
             first = max(first, 0)
             rows.forget(first)
-            if kind != MAG:
+            if kind != MAG and self.uses_aiding:
                 self._placer.done[kind] -= first
             if kind == tracked:
                 self._heights_seen -= first

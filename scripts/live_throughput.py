@@ -1,7 +1,8 @@
 """How many packets a second a live session holds: the simulated autopilot streams RAW_IMU at
 1 kHz and ATTITUDE at 50 Hz (plus GPS, baro, heartbeats) at N times real time over loopback
 UDP to a live session (no recording, no viewer), for a given wall time; prints packets sent,
-received and dropped by the system at each speed.
+received and dropped by the system at each speed, and the session's memory: RSS at the end
+and its growth per hour of 1 kHz data (the slope over the stream's second half).
 
     python scripts/live_throughput.py --estimators mahony --speeds 10,20,30 --seconds 60
 
@@ -31,12 +32,13 @@ def main() -> int:
     names = list(ESTIMATORS) if args.estimators == "all" else args.estimators.split(",")
     warm_up(names)
     print(f"estimators: {', '.join(names)}; {args.seconds:g} s of wall time per speed")
-    print(f"{'speed':>6s} {'packets/s':>10s} {'sent':>10s} {'received':>10s} {'dropped':>8s}  held")
+    print(f"{'speed':>6s} {'packets/s':>10s} {'sent':>10s} {'received':>10s} {'dropped':>8s}  held"
+          f"  {'RSS MB':>7s} {'MB/h':>6s}")
     for speed in (float(x) for x in args.speeds.split(",")):
         r = rate_probe(names, speed, args.seconds)
         print(f"{speed:6g} {r['packets_per_s']:10,} {r['sent']:10,} {r['received']:10,} "
-              f"{r['kernel_drops'] if r['kernel_drops'] is not None else '-':>8}  {'yes' if r['held'] else 'NO'}",
-              flush=True)
+              f"{r['kernel_drops'] if r['kernel_drops'] is not None else '-':>8}  {'yes ' if r['held'] else 'NO  '}"
+              f"  {r['rss_mb']['end'] or float('nan'):7.0f} {r['mb_per_hour_at_1khz'] or float('nan'):6.0f}", flush=True)
     return 0
 
 
