@@ -181,13 +181,13 @@ def _rate_probe(names: list[str], speed: float, seconds: float) -> dict:
 
 def _rss_figures(rss: list[tuple[float, float]], start: float, end: float, samples: int) -> dict:
     """RSS at the start of the stream, half-way and at the end (MB; the median of the samples
-    within 5 % of the stream's span there), and the growth per hour of 1 kHz data from the
+    within 5 % of the stream's span there, or one sampling interval), and the growth per hour of 1 kHz data from the
     least-squares slope over the second half."""
     t, mb = (np.array(c) for c in zip(*rss)) if rss else (np.zeros(0), np.zeros(0))
     span = end - start
 
     def at(when: float) -> float | None:
-        near = np.abs(t - when) <= 0.05 * span
+        near = np.abs(t - when) <= max(0.05 * span, RSS_EVERY_S)
         return round(float(np.median(mb[near])), 1) if near.any() else None
     second_half = (t >= start + span / 2) & (t <= end)
     per_hour = None
