@@ -43,6 +43,7 @@ class ReplayResult:
     aiding: aid.Aiding | None = None  # GPS / baro on the IMU clock, when an estimator used them
     trim: tuple[float, float] | None = None  # (roll, pitch) rad the estimates were turned by, see board_trim
     suspects: list = field(default_factory=list)  # refcheck.Suspect: where the reference is not trusted
+    restarts: list[float] = field(default_factory=list)  # s: where the estimators started again after a gap
 
     @property
     def scoring(self) -> dict:
@@ -233,7 +234,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                         mag_source=runner.mag_source, alignment=runner.alignment, phase=runner.phase_series(),
                         diagnostics=diagnostics, estimator_events=estimator_events,
                         params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(),
-                        trim=applied_trim, suspects=suspects)
+                        trim=applied_trim, suspects=suspects, restarts=restarts)
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,8 @@ reference is neither of those, or an estimator's name, escaped for entity paths)
 - ``error/{roll,pitch,yaw}/<s>``  Scalars, estimate - reference, degrees, scored samples
 - ``error/{roll,pitch,yaw}/<s>/unscored``  the samples the statistics skip (warm-up), faded
 - ``world``  static ViewCoordinates FRD: the 3D world is NED (x north, y east, z down)
-- ``world/<s>``  static Transform3D: the series' slot, side by side along east
+- ``world/<s>``  static Transform3D: the series' slot, ``SLOTS_PER_ROW`` side by side along
+  east, further rows behind (south)
 - ``world/<s>/body``  Transform3D quaternion column (body -> NED), static Boxes3D + axes
 - ``world/<s>/label``  static Points3D carrying the series' name above its box
 - ``world/<s>/reference``  the reference attitude again, as a grey wireframe "ghost" in
@@ -171,9 +172,9 @@ _TEXT_LOG_COLUMNS = _text_log_columns()
 
 def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=None,
                    map_zoom: float | None = None, time_span: tuple[float, float] | None = None,
-                   live: bool = False, diagnostics: Sequence[str] = (),
+                   live: bool = False, diagnostics: dict[str, Sequence[str]] | None = None,
                    has_phase: bool = False, has_track: bool = False,
-                   live_window: float | None = None) -> rrb.Blueprint:
+                   live_window: float | None = None, attitude_range_deg=None) -> rrb.Blueprint:
     """The layout: per-axis attitude and error plots on the left, the 3D attitude boxes top
     right, map / summary / events in tabs below it.
 
@@ -181,11 +182,14 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
     ``error_range_deg``: optional {axis: half-range} for the error plots' y axes, so a large
     warm-up transient does not flatten the scored part (the user can still zoom out).
     ``map_zoom``: the map's zoom level (``map_zoom_for``); None lets the viewer choose.
-    ``time_span``: (start, end) seconds the plots open on (the whole replay); None: the
+    ``attitude_range_deg``: optional {axis: (low, high)} the attitude plots open on (the
+    flight, not a tip-over on the ground).
+    ``time_span``: (start, end) seconds the plots open on (the scored span); None: the
     viewer's default.
     ``live``: the time panel follows incoming data instead of standing paused.
-    ``diagnostics``: the diagnostic keys logged, each a plot in a "diagnostics" tab (the axes
-    of one vector in one plot), with the ground/air phase when ``has_phase``.
+    ``diagnostics``: {estimator: its diagnostic keys}: a "diagnostics" tab holding a tab per
+    estimator, a plot per key (the axes of one vector in one plot), and the ground/air phase
+    when ``has_phase``.
     ``has_track``: a "track" tab, the GPS and estimated tracks in 3D.
     ``live_window``: a live session's "link" tab (its first): the rolling MAE over that many
     seconds (``rolling/<axis>/<s>``) and the link's arrival rates and losses (``link/...``).
@@ -209,24 +213,28 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
         if error_range_deg and error_range_deg.get(axis):
             r = float(error_range_deg[axis])
             err_kwargs["axis_y"] = rrb.ScalarAxis(range=(-r, r))
+        att_kwargs = {}
+        if attitude_range_deg and attitude_range_deg.get(axis):
+            att_kwargs["axis_y"] = rrb.ScalarAxis(range=tuple(float(v) for v in attitude_range_deg[axis]))
         legend = rrb.PlotLegend(corner="LeftTop", visible=axis == AXES[0])
         rows.append(rrb.Horizontal(
             rrb.TimeSeriesView(origin=f"attitude/{axis}", name=f"{axis} (deg)", axis_x=link,
-                               plot_legend=legend),
+                               plot_legend=legend, **att_kwargs),
             rrb.TimeSeriesView(origin=f"error/{axis}",
                                name=f"{axis} error: estimate - reference (deg)",
                                axis_x=link, plot_legend=rrb.PlotLegend(visible=False),
                                **err_kwargs),
             column_shares=[3, 2],
         ))
-    span = SLOT_SPACING * max(n_slots - 1, 0)
-    # Look north from behind and above the row of boxes (NED: up is -z), a little from
+    span = SLOT_SPACING * (min(n_slots, SLOTS_PER_ROW) - 1)
+    depth = ROW_SPACING * ((max(n_slots, 1) - 1) // SLOTS_PER_ROW)
+    # Look north from behind and above the rows of boxes (NED: up is -z), a little from
     # the west so the boxes read as 3D; far enough back to frame every slot.
-    d = 0.95 * (span + 3.0)
+    d = 0.95 * (span + 3.0) + depth
     eye = rrb.EyeControls3D(
         kind="Orbital",
-        position=(-0.85 * d, span / 2 - 0.12 * d, -0.45 * d),
-        look_target=(0.0, span / 2, 0.0),
+        position=(-depth / 2 - 0.85 * d, span / 2 - 0.12 * d, -0.45 * d),
+        look_target=(-depth / 2, span / 2, 0.0),
         eye_up=(0.0, 0.0, -1.0),
     )
     view3d = rrb.Spatial3DView(origin="world", name="attitude, NED (boxes: FRD body)",
@@ -234,14 +242,12 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
                                                                           spacing=1.0))
     tabs = [rrb.TextDocumentView(origin="summary", name="summary"),
             rrb.TextLogView(origin="events", name="events", columns=_TEXT_LOG_COLUMNS)]
-    groups = dict.fromkeys(diagnostic_group(key)[0] for key in diagnostics)
-    plots = [rrb.TimeSeriesView(origin=f"diagnostics/{_part(key)}", name=DIAGNOSTIC_TITLES.get(key, key),
-                                axis_x=link) for key in groups]
+    per_estimator = [_diagnostics_tab(name, keys, link) for name, keys in (diagnostics or {}).items() if keys]
     if has_phase:
-        plots.append(rrb.TimeSeriesView(origin="phase", name="ground/air phase (1 = air), height (m)",
-                                        axis_x=link))
-    if plots:
-        tabs.append(rrb.Vertical(*plots, name="diagnostics"))
+        per_estimator.append(rrb.TimeSeriesView(origin="phase", name="ground/air phase (1 = air), height (m)",
+                                                axis_x=link))
+    if per_estimator:
+        tabs.append(rrb.Tabs(*per_estimator, name="diagnostics"))
     if has_track:
         tabs.insert(0, rrb.Spatial3DView(origin="track", name="track, NED (m)"))
     if has_gps:
@@ -263,21 +269,25 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
     )
 
 
-def send_blueprint(rec: rr.RecordingStream, *, has_gps: bool = True, n_slots: int = 4,
-                   error_range_deg=None, map_zoom: float | None = None,
-                   time_span: tuple[float, float] | None = None, live: bool = False,
-                   diagnostics: Sequence[str] = (), has_phase: bool = False,
-                   has_track: bool = False, live_window: float | None = None) -> None:
-    """Send ``make_blueprint(...)`` and make it the active and default layout."""
-    rec.send_blueprint(make_blueprint(has_gps=has_gps, n_slots=n_slots,
-                                      error_range_deg=error_range_deg, map_zoom=map_zoom,
-                                      time_span=time_span, live=live, diagnostics=diagnostics,
-                                      has_phase=has_phase, has_track=has_track,
-                                      live_window=live_window),
-                       make_active=True, make_default=True)
+def _diagnostics_tab(name: str, keys: Sequence[str], link) -> rrb.Vertical:
+    """An estimator's diagnostics: a plot per quantity, a vector's axes in one (with a legend)."""
+    axes: dict[str, list] = {}
+    for key in keys:
+        group, axis = diagnostic_group(key)
+        axes.setdefault(group, []).append(axis)
+    return rrb.Vertical(*(rrb.TimeSeriesView(origin=f"diagnostics/{_part(group)}/{_part(name)}",
+                                             name=DIAGNOSTIC_TITLES.get(group, group), axis_x=link,
+                                             plot_legend=rrb.PlotLegend(corner="RightTop",
+                                                                        visible=any(parts)))
+                          for group, parts in axes.items()), name=name)
 
 
-def map_zoom_for(lat_deg, lon_deg, pixels: float = 250.0) -> float:
+def send_blueprint(rec: rr.RecordingStream, **layout) -> None:
+    """Send ``make_blueprint(**layout)`` and make it the active and default layout."""
+    rec.send_blueprint(make_blueprint(**layout), make_active=True, make_default=True)
+
+
+def map_zoom_for(lat_deg, lon_deg, pixels: float = 300.0) -> float:
     """The web-map zoom level at which the points' extent spans about ``pixels``."""
     lat = np.asarray(lat_deg, dtype=float)
     lon = np.asarray(lon_deg, dtype=float)
@@ -287,7 +297,7 @@ def map_zoom_for(lat_deg, lon_deg, pixels: float = 250.0) -> float:
     lat, lon = lat[ok], lon[ok]
     mid = math.radians(float(np.mean(lat)))
     extent_m = max(float(np.ptp(lat)) * 111_320.0,
-                   float(np.ptp(lon)) * 111_320.0 * math.cos(mid), 30.0)
+                   float(np.ptp(lon)) * 111_320.0 * math.cos(mid), 10.0)
     metres_per_pixel = extent_m / pixels
     zoom = math.log2(156_543.03 * math.cos(mid) / metres_per_pixel)
     return float(np.clip(zoom, 2.0, 19.0))
@@ -295,9 +305,18 @@ def map_zoom_for(lat_deg, lon_deg, pixels: float = 250.0) -> float:
 
 # ---------------------------------------------------------------- static set-up
 
+REFERENCE_WIDTH = 3.0  # the reference's lines, under seven estimators
 SLOT_SPACING = 2.5  # metres (arbitrary units) between boxes, along east
+SLOTS_PER_ROW = 4  # boxes in a row: eight in one row would each be a few pixels wide
+ROW_SPACING = 2.5  # metres between rows, along south
 BOX_HALF_SIZES = (0.75, 0.5, 0.12)  # forward, right, down: a flat, nose-long box
 AXIS_LENGTH = 1.1
+
+
+def slot_position(slot: int) -> tuple[float, float, float]:
+    """NED position of a box's slot: rows of ``SLOTS_PER_ROW`` along east, the next row south."""
+    row, col = divmod(slot, SLOTS_PER_ROW)
+    return (-ROW_SPACING * row, SLOT_SPACING * col, 0.0)
 
 
 def setup_world(rec: rr.RecordingStream) -> None:
@@ -305,13 +324,16 @@ def setup_world(rec: rr.RecordingStream) -> None:
 
 
 def setup_series(rec: rr.RecordingStream, name: str, *, color: Color, label: str | None = None,
-                 slot: int | None = None, ghost: bool = False, errors: bool = False) -> None:
-    """Static styling of one series: its plot lines, and its box at ``slot`` in the 3D view
-    (with a reference ghost when ``ghost``); ``errors`` also styles its error plots."""
+                 slot: int | None = None, ghost: bool = False, errors: bool = False,
+                 reference: bool = False) -> None:
+    """Static styling of one series: its plot lines (the ``reference``'s thicker), and its box
+    at ``slot`` in the 3D view (with a reference ghost when ``ghost``); ``errors`` also styles
+    its error plots."""
     label = label or name
     for axis in AXES:
         rec.log(attitude_path(axis, name),
-                rr.SeriesLines(colors=[color], names=[label], widths=[1.5]), static=True)
+                rr.SeriesLines(colors=[color], names=[label], widths=[REFERENCE_WIDTH if reference else 1.5]),
+                static=True)
         if errors:
             rec.log(error_path(axis, name),
                     rr.SeriesLines(colors=[color], names=[label], widths=[1.5],
@@ -322,7 +344,7 @@ def setup_series(rec: rr.RecordingStream, name: str, *, color: Color, label: str
     if slot is None:
         return
     base = f"world/{_part(name)}"
-    rec.log(base, rr.Transform3D(translation=(0.0, SLOT_SPACING * slot, 0.0)), static=True)
+    rec.log(base, rr.Transform3D(translation=slot_position(slot)), static=True)
     rec.log(body_path(name),
             rr.Boxes3D(half_sizes=[BOX_HALF_SIZES], colors=[(*color, 255)], fill_mode="Solid"),
             rr.TransformAxes3D(AXIS_LENGTH),
@@ -509,9 +531,14 @@ DIAGNOSTIC_TITLES = {
     "innov_gps_vel": "GPS velocity innovation (m/s)",
     "innov_gps_pos": "GPS position innovation (m)",
     "innov_baro": "baro height innovation (m)",
+    "mahony_weight": "weight of the internal Mahony's gravity error (1 at rest, 0-1)",
+    "h_residual": "horizontal manoeuvre acceleration (g)",
+    "h_gate": "horizontal acceleration threshold applied (g)",
 }
+COMPASS_GROUPS = ("mag_bias", "earth_field", "innov_mag")  # not plotted without a compass
 AXIS_SUFFIXES = ("x", "y", "z", "n", "e", "d")
-AXIS_SHADES = {"x": 1.0, "n": 1.0, "y": 0.7, "e": 0.7, "z": 0.45, "d": 0.45}
+AXIS_COLORS: dict[str, Color] = {"x": (220, 60, 60), "n": (220, 60, 60), "y": (50, 160, 60),
+                                  "e": (50, 160, 60), "z": (40, 100, 230), "d": (40, 100, 230)}
 
 
 def diagnostic_group(key: str) -> tuple[str, str | None]:
@@ -528,13 +555,12 @@ def diagnostic_path(key: str, name: str) -> str:
 
 
 def setup_diagnostics(rec: rr.RecordingStream, name: str, keys: Iterable[str], *, color: Color) -> None:
-    """Static styling of one estimator's diagnostic lines (a vector's axes in shades of its colour)."""
+    """Static styling of one estimator's diagnostic lines: its colour, a vector's axes red,
+    green and blue (x, y, z or north, east, down; the estimator's tab names it)."""
     for key in keys:
         axis = diagnostic_group(key)[1]
-        shade = AXIS_SHADES.get(axis, 1.0)
         rec.log(diagnostic_path(key, name),
-                rr.SeriesLines(colors=[tuple(int(c * shade) for c in color)],
-                               names=[f"{name} {axis}" if axis else name], widths=[1.5],
+                rr.SeriesLines(colors=[AXIS_COLORS.get(axis, color)], names=[axis or name], widths=[1.5],
                                aggregation_policy="MinMax"),
                 static=True)
 
@@ -598,7 +624,8 @@ def log_gps(rec: rr.RecordingStream, gps: GpsSeries) -> bool:
     track = ll[::stride]
     if len(track) and not np.array_equal(track[-1], ll[-1]):
         track = np.vstack([track, ll[-1:]])
-    rec.log("map/track", rr.GeoLineStrings(lat_lon=[track], radii=rr.Radius.ui_points(2.0),
+    # thinner than the estimated tracks drawn with it, so neither hides the other
+    rec.log("map/track", rr.GeoLineStrings(lat_lon=[track], radii=rr.Radius.ui_points(1.2),
                                            colors=[TRACK_COLOR]), static=True)
     rec.log("map/position", rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(7.0),
                                                      colors=[POSITION_COLOR]), static=True)
@@ -650,7 +677,7 @@ def log_tracks(rec: rr.RecordingStream, result: ReplayResult, colors: dict[str, 
         ll = np.column_stack([lat, lon])
         path = f"map/estimate/{_part(name)}"
         rec.log(path, rr.GeoLineStrings(lat_lon=[_thin(ll, GPS_TRACK_MAX_POINTS)],
-                                        radii=rr.Radius.ui_points(2.0), colors=[color]), static=True)
+                                        radii=rr.Radius.ui_points(2.5), colors=[color]), static=True)
         rec.log(f"{path}/position", rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(5.0), colors=[color]),
                 static=True)
         idx = _bin_first(t, GPS_MARKER_MAX_HZ)
@@ -689,8 +716,28 @@ def _series(result: ReplayResult) -> list[tuple[str, str, AttitudeSeries]]:
         if s is not None and len(s.t) and key != ref_key:
             out.append((key, f"{key} ({s.source})", s))
     for name, s in result.estimates.items():
-        out.append((name, name, s))
+        shown = shown_estimate(s, result.comparisons.get(name), result.restarts)
+        out.append((name, name + (" (yaw aligned)" if shown is not s else ""), shown))
     return out
+
+
+def shown_estimate(series: AttitudeSeries, comparison, restarts) -> AttitudeSeries:
+    """An estimate as its plots and box show it. Without a heading reference its yaw is
+    arbitrary and the metrics remove an offset per span between restarts
+    (``Comparison.yaw_offsets_deg``): the view turns it by the same offsets, so the yaw plot,
+    the box and the yaw error agree. Other estimates are shown as they are."""
+    if comparison is None or not comparison.yaw_aligned or not comparison.yaw_offsets_deg:
+        return series
+    bounds = np.sort(np.asarray(restarts, dtype=float))
+    offset = np.zeros(len(bounds) + 1)
+    for start, removed in comparison.yaw_offsets_deg:
+        offset[np.searchsorted(bounds, start, side="right")] = math.radians(removed)
+    q = np.empty_like(series.q)
+    for a in range(0, len(q), 1 << 17):  # in steps: an hour's temporaries stay small
+        b = min(a + (1 << 17), len(q))
+        yaw = offset[np.searchsorted(bounds, series.t[a:b], side="right")]
+        q[a:b] = quat.multiply(quat.from_euler(0.0 * yaw, 0.0 * yaw, -yaw), series.q[a:b])
+    return AttitudeSeries(series.source, series.t, q)
 
 
 def _fmt(x) -> str:
@@ -707,7 +754,15 @@ def summary_markdown(result: ReplayResult) -> str:
         f"- **span**: {a:.1f}–{b:.1f} s ({b - a:.1f} s) on the autopilot clock",
         f"- **IMU**: {result.imu_source} · **reference**: "
         f"{result.reference.source if result.reference is not None else 'none'}",
+        f"- **compass**: {result.mag_source or 'none'} · **declination**: "
+        f"{math.degrees(result.declination):.2f}° ({result.declination_source or 'none'})",
     ]
+    if result.mag_source and result.declination_source.startswith("none"):
+        lines.append("- **warning**: no declination in the log and none given (`--declination`): the "
+                     "estimators' heading is magnetic, the reference's true; their yaw differs by the local "
+                     "declination")
+    if fl.gps is not None and any("pos_n" in d for d in result.diagnostics.values()):
+        lines.append("- **map**: GPS track in magenta, an estimator's own track in its colour")
     if len(fl.segments) > 1:
         lines.append(f"- **clock segments**: {len(fl.segments)} (showing #{fl.segment_index})")
     if not result.comparisons:
@@ -766,6 +821,49 @@ def _error_ranges(result: ReplayResult) -> dict[str, float]:
     return out
 
 
+def _scored_span(result: ReplayResult) -> tuple[float, float]:
+    """From the first scored reference sample to the last (the flight, past the warm-up and
+    the ground before it), or the whole log when nothing was scored."""
+    times = [c.t[np.asarray(c.scored, dtype=bool)] for c in result.comparisons.values()]
+    times = [t for t in times if len(t)]
+    if not times:
+        return result.flight.time_span
+    return min(float(t[0]) for t in times), max(float(t[-1]) for t in times)
+
+
+def _attitude_ranges(result: ReplayResult, span: tuple[float, float]) -> dict[str, tuple[float, float]]:
+    """Roll and pitch ranges the plots open on: the reference's over ``span``, padded (a
+    tip-over on the ground at ±180° would flatten the flight to a line)."""
+    ref = result.reference
+    if ref is None or not len(ref.t):
+        return {}
+    inside = (ref.t >= span[0]) & (ref.t <= span[1])
+    euler = np.degrees(quat.to_euler(ref.q[inside]))
+    out = {}
+    for k, axis in enumerate(AXES[:2]):
+        e = euler[np.isfinite(euler[:, k]), k]
+        if len(e):
+            lo, hi = float(e.min()), float(e.max())
+            pad = max(5.0, 0.15 * (hi - lo))
+            out[axis] = (lo - pad, hi + pad)
+    return out
+
+
+def _plotted_diagnostics(result: ReplayResult) -> dict[str, dict[str, np.ndarray]]:
+    """The diagnostics worth a line: not all zero or NaN, and no compass quantities without a compass."""
+    out = {}
+    for name, diag in result.diagnostics.items():
+        kept = {}
+        for key, y in diag.items():
+            if result.mag_source is None and diagnostic_group(key)[0] in COMPASS_GROUPS:
+                continue
+            finite = np.asarray(y)[np.isfinite(y)]
+            if len(finite) and np.any(finite != 0):
+                kept[key] = y
+        out[name] = kept
+    return out
+
+
 def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool = True) -> None:
     """Log a whole replay into ``rec`` (one recording), with the blueprint unless told not to."""
     fl = result.flight
@@ -776,12 +874,13 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     colors = assign_colors(names)
     gps_t, gps_ll = _gps_fix(fl.gps) if fl.gps is not None else (np.empty(0), None)
     has_gps = len(gps_t) > 0
-    diag_keys = list(dict.fromkeys(k for d in result.diagnostics.values() for k in d))
+    diagnostics = _plotted_diagnostics(result)
     if blueprint:
+        span = _scored_span(result)
         send_blueprint(rec, has_gps=has_gps, n_slots=len(series),
-                       error_range_deg=_error_ranges(result),
+                       error_range_deg=_error_ranges(result), attitude_range_deg=_attitude_ranges(result, span),
                        map_zoom=map_zoom_for(gps_ll[:, 0], gps_ll[:, 1]) if has_gps else None,
-                       time_span=fl.time_span, diagnostics=diag_keys,
+                       time_span=span, diagnostics={n: list(d) for n, d in diagnostics.items()},
                        has_phase=result.phase is not None,
                        has_track=has_gps and bool(estimated_tracks(result))
                        and result.aiding is not None and result.aiding.origin is not None)
@@ -796,7 +895,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     for slot, (key, label, s) in enumerate(series):
         setup_series(rec, key, color=colors[key], label=label, slot=slot,
                      ghost=ref_key is not None and key != ref_key,
-                     errors=key in result.comparisons)
+                     errors=key in result.comparisons, reference=key == ref_key)
     for key, c in result.comparisons.items():
         if key not in {s[0] for s in series}:
             setup_series(rec, key, color=colors[key], errors=True)
@@ -811,7 +910,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
         log_error_columns(rec, key, c.t, c.error_deg, c.scored, max_hz=hz)
 
     imu_t = fl.imu[result.imu_source].t
-    for name, diag in result.diagnostics.items():
+    for name, diag in diagnostics.items():
         if diag:
             setup_diagnostics(rec, name, diag, color=colors.get(name, (200, 200, 200)))
             log_diagnostic_columns(rec, name, imu_t, diag, max_hz=hz)

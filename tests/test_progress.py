@@ -21,12 +21,15 @@ def _terminal_output(monkeypatch, steps, **options) -> str:
 
 
 def _drain(master: int) -> str:
-    """What was written to the terminal (nothing: EIO once its other end is closed)."""
+    """What was written to the terminal: every read until none is left (a read may return one
+    write of several; EIO on Linux once its other end is closed and all is read)."""
     os.set_blocking(master, False)
+    out = b""
     try:
-        return os.read(master, 65536).decode()
-    except OSError:  # BlockingIOError, or EIO on Linux when nothing was written
-        return ""
+        while chunk := os.read(master, 65536):
+            out += chunk
+    except OSError:  # BlockingIOError or EIO: all read
+        return out.decode()
     finally:
         os.close(master)
 

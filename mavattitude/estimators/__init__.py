@@ -7,6 +7,9 @@ that names it in the entry point group ``mavattitude.estimators``.
 from __future__ import annotations
 
 import os
+import signal
+import threading
+from contextlib import contextmanager
 
 from .. import kernel_cache as _kernel_cache
 from .alignment import Alignment, align
@@ -95,6 +98,28 @@ COMPILE_SECONDS = {"mahony": 2.0, "mahony-ekf": 4.0, "ekf": 4.0, "eskf": 2.5, "n
                    "cpf-ekf": 9.5}
 
 
+@contextmanager
+def _noticing_interrupts():
+    """A Ctrl-C while numba compiles can land in one of LLVM's callbacks, which prints
+    "Exception ignored" and goes on compiling: remember it, and raise it once the compile is
+    over (in the main thread; others get no signals)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    seen = []
+
+    def handler(signum, frame):
+        seen.append(signum)
+        raise KeyboardInterrupt
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if seen:
+        raise KeyboardInterrupt
+
+
 class Compiling:
     """Kernels compiling in other processes (``precompile``); ``wait`` before using them."""
 
@@ -102,11 +127,14 @@ class Compiling:
         self.processes = list(processes)
 
     def wait(self) -> None:
-        if self.processes:
-            warm_up([])  # the estimation core's own kernels, here, meanwhile
-        for p in self.processes:
-            p.wait()  # a worker that failed leaves its kernels to compile here, on first use
-        self.processes = []
+        with _noticing_interrupts():
+            if self.processes:
+                warm_up([])  # the estimation core's own kernels, here, meanwhile
+            for p in self.processes:
+                p.wait()  # a worker that failed leaves its kernels to compile here, on first use
+        processes, self.processes = self.processes, []
+        if any(p.returncode == -signal.SIGINT for p in processes):
+            raise KeyboardInterrupt  # Ctrl-C at a terminal reaches the workers too
 
 
 def precompile(names: list[str]) -> Compiling:
@@ -151,6 +179,11 @@ def warm_up(names: list[str], params: dict | None = None) -> None:
     """Run the estimation core over a second of synthetic samples (compass, GPS and baro
     included), so every compiled kernel is loaded (or compiled) now rather than on the first
     samples of a live link."""
+    with _noticing_interrupts():
+        _warm_up(names, params)
+
+
+def _warm_up(names: list[str], params: dict | None) -> None:
     import numpy as np
 
     from ..runner import Runner

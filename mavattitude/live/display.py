@@ -59,14 +59,14 @@ class LiveView:
         self.series = [ref_key] + (["autopilot"] if ref_key == "truth" else []) + names
         self.colors = view.assign_colors(self.series)
         self.has_gps = False
-        self.diagnostic_keys: list[str] = []
+        self.diagnostic_keys: dict[str, list[str]] = {}  # estimator -> its diagnostic keys
         self._send_blueprint()
         view.setup_world(rec)
         labels = {"autopilot": "autopilot (ATTITUDE)", "truth": "truth (SIMSTATE)"}
         for slot, key in enumerate(self.series):
             label = labels.get(key, key) + (" = reference" if key == ref_key else "")
             view.setup_series(rec, key, color=self.colors[key], label=label, slot=slot,
-                              ghost=key != ref_key, errors=key in names)
+                              ghost=key != ref_key, errors=key in names, reference=key == ref_key)
         for axis, shade in zip(AXES, (1.0, 0.7, 0.45)):  # one colour per filter, an axis a shade
             for name in names:
                 rec.log(f"rolling/{axis}/{view._part(name)}",
@@ -141,13 +141,15 @@ class LiveView:
         if not chunks:
             return
         rec, names = self.rec, self.est.names
-        new_keys = [k for c in chunks for d in c.diagnostics.values() for k in d if k not in self.diagnostic_keys]
-        if new_keys:
-            self.diagnostic_keys += list(dict.fromkeys(new_keys))
-            for name in names:
-                keys = [k for c in chunks for k in c.diagnostics.get(name, {})]
-                if keys:
-                    view.setup_diagnostics(rec, name, dict.fromkeys(keys), color=self.colors[name])
+        changed = False
+        for name in names:
+            known = self.diagnostic_keys.setdefault(name, [])
+            new = [k for k in dict.fromkeys(k for c in chunks for k in c.diagnostics.get(name, {})) if k not in known]
+            if new:
+                known += new
+                view.setup_diagnostics(rec, name, new, color=self.colors[name])
+                changed = True
+        if changed:
             self._send_blueprint()
         t = np.concatenate([c.t for c in chunks])
         for name in names:
