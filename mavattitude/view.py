@@ -11,12 +11,13 @@ Timeline: ``"time"``, a duration in seconds on the autopilot clock (seconds sinc
 Entity paths (``<s>`` is a series key: ``autopilot``, ``truth``, ``reference`` when the
 reference is neither of those, or an estimator's name, escaped for entity paths):
 
-- ``attitude/{roll,pitch,yaw}/<s>``  Scalars, degrees (+ static SeriesLines: colour, label)
+- ``attitude/{roll,pitch,yaw}/estimates/<s>``, ``attitude/{roll,pitch,yaw}/reference/<s>`` (the
+  autopilot, truth: drawn on top)  Scalars, degrees (+ static SeriesLines: colour, label)
 - ``error/{roll,pitch,yaw}/<s>``  Scalars, estimate - reference, degrees, scored samples
 - ``error/{roll,pitch,yaw}/<s>/unscored``  the samples the statistics skip (warm-up), faded
 - ``world``  static ViewCoordinates FRD: the 3D world is NED (x north, y east, z down)
 - ``world/<s>``  static Transform3D: the series' slot, ``SLOTS_PER_ROW`` side by side along
-  east, further rows behind (south)
+  east, further rows behind (north)
 - ``world/<s>/body``  Transform3D quaternion column (body -> NED), static Boxes3D + axes
 - ``world/<s>/label``  static Points3D carrying the series' name above its box
 - ``world/<s>/reference``  the reference attitude again, as a grey wireframe "ghost" in
@@ -137,7 +138,10 @@ def _part(name: str) -> str:
 
 
 def attitude_path(axis: str, name: str) -> str:
-    return f"attitude/{axis}/{_part(name)}"
+    """The estimates under ``estimates/``, the autopilot and truth under ``reference/``: the
+    viewer draws a plot's series in path order, so these come last, on top."""
+    group = "reference" if name in ROLE_COLORS else "estimates"
+    return f"attitude/{axis}/{group}/{_part(name)}"
 
 
 def error_path(axis: str, name: str) -> str:
@@ -233,8 +237,8 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
     d = 0.95 * (span + 3.0) + depth
     eye = rrb.EyeControls3D(
         kind="Orbital",
-        position=(-depth / 2 - 0.85 * d, span / 2 - 0.12 * d, -0.45 * d),
-        look_target=(-depth / 2, span / 2, 0.0),
+        position=(depth / 2 - 0.85 * d, span / 2 - 0.12 * d, -0.45 * d),
+        look_target=(depth / 2, span / 2, 0.0),
         eye_up=(0.0, 0.0, -1.0),
     )
     view3d = rrb.Spatial3DView(origin="world", name="attitude, NED (boxes: FRD body)",
@@ -308,15 +312,15 @@ def map_zoom_for(lat_deg, lon_deg, pixels: float = 300.0) -> float:
 REFERENCE_WIDTH = 3.0  # the reference's lines, under seven estimators
 SLOT_SPACING = 2.5  # metres (arbitrary units) between boxes, along east
 SLOTS_PER_ROW = 4  # boxes in a row: eight in one row would each be a few pixels wide
-ROW_SPACING = 2.5  # metres between rows, along south
+ROW_SPACING = 3.0  # metres between rows, along north (behind the first, seen from above)
 BOX_HALF_SIZES = (0.75, 0.5, 0.12)  # forward, right, down: a flat, nose-long box
 AXIS_LENGTH = 1.1
 
 
 def slot_position(slot: int) -> tuple[float, float, float]:
-    """NED position of a box's slot: rows of ``SLOTS_PER_ROW`` along east, the next row south."""
+    """NED position of a box's slot: rows of ``SLOTS_PER_ROW`` along east, the next row north."""
     row, col = divmod(slot, SLOTS_PER_ROW)
-    return (-ROW_SPACING * row, SLOT_SPACING * col, 0.0)
+    return (ROW_SPACING * row, SLOT_SPACING * col, 0.0)
 
 
 def setup_world(rec: rr.RecordingStream) -> None:
@@ -606,6 +610,31 @@ def log_events(rec: rr.RecordingStream, events: Sequence[Event], path: str = "ev
                      columns=rr.TextLog.columns(text=[e.text for e in ev], level=levels))
 
 
+EVENT_MARKERS = {  # which events get a marker on the attitude plots, and its look
+    "warnings": ((215, 40, 40), "Down"),  # gaps, restarts, resets, an untrusted reference, ...
+    "phase": ((120, 120, 120), "Circle"),  # take-off and landing
+}
+
+
+def log_event_markers(rec: rr.RecordingStream, events: Sequence[Event], top_deg: dict[str, float]) -> None:
+    """A marker on each attitude plot, near its top (``top_deg``: axis -> y), at each warning and
+    each change of the ground/air phase: where to look; the events tab says what happened."""
+    kinds = {"warnings": [e.t for e in events if e.level == "warn"],
+             "phase": [e.t for e in events if e.text.startswith(("in the air", "on the ground"))]}
+    for kind, times in kinds.items():
+        if not times:
+            continue
+        color, marker = EVENT_MARKERS[kind]
+        t = np.sort(np.asarray(times, dtype=np.float64))
+        for axis in AXES:
+            path = f"attitude/{axis}/events/{kind}"
+            rec.log(path, rr.SeriesPoints(colors=[color], markers=[marker], marker_sizes=[5.0],
+                                          names=[f"{kind} (events tab)" if kind == "warnings" else "take-off, landing"]),
+                    static=True)
+            rec.send_columns(path, indexes=[_time(t)],
+                             columns=rr.Scalars.columns(scalars=np.full(len(t), top_deg.get(axis, 175.0))))
+
+
 def _gps_fix(gps: GpsSeries) -> tuple[np.ndarray, np.ndarray]:
     """Times and (lat, lon) of the samples with a usable fix."""
     lat = np.asarray(gps.lat_deg, dtype=np.float64)
@@ -717,7 +746,7 @@ def _series(result: ReplayResult) -> list[tuple[str, str, AttitudeSeries]]:
             out.append((key, f"{key} ({s.source})", s))
     for name, s in result.estimates.items():
         shown = shown_estimate(s, result.comparisons.get(name), result.restarts)
-        out.append((name, name + (" (yaw aligned)" if shown is not s else ""), shown))
+        out.append((name, name + (" *" if shown is not s else ""), shown))
     return out
 
 
@@ -768,26 +797,22 @@ def summary_markdown(result: ReplayResult) -> str:
     if not result.comparisons:
         lines += ["", "Nothing was scored (no attitude reference in this log)."]
     else:
-        lines += ["", "## Errors (deg, scored samples): RMSE / max", "",
-                  "| estimate | vs | roll | pitch | yaw | n | note |",
-                  "|---|---|---|---|---|---|---|"]
+        n = max((m.n for c in result.comparisons.values() for m in c.axes.values() if m is not None), default=0)
+        warmup = next(iter(result.comparisons.values())).warmup_s
+        lines += ["", f"## Errors against {result.reference.source} (deg): RMSE / max", "",
+                  f"Scored: {n:,} reference samples after a {warmup:g} s warm-up.", "",
+                  "| estimate | roll | pitch | yaw |", "|---|---|---|---|"]
+    aligned = []
     for name, c in result.comparisons.items():
-        cells = []
-        n = 0
-        for axis in AXES:
-            m = c.axes.get(axis)
-            if m is None:
-                cells.append("–")
-            else:
-                cells.append(f"{_fmt(m.rmse)} / {_fmt(m.max)}")
-                n = max(n, m.n)
-        note = f"warm-up {c.warmup_s:g} s"
-        if c.yaw_aligned and len(c.yaw_offsets_deg) > 1:
-            note += "; yaw offsets removed: " + ", ".join(f"{off:+.1f}° from {start:.0f} s"
-                                                          for start, off in c.yaw_offsets_deg)
-        elif c.yaw_aligned:
-            note += f"; yaw offset {c.yaw_offset_deg:+.1f}° removed"
-        lines.append(f"| {name} | {c.reference} | {' | '.join(cells)} | {n} | {note} |")
+        cells = [f"{_fmt(m.rmse)} / {_fmt(m.max)}" if m is not None else "–"
+                 for m in (c.axes.get(axis) for axis in AXES)]
+        mark = " \\*" if c.yaw_aligned else ""
+        lines.append(f"| {name}{mark} | {' | '.join(cells)} |")
+        if c.yaw_aligned:
+            aligned.append(f"- {name}: " + ", ".join(f"{off:+.1f}° from {start:.0f} s" for start, off in c.yaw_offsets_deg))
+    if aligned:
+        lines += ["", "\\* no heading reference: a yaw offset per span between restarts is removed from its yaw "
+                      "error, and from its yaw in the plots and the 3D view:", ""] + aligned
     if fl.warnings:
         lines += ["", "## Data the reader left out", ""] + [f"- {w}" for w in fl.warnings]
     if fl.notes:
@@ -843,8 +868,8 @@ def _attitude_ranges(result: ReplayResult, span: tuple[float, float]) -> dict[st
     for k, axis in enumerate(AXES[:2]):
         e = euler[np.isfinite(euler[:, k]), k]
         if len(e):
-            lo, hi = float(e.min()), float(e.max())
-            pad = max(5.0, 0.15 * (hi - lo))
+            lo, hi = (float(v) for v in np.percentile(e, [0.5, 99.5]))  # not a moment on its back
+            pad = max(5.0, 0.25 * (hi - lo))
             out[axis] = (lo - pad, hi + pad)
     return out
 
@@ -875,12 +900,12 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     gps_t, gps_ll = _gps_fix(fl.gps) if fl.gps is not None else (np.empty(0), None)
     has_gps = len(gps_t) > 0
     diagnostics = _plotted_diagnostics(result)
+    ranges = _attitude_ranges(result, _scored_span(result))
     if blueprint:
-        span = _scored_span(result)
         send_blueprint(rec, has_gps=has_gps, n_slots=len(series),
-                       error_range_deg=_error_ranges(result), attitude_range_deg=_attitude_ranges(result, span),
+                       error_range_deg=_error_ranges(result), attitude_range_deg=ranges,
                        map_zoom=map_zoom_for(gps_ll[:, 0], gps_ll[:, 1]) if has_gps else None,
-                       time_span=span, diagnostics={n: list(d) for n, d in diagnostics.items()},
+                       time_span=_scored_span(result), diagnostics={n: list(d) for n, d in diagnostics.items()},
                        has_phase=result.phase is not None,
                        has_track=has_gps and bool(estimated_tracks(result))
                        and result.aiding is not None and result.aiding.origin is not None)
@@ -922,3 +947,4 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     rec.log("summary", rr.TextDocument(summary_markdown(result), media_type="text/markdown"),
             static=True)
     log_events(rec, list(result.events) + _summary_events(result, b))
+    log_event_markers(rec, result.events, {axis: hi - 0.04 * (hi - lo) for axis, (lo, hi) in ranges.items()})

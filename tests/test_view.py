@@ -153,8 +153,8 @@ def test_entity_paths_present(truth_rrd):
                 "/world/ncs-eskf/body", "/world/mahony/reference",
                 "/world/autopilot/reference"]
     for axis in AXES:
-        expected += [f"/attitude/{axis}/{s}" for s in ("truth", "autopilot", "mahony",
-                                                       "ncs-eskf")]
+        expected += [f"/attitude/{axis}/reference/{s}" for s in ("truth", "autopilot")]
+        expected += [f"/attitude/{axis}/estimates/{s}" for s in ("mahony", "ncs-eskf")]
         expected += [f"/error/{axis}/{s}" for s in ("autopilot", "mahony", "ncs-eskf")]
         expected += [f"/error/{axis}/mahony/unscored"]
     missing = [p for p in expected if p not in text]
@@ -218,7 +218,7 @@ def test_reference_autopilot_without_truth_or_gps(tmp_path):
     if RERUN:
         text = _rrd_text(path)
         assert "/world/autopilot/body" in text and "/world/mahony/reference" in text
-        assert "/map/" not in text and "/attitude/roll/truth" not in text
+        assert "/map/" not in text and "/attitude/roll/reference/truth" not in text
 
 
 def test_no_reference_nothing_scored(tmp_path):
@@ -232,7 +232,7 @@ def test_no_reference_nothing_scored(tmp_path):
     write_rrd(result, path)
     if RERUN:
         text = _rrd_text(path)
-        assert "/world/mahony/body" in text and "/attitude/yaw/ncs-eskf" in text
+        assert "/world/mahony/body" in text and "/attitude/yaw/estimates/ncs-eskf" in text
         assert "/error/" not in text and "/reference" not in text
 
 
@@ -272,11 +272,11 @@ def test_euler_columns_in_degrees_and_wraps_broken():
     cap = _Capture()
     view.log_euler_columns(cap, "mahony", t, quat.from_euler(np.zeros_like(t),
                                                              np.zeros_like(t), yaw))
-    (times, values), = cap.sent["attitude/yaw/mahony"]
+    (times, values), = cap.sent["attitude/yaw/estimates/mahony"]
     y = np.array([v[0] for v in values["Scalars:scalars"]], dtype=float)
     assert len(y) == len(t) + 1 and np.isnan(y).sum() == 1  # one break at the wrap
     assert np.nanmax(y) == pytest.approx(178.89, abs=0.01) and np.nanmin(y) < -170
-    (_, roll), = cap.sent["attitude/roll/mahony"]
+    (_, roll), = cap.sent["attitude/roll/estimates/mahony"]
     assert np.allclose([v[0] for v in roll["Scalars:scalars"]], 0.0, atol=1e-9)
 
 
