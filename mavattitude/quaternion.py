@@ -69,6 +69,13 @@ def conjugate(q) -> np.ndarray:
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
+def yaw_turned(q, yaw) -> np.ndarray:
+    """``q`` (..., 4) turned about the NED down axis by ``yaw`` (rad, scalar or per row): its
+    ZYX yaw grows by ``yaw``, roll and pitch stay."""
+    yaw = np.asarray(yaw, dtype=float)
+    return multiply(from_euler(0.0 * yaw, 0.0 * yaw, yaw), q)
+
+
 def trimmed(q, roll: float, pitch: float) -> np.ndarray:
     """The vehicle body's attitude from the board's, for ArduPilot's board trim (AHRS_TRIM_X/Y,
     rad): q ⊗ q_trim*, q_trim from the Euler angles (roll, pitch, 0) (AP_AHRS: DCM · R(trim)ᵀ)."""

@@ -171,6 +171,11 @@ class RunningComparison:
             out += self._take(t[rows], error[rows], reference_deg[rows], scored[rows])
         return _joined(out)
 
+    @property
+    def yaw_offset(self) -> float | None:
+        """The yaw offset (deg) removed in the current span, once known; None without alignment."""
+        return self._offset if self._align else None
+
     def _take(self, t, error, reference, scored) -> list[tuple]:
         if not self._align or self._offset is not None:
             return [self._score(t, error, reference, scored)]

@@ -198,8 +198,9 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
     ``live_window``: a live session's "link" tab (its first): the rolling MAE over that many
     seconds (``rolling/<axis>/<s>``) and the link's arrival rates and losses (``link/...``).
 
-    One legend (in the roll plot) names every colour; the error plots have none: their
-    lines have the same colours, faded where not scored (the warm-up).
+    One legend names every estimator's colour, in the roll error plot's lower right corner
+    (errors stay near 0 in a range fitted to their peak: the corner is mostly empty); the
+    reference is the thick line of the value plots, and the boxes in 3D carry names.
     """
     # With a known span, each plot opens on the whole replay. Rerun 0.41 reads a linked
     # plot's range from a global setting the SDK cannot set, and its fallback opened on a
@@ -220,13 +221,12 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
         att_kwargs = {}
         if attitude_range_deg and attitude_range_deg.get(axis):
             att_kwargs["axis_y"] = rrb.ScalarAxis(range=tuple(float(v) for v in attitude_range_deg[axis]))
-        legend = rrb.PlotLegend(corner="LeftTop", visible=axis == AXES[0])
         rows.append(rrb.Horizontal(
-            rrb.TimeSeriesView(origin=f"attitude/{axis}", name=f"{axis} (deg)", axis_x=link,
-                               plot_legend=legend, **att_kwargs),
+            rrb.TimeSeriesView(origin=f"attitude/{axis}", name=f"{axis} (deg; thick: the reference)", axis_x=link,
+                               plot_legend=rrb.PlotLegend(visible=False), **att_kwargs),
             rrb.TimeSeriesView(origin=f"error/{axis}",
-                               name=f"{axis} error: estimate - reference (deg)",
-                               axis_x=link, plot_legend=rrb.PlotLegend(visible=False),
+                               name=f"{axis} error: estimate - reference (deg)", axis_x=link,
+                               plot_legend=rrb.PlotLegend(corner="RightBottom", visible=axis == AXES[0]),
                                **err_kwargs),
             column_shares=[3, 2],
         ))
@@ -764,8 +764,7 @@ def shown_estimate(series: AttitudeSeries, comparison, restarts) -> AttitudeSeri
     q = np.empty_like(series.q)
     for a in range(0, len(q), 1 << 17):  # in steps: an hour's temporaries stay small
         b = min(a + (1 << 17), len(q))
-        yaw = offset[np.searchsorted(bounds, series.t[a:b], side="right")]
-        q[a:b] = quat.multiply(quat.from_euler(0.0 * yaw, 0.0 * yaw, -yaw), series.q[a:b])
+        q[a:b] = quat.yaw_turned(series.q[a:b], -offset[np.searchsorted(bounds, series.t[a:b], side="right")])
     return AttitudeSeries(series.source, series.t, q)
 
 

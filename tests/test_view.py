@@ -317,3 +317,21 @@ if __name__ == "__main__":
     args = ap.parse_args()
     write_rrd(make_replay(duration=args.duration, reference=args.reference), args.out)
     print(args.out)
+
+
+def test_an_estimate_without_heading_is_shown_as_it_is_scored():
+    """The yaw plot and the box of an estimator with no heading reference carry the offset its
+    yaw error had removed, span by span (restarts), so value and error plots agree."""
+    from mavattitude.metrics import compare
+    from mavattitude.view import shown_estimate
+
+    t = np.arange(0.0, 60.0, 0.02)
+    roll, pitch, yaw = 0.2 * np.sin(t), 0.1 * np.cos(t), 0.05 * t
+    ref = AttitudeSeries("ATT", t, quat.from_euler(roll, pitch, yaw))
+    drift = np.where(t < 30.0, np.radians(40.0), np.radians(-100.0))  # a new arbitrary yaw after the restart
+    est = AttitudeSeries("eskf", t, quat.from_euler(roll, pitch, yaw + drift))
+    c = compare(ref, est, warmup_s=5.0, align_yaw=True, restarts=[30.0])
+    shown = shown_estimate(est, c, [30.0])
+    assert [round(o) for _, o in c.yaw_offsets_deg] == [40, -100]
+    assert np.allclose(quat.to_euler(shown.q), quat.to_euler(ref.q), atol=1e-9)  # the shown yaw is the scored one
+    assert shown_estimate(est, compare(ref, est, warmup_s=5.0), [30.0]) is est  # with a heading: as it is

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import rerun as rr
 
+from .. import quaternion as quat
 from .. import view
 from ..growing import Growing
 from ..metrics import AXES
@@ -113,6 +114,9 @@ class LiveView:
             t = np.concatenate([c.t for c in chunks])
             for name in est.names:
                 q = np.vstack([c.q[name] for c in chunks])
+                offset = est.yaw_offset_deg(name)
+                if offset:  # no heading reference: shown as it is scored
+                    q = quat.yaw_turned(q, -np.radians(offset))
                 view.log_attitude_columns(rec, name, t, q, scalar_max_hz=self.rates.scalar_hz,
                                           transform_max_hz=self.rates.transform_hz)
         if now is None or now - self._diag_sent_at >= self.rates.diagnostic_flush_s:

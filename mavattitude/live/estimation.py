@@ -323,6 +323,13 @@ class LiveEstimation:
             if got is not None and self._errors is not None and name in self._errors:
                 self._errors[name].append(got)
 
+    def yaw_offset_deg(self, name: str) -> float | None:
+        """The yaw offset the final metrics remove from the estimator's current span (no
+        heading reference), once its first scored second is in; None otherwise. The view
+        shows its yaw with it removed, as its yaw error."""
+        score = self.seg.scores.get(name)
+        return score.yaw_offset if score is not None else None
+
     def take_errors(self, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """An estimator's errors scored since the last call (``errors_for_view``): (t, (N, 3)
         estimate - reference in degrees, scored), yaw without a heading reference with its
