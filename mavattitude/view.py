@@ -14,7 +14,9 @@ reference is neither of those, or an estimator's name, escaped for entity paths)
 - ``attitude/{roll,pitch,yaw}/estimates/<s>``, ``attitude/{roll,pitch,yaw}/reference/<s>`` (the
   autopilot, truth: drawn on top)  Scalars, degrees (+ static SeriesLines: colour, label)
 - ``error/{roll,pitch,yaw}/<s>``  Scalars, estimate - reference, degrees, scored samples
-- ``error/{roll,pitch,yaw}/<s>/unscored``  the samples the statistics skip (warm-up), faded
+- ``error/{roll,pitch,yaw}/_unscored/<s>``  the samples the statistics skip (warm-up), faded;
+  named as the scored line, so the legend has one entry for both (the viewer merges equal
+  names) in the scored line's colour (the last in path order)
 - ``world``  static ViewCoordinates FRD: the 3D world is NED (x north, y east, z down)
 - ``world/<s>``  static Transform3D: the series' slot, ``SLOTS_PER_ROW`` side by side along
   east, further rows behind (north)
@@ -144,8 +146,8 @@ def attitude_path(axis: str, name: str) -> str:
     return f"attitude/{axis}/{group}/{_part(name)}"
 
 
-def error_path(axis: str, name: str) -> str:
-    return f"error/{axis}/{_part(name)}"
+def error_path(axis: str, name: str, scored: bool = True) -> str:
+    return f"error/{axis}/{_part(name)}" if scored else f"error/{axis}/_unscored/{_part(name)}"
 
 
 def body_path(name: str) -> str:
@@ -248,8 +250,8 @@ def make_blueprint(*, has_gps: bool = True, n_slots: int = 4, error_range_deg=No
             rrb.TextLogView(origin="events", name="events", columns=_TEXT_LOG_COLUMNS)]
     per_estimator = [_diagnostics_tab(name, keys, link) for name, keys in (diagnostics or {}).items() if keys]
     if has_phase:
-        per_estimator.append(rrb.TimeSeriesView(origin="phase", name="ground/air phase (1 = air), height (m)",
-                                                axis_x=link))
+        per_estimator.append(rrb.Vertical(rrb.TimeSeriesView(
+            origin="phase", name="ground/air phase (1 = air), height (m)", axis_x=link), name="phase"))
     if per_estimator:
         tabs.append(rrb.Tabs(*per_estimator, name="diagnostics"))
     if has_track:
@@ -342,8 +344,8 @@ def setup_series(rec: rr.RecordingStream, name: str, *, color: Color, label: str
             rec.log(error_path(axis, name),
                     rr.SeriesLines(colors=[color], names=[label], widths=[1.5],
                                    aggregation_policy="MinMax"), static=True)
-            rec.log(error_path(axis, name) + "/unscored",
-                    rr.SeriesLines(colors=[(*color, 90)], names=[f"{label} (not scored)"],
+            rec.log(error_path(axis, name, scored=False),
+                    rr.SeriesLines(colors=[(*color, 90)], names=[label],
                                    widths=[1.0], aggregation_policy="MinMax"), static=True)
     if slot is None:
         return
@@ -441,11 +443,11 @@ def _time(t: np.ndarray) -> rr.TimeColumn:
     return rr.TimeColumn(TIMELINE, duration=np.asarray(t, dtype=np.float64))
 
 
-def _break_wraps(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A NaN between consecutive samples more than 180° apart (an angle wrapping at ±180°) or
-    more than REINIT_GAP_S apart (a gap in the data), so the plot breaks the line there instead
-    of drawing a stroke across it."""
-    jumps = np.flatnonzero((np.abs(np.diff(y)) > 180.0) | (np.diff(t) > REINIT_GAP_S))
+def _break_wraps(t: np.ndarray, y: np.ndarray, angle: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """A NaN between consecutive samples more than REINIT_GAP_S apart (a gap in the data) or,
+    for an ``angle``, more than 180° apart (wrapping at ±180°), so the plot breaks the line
+    there instead of drawing a stroke across it (the viewer breaks a line at a NaN)."""
+    jumps = np.flatnonzero(((np.abs(np.diff(y)) > 180.0) if angle else False) | (np.diff(t) > REINIT_GAP_S))
     if len(jumps) == 0:
         return t, y
     t_mid = 0.5 * (t[jumps] + t[jumps + 1])
@@ -505,17 +507,17 @@ def log_attitude_columns(rec: rr.RecordingStream, name: str, t, q, *,
 def log_error_columns(rec: rr.RecordingStream, name: str, t, error_deg, scored, *,
                       max_hz: float = SCALAR_MAX_HZ) -> None:
     """One chunk of a comparison: estimate - reference (degrees, (N, 3)) to error/<axis>/<name>,
-    the unscored samples (warm-up) to error/<axis>/<name>/unscored."""
+    the unscored samples (warm-up) to error/<axis>/_unscored/<name>."""
     t = np.asarray(t, dtype=np.float64)
     err = np.asarray(error_deg, dtype=np.float64)
     scored = np.asarray(scored, dtype=bool)
-    for part, mask in (("", scored), ("/unscored", ~scored)):
+    for is_scored, mask in ((True, scored), (False, ~scored)):
         if not mask.any():
             continue
         tm, em = t[mask], err[mask]
         for k, axis in enumerate(AXES):
             idx = _bin_minmax(tm, em[:, k], max_hz)
-            _send_scalars(rec, error_path(axis, name) + part, tm[idx], em[idx, k])
+            _send_scalars(rec, error_path(axis, name, is_scored), tm[idx], em[idx, k])
 
 
 DIAGNOSTIC_TITLES = {
@@ -578,8 +580,8 @@ def log_diagnostic_columns(rec: rr.RecordingStream, name: str, t, diagnostics: d
         y = np.asarray(y, dtype=np.float64)
         ok = np.isfinite(y)
         idx = _bin_minmax(t[ok], y[ok], max_hz)
-        rec.send_columns(diagnostic_path(key, name), indexes=[_time(t[ok][idx])],
-                         columns=rr.Scalars.columns(scalars=y[ok][idx]))
+        tk, yk = _break_wraps(t[ok][idx], y[ok][idx], angle=False)
+        rec.send_columns(diagnostic_path(key, name), indexes=[_time(tk)], columns=rr.Scalars.columns(scalars=yk))
 
 
 def log_phase_columns(rec: rr.RecordingStream, t, in_air, height_m) -> None:
@@ -856,8 +858,8 @@ def _scored_span(result: ReplayResult) -> tuple[float, float]:
 
 
 def _attitude_ranges(result: ReplayResult, span: tuple[float, float]) -> dict[str, tuple[float, float]]:
-    """Roll and pitch ranges the plots open on: the reference's over ``span``, padded (a
-    tip-over on the ground at ±180° would flatten the flight to a line)."""
+    """Roll and pitch ranges the plots open on, from the reference over ``span`` (a tip-over
+    on the ground at ±180° would flatten the flight to a line)."""
     ref = result.reference
     if ref is None or not len(ref.t):
         return {}
@@ -867,9 +869,11 @@ def _attitude_ranges(result: ReplayResult, span: tuple[float, float]) -> dict[st
     for k, axis in enumerate(AXES[:2]):
         e = euler[np.isfinite(euler[:, k]), k]
         if len(e):
-            lo, hi = (float(v) for v in np.percentile(e, [0.5, 99.5]))  # not a moment on its back
-            pad = max(5.0, 0.25 * (hi - lo))
-            out[axis] = (lo - pad, hi + pad)
+            # three times the middle 90 %'s spread, at least ±10°: a moment on its back (a
+            # tip-over, a flip) stays out, the flight fills the middle; zoom out for the rest
+            lo, mid, hi = (float(v) for v in np.percentile(e, [5, 50, 95]))
+            half = max(10.0, 1.5 * (hi - lo))
+            out[axis] = (max(mid - half, -190.0), min(mid + half, 190.0))
     return out
 
 

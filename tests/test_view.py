@@ -156,7 +156,7 @@ def test_entity_paths_present(truth_rrd):
         expected += [f"/attitude/{axis}/reference/{s}" for s in ("truth", "autopilot")]
         expected += [f"/attitude/{axis}/estimates/{s}" for s in ("mahony", "ncs-eskf")]
         expected += [f"/error/{axis}/{s}" for s in ("autopilot", "mahony", "ncs-eskf")]
-        expected += [f"/error/{axis}/mahony/unscored"]
+        expected += [f"/error/{axis}/_unscored/mahony"]
     missing = [p for p in expected if p not in text]
     assert not missing, missing
     assert "/world/truth/reference" not in text  # the reference has no ghost of itself
