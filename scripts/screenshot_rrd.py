@@ -11,8 +11,10 @@ Not part of the package: a development tool only.
 
 Under software rendering the viewer ingests slowly: a 1-2 minute replay (a few MB) needs
 --wait 150-200 before every plot is filled; take --shots 3 to watch it fill. --click X,Y
-clicks viewport pixels afterwards (at 1600x1000: the "summary" tab is 1107,611, "events"
-1188,611, the middle of the timeline 830,986) and saves OUT-clickN.png.
+clicks viewport pixels afterwards and saves OUT-clickN.png. At 1600x1000, a replay with a GPS
+track and an estimated track has its tabs at "GPS track" 1014,611, "track" 1115,611,
+"summary" 1221,611, "events" 1302,611, "diagnostics" 1394,611; the middle of the timeline is
+830,986.
 """
 from __future__ import annotations
 
