@@ -16,7 +16,7 @@ reference is neither of those, or an estimator's name, escaped for entity paths)
 - ``error/{roll,pitch,yaw}/<s>``  Scalars, estimate - reference, degrees, scored samples
 - ``error/{roll,pitch,yaw}/_unscored/<s>``  the samples the statistics skip (warm-up), faded;
   named as the scored line, so the legend has one entry for both (the viewer merges equal
-  names) in the scored line's colour (the last in path order)
+  names; its dot shows the faded colour)
 - ``world``  static ViewCoordinates FRD: the 3D world is NED (x north, y east, z down)
 - ``world/<s>``  static Transform3D: the series' slot, ``SLOTS_PER_ROW`` side by side along
   east, further rows behind (north)
