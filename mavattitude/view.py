@@ -858,22 +858,24 @@ def _scored_span(result: ReplayResult) -> tuple[float, float]:
 
 
 def _attitude_ranges(result: ReplayResult, span: tuple[float, float]) -> dict[str, tuple[float, float]]:
-    """Roll and pitch ranges the plots open on, from the reference over ``span`` (a tip-over
-    on the ground at ±180° would flatten the flight to a line)."""
+    """Roll and pitch ranges the plots open on: the reference's extremes over ``span`` while in
+    the air (all of it without a phase), padded. A tip-over on the ground at ±180° would
+    flatten the flight to a line; the user zooms out for it."""
     ref = result.reference
     if ref is None or not len(ref.t):
         return {}
     inside = (ref.t >= span[0]) & (ref.t <= span[1])
+    if result.phase is not None:
+        flying = inside & (result.phase.on_clock(ref.t) == 1.0)
+        inside = flying if flying.any() else inside
     euler = np.degrees(quat.to_euler(ref.q[inside]))
     out = {}
     for k, axis in enumerate(AXES[:2]):
         e = euler[np.isfinite(euler[:, k]), k]
         if len(e):
-            # three times the middle 90 %'s spread, at least ±10°: a moment on its back (a
-            # tip-over, a flip) stays out, the flight fills the middle; zoom out for the rest
-            lo, mid, hi = (float(v) for v in np.percentile(e, [5, 50, 95]))
-            half = max(10.0, 1.5 * (hi - lo))
-            out[axis] = (max(mid - half, -190.0), min(mid + half, 190.0))
+            lo, hi = float(e.min()), float(e.max())
+            pad = max(5.0, 0.15 * (hi - lo))
+            out[axis] = (max(lo - pad, -190.0), min(hi + pad, 190.0))
     return out
 
 
