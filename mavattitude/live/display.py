@@ -27,8 +27,9 @@ from .estimation import LiveEstimation
 class Rates:
     """What the view gets of a live session (the metrics always use every sample): wall
     seconds between sends (each send is a chunk with its own schema: many small ones make a
-    large file), and the most samples a second of plots (min and max per bin, so a spike
-    stays visible: twice that many points), of the 3D boxes and of diagnostics."""
+    large file), and bins a second of the plots, the 3D boxes and diagnostics (an attitude
+    keeps a bin's first sample; an error or a diagnostic its minimum and maximum, so a spike
+    stays visible)."""
     flush_s: float
     scalar_hz: float
     transform_hz: float
