@@ -311,7 +311,7 @@ def map_zoom_for(lat_deg, lon_deg, pixels: float = 300.0) -> float:
 
 # ---------------------------------------------------------------- static set-up
 
-REFERENCE_WIDTH = 3.0  # the reference's lines, under seven estimators
+REFERENCE_WIDTH = 3.0  # the reference's lines: thicker than the estimates they are drawn over
 SLOT_SPACING = 2.5  # metres (arbitrary units) between boxes, along east
 SLOTS_PER_ROW = 4  # boxes in a row: eight in one row would each be a few pixels wide
 ROW_SPACING = 3.0  # metres between rows, along north (behind the first, seen from above)
@@ -443,7 +443,7 @@ def _time(t: np.ndarray) -> rr.TimeColumn:
     return rr.TimeColumn(TIMELINE, duration=np.asarray(t, dtype=np.float64))
 
 
-def _break_wraps(t: np.ndarray, y: np.ndarray, angle: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def _break_lines(t: np.ndarray, y: np.ndarray, angle: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """A NaN between consecutive samples more than REINIT_GAP_S apart (a gap in the data) or,
     for an ``angle``, more than 180° apart (wrapping at ±180°), so the plot breaks the line
     there instead of drawing a stroke across it (the viewer breaks a line at a NaN)."""
@@ -457,7 +457,7 @@ def _break_wraps(t: np.ndarray, y: np.ndarray, angle: bool = True) -> tuple[np.n
 def _send_scalars(rec: rr.RecordingStream, path: str, t: np.ndarray, y: np.ndarray) -> None:
     if len(t) == 0:
         return
-    t, y = _break_wraps(np.asarray(t, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    t, y = _break_lines(np.asarray(t, dtype=np.float64), np.asarray(y, dtype=np.float64))
     rec.send_columns(path, indexes=[_time(t)],
                      columns=rr.Scalars.columns(scalars=np.asarray(y, dtype=np.float64)))
 
@@ -580,7 +580,7 @@ def log_diagnostic_columns(rec: rr.RecordingStream, name: str, t, diagnostics: d
         y = np.asarray(y, dtype=np.float64)
         ok = np.isfinite(y)
         idx = _bin_minmax(t[ok], y[ok], max_hz)
-        tk, yk = _break_wraps(t[ok][idx], y[ok][idx], angle=False)
+        tk, yk = _break_lines(t[ok][idx], y[ok][idx], angle=False)
         rec.send_columns(diagnostic_path(key, name), indexes=[_time(tk)], columns=rr.Scalars.columns(scalars=yk))
 
 
