@@ -225,7 +225,8 @@ def test_read_figures_run_and_report(capsys, tmp_path):
     reads = {r["format"]: r for r in result["reads"]}
     assert set(reads) == {"bin", "tlog"} and reads["bin"]["log"].startswith("simulated figure8")
     for r in reads.values():
-        assert r["x_pymavlink"] == pytest.approx(r["pymavlink_s"] / r["ours_s"], rel=0.05)
+        # (rounded to 0.1: a cold compile inside the timed run makes a small x)
+        assert r["x_pymavlink"] == pytest.approx(r["pymavlink_s"] / r["ours_s"], rel=0.05, abs=0.05)
     e2e = result["end_to_end"]
     assert e2e["wall_s"] > 0 and e2e["peak_rss_mb"] > e2e["decoded_mb"] > 0 and e2e["rrd_mb"] > 0
     assert result["targets"]["end_to_end_s"] == pytest.approx(30.0 * 30 * 100 / (3600 * 400))

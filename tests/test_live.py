@@ -457,6 +457,21 @@ def test_growing_views_survive_growth():
     assert len(g) == 16 and first.tolist() == [[1.0, 2.0]] and g.last.tolist() == [1.0, 1.0]
 
 
+def test_growing_forgets_its_oldest_rows_in_bounded_storage():
+    """A window kept for hours: forgetting keeps the newest rows, the views taken before stay
+    as they were, and the storage stays within a few times the window."""
+    g = Growing(1)
+    taken = []
+    for i in range(200):
+        g.extend(np.arange(i * 100, (i + 1) * 100, dtype=float))
+        taken.append((g.view(), g.view().copy()))
+        g.forget(g.n - 500)  # keep the last 500 rows
+        assert g.column(0).tolist() == list(range((i + 1) * 100 - min(500, (i + 1) * 100), (i + 1) * 100))
+    assert g.forgotten == 19_500 and g.appended == 20_000 and g.last[0] == 19_999
+    assert all(np.array_equal(view, copy) for view, copy in taken)
+    assert len(g._data) <= 2_000
+
+
 # ---------------------------------------------------------------- what a real link does
 
 
