@@ -9,6 +9,7 @@ seconds, or when ``stop()`` says so; then the final metrics are printed.
 """
 from __future__ import annotations
 
+import gc
 import math
 import os
 import signal
@@ -128,6 +129,11 @@ def run_live(opts: LiveOptions, stop=lambda: False, status=None, say=None) -> Li
 
     status = status or StatusLine()
     session = _Session(opts, status, say or status.message)
+    # What is loaded by now (modules, compiled kernels) lives as long as the session: out of the
+    # garbage collector's full passes, which otherwise walk it all now and then, long enough
+    # for a fast link to overflow the receive buffer
+    gc.collect()
+    gc.freeze()
     signalled = []
     previous = {}
     if threading.current_thread() is threading.main_thread():
@@ -168,6 +174,7 @@ def run_live(opts: LiveOptions, stop=lambda: False, status=None, say=None) -> Li
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         session.close()
+        gc.unfreeze()
     return session.finish(ended_by)
 
 
