@@ -704,3 +704,17 @@ def test_ctrl_c_while_the_first_run_compiles_ends_cleanly(tmp_path, after_s):
     assert proc.returncode == 130, err
     assert "Traceback" not in err and "listening" not in err + out
     assert err.strip().splitlines()[-1] == "interrupted"
+
+
+def test_an_interrupt_numba_could_only_report_is_raised_after_the_compile():
+    """Ctrl-C landing in an LLVM callback reaches Python as an unraisable exception (a
+    traceback on stderr, and the compile goes on): taken quietly, raised once it is over."""
+    from types import SimpleNamespace
+
+    from mavattitude.estimators import _noticing_interrupts
+
+    before = sys.unraisablehook
+    with pytest.raises(KeyboardInterrupt):
+        with _noticing_interrupts():
+            sys.unraisablehook(SimpleNamespace(exc_value=KeyboardInterrupt(), exc_type=KeyboardInterrupt))
+    assert sys.unraisablehook is before

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 
@@ -100,9 +101,9 @@ COMPILE_SECONDS = {"mahony": 2.0, "mahony-ekf": 4.0, "ekf": 4.0, "eskf": 2.5, "n
 
 @contextmanager
 def _noticing_interrupts():
-    """A Ctrl-C while numba compiles can land in one of LLVM's callbacks, which prints
-    "Exception ignored" and goes on compiling: remember it, and raise it once the compile is
-    over (in the main thread; others get no signals)."""
+    """A Ctrl-C while numba compiles can land in one of LLVM's callbacks, where Python can only
+    report it ("Exception ignored", a traceback) and numba goes on compiling: take it quietly,
+    and raise it once the compile is over (in the main thread; others get no signals)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -111,11 +112,19 @@ def _noticing_interrupts():
     def handler(signum, frame):
         seen.append(signum)
         raise KeyboardInterrupt
-    previous = signal.signal(signal.SIGINT, handler)
+
+    def unraisable(report):
+        if isinstance(report.exc_value, KeyboardInterrupt):
+            seen.append(report)
+        else:
+            previous_hook(report)
+    previous, previous_hook = signal.signal(signal.SIGINT, handler), sys.unraisablehook
+    sys.unraisablehook = unraisable
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+        sys.unraisablehook = previous_hook
     if seen:
         raise KeyboardInterrupt
 
