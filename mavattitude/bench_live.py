@@ -122,25 +122,23 @@ def _probe_sender(port: int, speed: float, sim_seconds: float, out: str) -> None
 def _session_against(sender, args: tuple, names: list[str], **options):
     """A live session running ``names`` (more ``LiveOptions`` in ``options``) while a child
     process runs ``sender(port, *args)``: started once the session listens, the session ends
-    when it is done. Returns (the session's result, this process's RSS MB when it started)."""
+    when it is done. Returns the session's result."""
     from .live import LiveOptions, run_live
     from .live.display import StatusLine
 
     port = _free_port()
     child = multiprocessing.get_context("spawn").Process(target=sender, args=(port, *args), daemon=True)
-    began = []
 
     def on_line(line: str) -> None:  # the first line comes once the port is bound
-        if not began:
-            began.append(_rss_mb())
+        if child.pid is None:
             child.start()
     result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ, **options),
-                      stop=lambda: bool(began) and child.exitcode is not None,
+                      stop=lambda: child.pid is not None and child.exitcode is not None,
                       status=StatusLine(io.StringIO()), say=on_line)
     child.join(10)
     if child.exitcode != 0:
         raise RuntimeError(f"the simulated autopilot failed (exit {child.exitcode})")
-    return result, began[0]
+    return result
 
 
 def rate_probe(names: list[str], speed: float = RATE_PROBE_SPEED, seconds: float = RATE_PROBE_S) -> dict:
@@ -169,8 +167,8 @@ def _rate_probe(names: list[str], speed: float, seconds: float) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = str(Path(tmp) / "sent.json")
         try:
-            result, _ = _session_against(_probe_sender, (speed, seconds * speed, out), names,
-                                         record=None, request=False, duration=seconds + 120.0)
+            result = _session_against(_probe_sender, (speed, seconds * speed, out), names,
+                                      record=None, request=False, duration=seconds + 120.0)
         finally:
             done.set()
         sent = json.loads(Path(out).read_text())
@@ -183,8 +181,8 @@ def _rate_probe(names: list[str], speed: float, seconds: float) -> dict:
 
 def _rss_figures(rss: list[tuple[float, float]], start: float, end: float, samples: int) -> dict:
     """RSS at the start of the stream, half-way and at the end (MB; the median of the samples
-    within 5 % of the stream's span there, or one sampling interval), and the growth per hour of 1 kHz data from the
-    least-squares slope over the second half."""
+    within 5 % of the stream's span there, or one sampling interval), and the growth per hour
+    of 1 kHz data from the least-squares slope over the second half."""
     t, mb = (np.array(c) for c in zip(*rss)) if rss else (np.zeros(0), np.zeros(0))
     span = end - start
 
@@ -195,7 +193,7 @@ def _rss_figures(rss: list[tuple[float, float]], start: float, end: float, sampl
     per_hour = None
     if np.count_nonzero(second_half) >= 3 and samples:
         slope = np.polyfit(t[second_half], mb[second_half], 1)[0]  # MB per s of wall time
-        per_hour = round(float(slope * span / samples * 3.6e6 * (LIVE_IMU_HZ / 1000.0)), 1)
+        per_hour = round(float(slope * span / samples * 3.6e6), 1)  # MB a sample, times an hour of 1 kHz
     return {"rss_mb": {"start": at(start), "half": at(start + span / 2), "end": at(end)},
             "mb_per_hour_at_1khz": per_hour}
 
@@ -209,7 +207,7 @@ def run_live_bench(names: list[str], seconds: float = 60.0, say=print, probe_sec
     say(f"live: streaming {seconds:g} s of RAW_IMU at {LIVE_IMU_HZ:g} Hz and ATTITUDE at "
         f"{LIVE_ATT_HZ:g} Hz over loopback UDP to a live session ({', '.join(names)}) ...")
     with tempfile.TemporaryDirectory() as tmp:
-        result, _ = _session_against(_sender, (seconds, tmp), names, record=str(Path(tmp) / "bench.tlog"),
+        result = _session_against(_sender, (seconds, tmp), names, record=str(Path(tmp) / "bench.tlog"),
                                      record_latency=True, duration=seconds + SETTLE_S + 60.0)
         sent_at = np.load(Path(tmp) / "imu_sent_at.npy")
         sent = json.loads((Path(tmp) / "sent.json").read_text())

@@ -169,7 +169,7 @@ class RunningComparison:
                 self._align = bool(align_yaw[min(k, len(align_yaw) - 1)])
                 self.aligned |= self._align
             out += self._take(t[rows], error[rows], reference_deg[rows], scored[rows])
-        return _joined(out)
+        return joined(out)
 
     @property
     def yaw_offset(self) -> float | None:
@@ -227,7 +227,8 @@ class RunningComparison:
             overlap_s=None if math.isnan(self.t_first) else float(self.t_last - self.t_first))
 
 
-def _joined(parts: list[tuple]) -> tuple | None:
+def joined(parts: list[tuple]) -> tuple | None:
+    """Parts of columns (tuples of arrays, in order) as one tuple of columns; None if empty."""
     parts = [p for p in parts if len(p[0])]
     if not parts:
         return None

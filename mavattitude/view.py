@@ -72,7 +72,7 @@ from .flight import AttitudeSeries, GpsSeries
 from .metrics import AXES
 from .events import Event
 from .pipeline import ReplayResult
-from .runner import REINIT_GAP_S
+from .runner import REINIT_GAP_S, STEP_ROWS
 
 TIMELINE = "time"
 
@@ -764,8 +764,8 @@ def shown_estimate(series: AttitudeSeries, comparison, restarts) -> AttitudeSeri
     for start, removed in comparison.yaw_offsets_deg:
         offset[np.searchsorted(bounds, start, side="right")] = math.radians(removed)
     q = np.empty_like(series.q)
-    for a in range(0, len(q), 1 << 17):  # in steps: an hour's temporaries stay small
-        b = min(a + (1 << 17), len(q))
+    for a in range(0, len(q), STEP_ROWS):  # in steps: an hour's temporaries stay small
+        b = min(a + STEP_ROWS, len(q))
         q[a:b] = quat.yaw_turned(series.q[a:b], -offset[np.searchsorted(bounds, series.t[a:b], side="right")])
     return AttitudeSeries(series.source, series.t, q)
 
@@ -905,12 +905,13 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     gps_t, gps_ll = _gps_fix(fl.gps) if fl.gps is not None else (np.empty(0), None)
     has_gps = len(gps_t) > 0
     diagnostics = _plotted_diagnostics(result)
-    ranges = _attitude_ranges(result, _scored_span(result))
+    span = _scored_span(result)
+    ranges = _attitude_ranges(result, span)
     if blueprint:
         send_blueprint(rec, has_gps=has_gps, n_slots=len(series),
                        error_range_deg=_error_ranges(result), attitude_range_deg=ranges,
                        map_zoom=map_zoom_for(gps_ll[:, 0], gps_ll[:, 1]) if has_gps else None,
-                       time_span=_scored_span(result), diagnostics={n: list(d) for n, d in diagnostics.items()},
+                       time_span=span, diagnostics={n: list(d) for n, d in diagnostics.items()},
                        has_phase=result.phase is not None,
                        has_track=has_gps and bool(estimated_tracks(result))
                        and result.aiding is not None and result.aiding.origin is not None)

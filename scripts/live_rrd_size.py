@@ -34,7 +34,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "live.rrd"
         sink = plan_sink("rrd", str(path))
-        result, _ = _session_against(_probe_sender, (args.speed, args.seconds * args.speed, str(Path(tmp) / "s.json")),
+        result = _session_against(_probe_sender, (args.speed, args.seconds * args.speed, str(Path(tmp) / "s.json")),
                                      names, record=None, request=False, sink=sink,
                                      duration=args.seconds + 120.0)
         sink.file.commit()

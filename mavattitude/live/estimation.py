@@ -42,7 +42,7 @@ from ..readers import IMU_LIMITS, MAG_LIMITS, earth_field_power, pick_imu, pick_
 from ..readers.collect import CORRUPT, HELD, ClockTracker
 from ..readers.tlog import MessageDecoder
 from ..runner import Chunk, Runner
-from ..running_metrics import RunningComparison
+from ..running_metrics import RunningComparison, joined
 from .loss import SampleLoss
 
 ALIGN_S = 3.0  # s of IMU data before the sources are chosen
@@ -335,7 +335,7 @@ class LiveEstimation:
         estimate - reference in degrees, scored), yaw without a heading reference with its
         offset removed (as the final metrics), NaN until that offset is known."""
         parts, self._errors[name] = self._errors[name], []
-        return tuple(np.concatenate(c) for c in zip(*parts)) if parts else None
+        return joined(parts)
 
     def _forget(self, seg: _Segment, latest: float) -> None:
         """Drop what is older than the history and no longer needed: what was handed to the

@@ -164,20 +164,24 @@ def _enlarge_receive_buffer(conn) -> None:
             continue
 
 
+def _udp_socket(conn) -> socket.socket | None:
+    """The socket of a UDP link; None for other links."""
+    port = getattr(conn, "port", None)
+    return port if isinstance(port, socket.socket) and port.type == socket.SOCK_DGRAM else None
+
+
 def receive_buffer(conn) -> int | None:
     """Bytes of receive buffer the system granted a UDP link (Linux counts its bookkeeping
     too: twice what was asked); None for other links."""
-    port = getattr(conn, "port", None)
-    if not isinstance(port, socket.socket) or port.type != socket.SOCK_DGRAM:
-        return None
-    return port.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    port = _udp_socket(conn)
+    return port.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) if port is not None else None
 
 
 def kernel_drops(conn) -> int | None:
     """Datagrams the system dropped for a UDP link because its receive buffer was full: the
     'drops' column of Linux's /proc/net/udp for this socket. None where it is not known."""
-    port = getattr(conn, "port", None)
-    if not isinstance(port, socket.socket) or port.type != socket.SOCK_DGRAM:
+    port = _udp_socket(conn)
+    if port is None:
         return None
     try:
         inode = str(os.fstat(port.fileno()).st_ino)
