@@ -701,7 +701,9 @@ def test_ctrl_c_while_the_first_run_compiles_ends_cleanly(tmp_path, after_s):
     time.sleep(after_s)
     os.killpg(proc.pid, signal.SIGINT)
     out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
+    # 130, or killed by SIGINT, which a shell reports as 130 too: CPython ends that way when a
+    # KeyboardInterrupt once escaped code it ran from C (numba's compile), though ours was handled
+    assert proc.returncode in (130, -signal.SIGINT), err
     assert "Traceback" not in err and "listening" not in err + out
     assert err.strip().splitlines()[-1] == "interrupted"
 
