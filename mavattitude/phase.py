@@ -118,7 +118,8 @@ class PhaseTracker:
     median of the samples of the first ``START_S`` (of those seen so far, until then).
 
     ``add(t, height)`` takes raw heights (baro pressure height, or GPS altitude) in time order,
-    ignoring non-finite ones and any not newer than the last; ``n`` counts the phase rows.
+    ignoring non-finite ones and any not newer than the last, and says which it took; ``n``
+    counts the phase rows.
     """
 
     def __init__(self, source: str):
@@ -127,14 +128,15 @@ class PhaseTracker:
         self._rows = Growing(3)  # t, height above the start (smoothed), in_air
         self._state = np.zeros(1)
 
-    def add(self, t, height) -> None:
+    def add(self, t, height) -> np.ndarray:
+        """Take the samples that are finite and newer than every one before; (N,) bool: which."""
         t = np.asarray(t, dtype=float).reshape(-1)
         height = np.asarray(height, dtype=float).reshape(-1)
         last = self._heights.last[0] if self._heights.n else -np.inf
         ok = np.isfinite(height) & np.isfinite(t)
         ok &= t > np.maximum.accumulate(np.concatenate([[last], np.where(ok, t, -np.inf)]))[:-1]
         if not ok.any():
-            return
+            return ok
         start = self._heights.n
         self._heights.extend(np.column_stack([t[ok], height[ok]]))
         rows = self._heights.view()
@@ -142,6 +144,7 @@ class PhaseTracker:
         lo = int(np.searchsorted(t_all, t_all[start] - SMOOTH_S))
         h_rel, in_air = _track(t_all, np.ascontiguousarray(rows[:, 1]), start, lo, self._state)
         self._rows.extend(np.column_stack([rows[start:, 0], h_rel, in_air]))
+        return ok
 
     @property
     def n(self) -> int:

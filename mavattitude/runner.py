@@ -376,10 +376,12 @@ class Runner:
         kind = BARO if self._phase.source == "baro height" else GPS
         rows = self.store[kind].view()
         usable = self._height_usable(kind)
-        for j in range(self._heights_seen, len(rows)):  # the tracker's rows after each sample
-            if usable[j]:
-                self._phase.add(rows[j:j + 1, 0], self._raw_height(kind, rows[j:j + 1]))
-            self._phase_rows.append((self._phase.n,))
+        new, use = rows[self._heights_seen:], usable[self._heights_seen:]
+        taken = np.zeros(len(new), dtype=bool)
+        rows_before = self._phase.n
+        if use.any():
+            taken[use] = self._phase.add(new[use, 0], self._raw_height(kind, new[use]))
+        self._phase_rows.extend(rows_before + np.cumsum(taken))  # the tracker's rows after each sample
         self._heights_seen = len(rows)
         phase = self._phase.series()
         self._phase_events(phase)
