@@ -39,6 +39,7 @@ examples:
   mavattitude replay sitl.tlog --reference truth --export out/
   mavattitude replay flight.bin --estimators all --set ncs-eskf.h_threshold_air=0.02
   mavattitude evaluate ../logs --estimators all -j 4 --out evaluation/
+  mavattitude tune ../logs --estimator mahony -o tuned.toml
   mavattitude estimators
   mavattitude simulate --scenario figure8 --duration 120 -o figure8.tlog
   mavattitude live udpin:0.0.0.0:14550 --estimators all --spawn
@@ -239,6 +240,64 @@ def cmd_evaluate(args) -> int:
     print(f"{len(records)} logs: {summary['scored']} scored, {len(summary['failed'])} failed, "
           f"{len(summary['skipped'])} skipped; written to {out}/ (report.md, summary.json, results.csv"
           f"{', results.parquet' if parquet else ''}, tilt_error.svg)")
+    return 0
+
+
+# ---------------------------------------------------------------- tune
+
+
+def cmd_tune(args) -> int:
+    from .evaluate import Workers, check_scheduler, find_logs
+    from .tune import TrialProgress, TuneSettings, report_text, tune, tuned_toml
+
+    try:
+        import optuna  # noqa: F401 - only to say now that it is missing
+    except ImportError:
+        raise UsageError("tune needs Optuna: pip install 'mavattitude[tune]'") from None
+    name = _estimator_names(args.estimator)
+    if len(name) != 1:
+        raise UsageError("--estimator takes one estimator: tune fits one at a time")
+    name = name[0]
+    if args.ship_logs and not args.scheduler:
+        raise UsageError("--ship-logs goes with --scheduler (local workers read the logs themselves)")
+    settings = TuneSettings(name, _replay_settings(args, [name]), trials=args.trials, folds=args.folds,
+                            objective=args.objective, seed=args.seed)
+    from .tune import space_for
+    space_for(settings)  # nothing to search is a usage error, before any log is read
+    if args.scheduler:
+        check_scheduler(args.scheduler)
+    logs = find_logs(args.paths)
+    if not logs:
+        raise InputError(", ".join(args.paths), "holds no .bin or .tlog log")
+    with Outputs(inputs=[*logs, args.params], force=args.force) as outputs:
+        toml_out = outputs.file(args.output or f"tuned-{name}.toml", "-o", "toml")
+        json_out = outputs.file(args.json, "--json", "json")
+        study = outputs.database(args.study, "--study")
+        if not args.scheduler:
+            _compile([name]).wait()  # once here, not in every worker
+        jobs = min(args.jobs, len(logs))
+        where = f"on the Dask cluster at {args.scheduler}" if args.scheduler else \
+            f"in {jobs} process{'es' if jobs > 1 else ''}"
+        folds = f"{args.folds}-fold cross-validation, then a fit on all logs" if args.folds >= 2 else \
+            "no cross-validation, a fit on all logs"
+        print(f"tuning {name} on {len(logs)} logs {where}: {args.trials} trials per fit, {folds}; "
+              + (f"study in {study} (a stopped run resumes)" if study else
+                 "study in memory (--study FILE keeps it, so that a stopped run resumes)"), file=sys.stderr)
+        progress = TrialProgress(name, quiet=args.quiet)
+        try:
+            with Workers(jobs, args.scheduler, args.ship_logs, keep=True) as workers:
+                result = tune(logs, settings, workers, f"sqlite:///{study}" if study else None, progress)
+        finally:
+            progress.close()
+        command = "mavattitude " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["tune"] else "mavattitude tune"
+        with toml_out.writing() as path:
+            Path(path).write_text(tuned_toml(result, settings, command))
+        if json_out:
+            with json_out.writing() as path:
+                Path(path).write_text(json.dumps(result.as_dict(), indent=1) + "\n")
+    print(report_text(result))
+    print(f"parameters written to {toml_out.path}: use them with --params {toml_out.path}"
+          + (f"; the full results in {json_out.path}" if json_out else ""))
     return 0
 
 
@@ -486,11 +545,12 @@ def quiet_arg(p) -> None:
                    help="no progress display (it shows on a terminal only, for work over 2 s)")
 
 
-def _estimation_args(p, source: str) -> None:
-    """The options replay and live share: what to run, with what, against what.
-    ``source``: "log" or "vehicle", for the help texts."""
-    p.add_argument("--estimators", default="mahony", metavar="LIST",
-                   help="comma-separated estimator names, or 'all' (default: mahony)")
+def _estimation_args(p, source: str, estimators: bool = True) -> None:
+    """The options replay, evaluate, tune and live share: what to run, with what, against what.
+    ``source``: "log" or "vehicle", for the help texts; ``estimators``: with --estimators."""
+    if estimators:
+        p.add_argument("--estimators", default="mahony", metavar="LIST",
+                       help="comma-separated estimator names, or 'all' (default: mahony)")
     p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
                    help="score against the autopilot's attitude (ATT/ATTITUDE, default) or the "
                         "simulator's ground truth (SIM/SIMSTATE); with truth the autopilot is "
@@ -611,6 +671,55 @@ def build_parser() -> argparse.ArgumentParser:
     segment_arg(p)
     force_arg(p)
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser(
+        "tune", help="fit an estimator's parameters to your logs, cross-validated by log",
+        description=textwrap.fill(
+            "Search an estimator's parameters (those 'mavattitude estimators' shows with a search range) "
+            "for the lowest tilt error (mean of roll and pitch MAE) over the logs, each replayed as "
+            "'evaluate' replays it, with Optuna's TPE sampler (pip install 'mavattitude[tune]'). First "
+            "K-fold cross-validation by log: each fold's logs are held out while the others are fitted, "
+            "then scored with the defaults and with that fit, so the held-out figures say what tuning "
+            "gains on flights it has not seen. Then a fit on all the logs, written as TOML for --params. "
+            "The first trial of every fit is the starting point (the defaults, or --params); --set fixes "
+            "a parameter. A log that makes a trial diverge counts as 90 degrees.", 79),
+        epilog="examples:\n"
+               "  mavattitude tune ../logs --estimator mahony\n"
+               "  mavattitude tune flights/ --estimator ncs-eskf --trials 100 --study ncs.db -o ncs.toml\n"
+               "  mavattitude tune sitl/ --estimator eq-kf --reference truth --set eq-kf.use_mag=false\n"
+               "  mavattitude replay flight.bin --estimators mahony --params tuned-mahony.toml\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("paths", nargs="+", metavar="PATH",
+                   help="log files, folders (searched recursively for .bin/.tlog logs) or glob patterns")
+    p.add_argument("--estimator", required=True, metavar="NAME", help="the estimator to tune")
+    p.add_argument("--trials", type=COUNT, default=50, metavar="N",
+                   help="trials per fit (default 50); the run makes (folds + 1) fits")
+    p.add_argument("--folds", type=_number(0, whole=True), default=5, metavar="K",
+                   help="folds of the cross-validation by log (default 5; 0 or 1: none, fit on all logs only)")
+    p.add_argument("--objective", choices=("median", "mean"), default="median",
+                   help="what a trial minimises over its logs' tilt errors (default median: one odd log "
+                        "cannot steer the fit)")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the folds and the sampler (default 0)")
+    _estimation_args(p, "log", estimators=False)
+    p.add_argument("-j", "--jobs", type=COUNT, default=os.cpu_count() or 1, metavar="N",
+                   help=f"logs replayed at once, one process each, each keeping the logs it read "
+                        f"(default: the CPUs, {os.cpu_count()})")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="replay on a Dask distributed cluster, e.g. tcp://HOST:8786 (pip install "
+                        "'mavattitude[cluster]'); its workers read the logs at the same paths")
+    p.add_argument("--ship-logs", action="store_true",
+                   help="with --scheduler: send each log's bytes to the worker (workers without the files)")
+    p.add_argument("--study", metavar="FILE",
+                   help="keep the trials in this SQLite file: run the same command again to resume a "
+                        "stopped run (default: in memory)")
+    p.add_argument("-o", "--output", metavar="FILE",
+                   help="where the tuned parameters go, as TOML for --params (default tuned-NAME.toml)")
+    p.add_argument("--json", metavar="FILE",
+                   help="write every fit, fold and held-out log's tilt error as JSON")
+    trim_arg(p)
+    segment_arg(p)
+    force_arg(p)
+    p.set_defaults(func=cmd_tune)
 
     p = sub.add_parser("estimators", help="list the estimators with their parameters and defaults",
                        description="List every estimator: the paper it follows, whether it uses the "

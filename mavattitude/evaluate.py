@@ -84,24 +84,27 @@ def settings_key(settings: ReplaySettings) -> str:
 # ---------------------------------------------------------------- one log
 
 
-def evaluate_log(path: str, settings: ReplaySettings, data: bytes | None = None) -> dict:
+def evaluate_log(path: str, settings: ReplaySettings, data: bytes | None = None, keep: bool = False) -> dict:
     """Replay one log as ``replay`` does (``pipeline.replay_flight``) and return its record:
     ``status`` ("ok", "failed" or "skipped"), ``facts``, ``metrics`` (``replay --json``'s
     estimators), ``error``. ``data``: the log's bytes, for a worker that cannot see ``path``.
-    Never raises for a bad log: its error is the record."""
+    ``keep``: keep the decoded log in this process for the next replay of it (``tune`` replays
+    the same logs once per trial). Never raises for a bad log: its error is the record."""
     record = {"version": RECORD_VERSION, "log": path, "status": "failed", "facts": {}, "metrics": {},
               "error": None, "seconds": 0.0}
     start = time.perf_counter()
     local = path
     try:
-        if data is None:
-            record.update(_replay(path, path, settings))
+        if keep and (path, settings.segment) in _kept:
+            record.update(_replay(path, path, settings, _kept[path, settings.segment]))
+        elif data is None:
+            record.update(_replay(path, path, settings, keep=keep))
         else:
             with tempfile.TemporaryDirectory() as tmp:
                 local = os.path.join(tmp, os.path.basename(path))
                 with open(local, "wb") as f:
                     f.write(data)
-                record.update(_replay(local, path, settings))
+                record.update(_replay(local, path, settings, keep=keep))
     except (InputError, UsageError) as exc:
         record["error"] = str(exc).replace(local, path)
     except MemoryError:
@@ -112,11 +115,17 @@ def evaluate_log(path: str, settings: ReplaySettings, data: bytes | None = None)
     return record
 
 
-def _replay(local: str, path: str, settings: ReplaySettings) -> dict:
+_kept: dict = {}  # (log path, segment) -> its Flight, in a process replaying logs with keep=True
+
+
+def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: bool = False) -> dict:
     from .pipeline import choose_imu, replay_flight
     from .readers import read_log
 
-    flight = read_log(local, segment=settings.segment)
+    if flight is None:
+        flight = read_log(local, segment=settings.segment)
+        if keep:
+            _kept[path, settings.segment] = flight
     facts = log_facts(flight, choose_imu(flight, settings.imu, settings.imu_family))
     if settings.reference == "truth" and flight.truth is None:
         return {"status": "skipped", "facts": facts, "error": "no ground truth (SIM / SIMSTATE)"}
@@ -230,50 +239,74 @@ def run_logs(logs: list[str], settings: ReplaySettings, records_dir: Path, jobs:
         if progress:
             progress.add(record)
 
-    if scheduler:
-        _run_dask(todo, settings, scheduler, ship_logs, finished)
-    elif jobs <= 1 or len(todo) <= 1:
-        for log in todo:
-            finished(evaluate_log(log, settings))
-    else:
-        _run_pool(todo, settings, jobs, finished)
+    with Workers(min(jobs, len(todo)), scheduler, ship_logs) as workers:
+        workers.run(todo, settings, finished)
     return [results[log] for log in logs]
 
 
-def _run_pool(logs: list[str], settings: ReplaySettings, jobs: int, finished) -> None:
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+class Workers:
+    """Where logs are replayed (``evaluate_log``): in this process (``jobs`` 1), in a pool of
+    ``jobs`` local processes, or on the Dask cluster at ``scheduler``. Open (a context
+    manager) for as many ``run``s as needed: ``tune`` runs the same logs once per trial, and
+    with ``keep`` each worker keeps the logs it has read."""
 
-    # spawn: a fresh interpreter per worker (no forked numba or pymavlink state); each loads
-    # the compiled kernels from the cache once
-    with ProcessPoolExecutor(max_workers=min(jobs, len(logs)),
-                             mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(evaluate_log, log, settings) for log in logs]
-        try:
+    def __init__(self, jobs: int, scheduler: str | None = None, ship_logs: bool = False, keep: bool = False):
+        self.jobs, self.scheduler, self.ship_logs, self.keep = jobs, scheduler, ship_logs, keep
+        self._pool = self._client = None
+        self._runs = 0
+
+    def __enter__(self) -> Workers:
+        if self.scheduler:
+            try:
+                from distributed import Client
+            except ImportError:
+                raise UsageError("--scheduler needs Dask distributed: pip install 'mavattitude[cluster]'") from None
+            try:
+                self._client = Client(self.scheduler, timeout="10s")
+            except (OSError, TimeoutError) as exc:
+                raise InputError(self.scheduler, f"no Dask scheduler answers ({exc})") from None
+        elif self.jobs > 1:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            # spawn: a fresh interpreter per worker (no forked numba or pymavlink state); each
+            # loads the compiled kernels from the cache once
+            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=multiprocessing.get_context("spawn"))
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+        if self._client is not None:
+            self._client.close()
+
+    def run(self, logs: list[str], settings: ReplaySettings, finished) -> None:
+        """``finished(record)`` for each log, in the order they finish."""
+        self._runs += 1
+        if self._client is not None:
+            from distributed import as_completed
+
+            futures = []
+            for log in logs:
+                data = Path(log).read_bytes() if self.ship_logs else None
+                futures.append(self._client.submit(evaluate_log, log, settings, data, self.keep, pure=False,
+                                                   key=f"evaluate-{self._runs}-{record_name(log)}"))
             for future in as_completed(futures):
                 finished(future.result())
-        except BaseException:
-            for future in futures:
-                future.cancel()
-            raise
+        elif self._pool is not None and len(logs) > 1:
+            from concurrent.futures import as_completed
 
-
-def _run_dask(logs: list[str], settings: ReplaySettings, address: str, ship_logs: bool, finished) -> None:
-    try:
-        from distributed import Client, as_completed
-    except ImportError:
-        raise UsageError("--scheduler needs Dask distributed: pip install 'mavattitude[cluster]'") from None
-    try:
-        client = Client(address, timeout="10s")
-    except (OSError, TimeoutError) as exc:
-        raise InputError(address, f"no Dask scheduler answers ({exc})") from None
-    with client:
-        futures = []
-        for log in logs:
-            data = Path(log).read_bytes() if ship_logs else None
-            futures.append(client.submit(evaluate_log, log, settings, data, pure=False, key=f"evaluate-{record_name(log)}"))
-        for future in as_completed(futures):
-            finished(future.result())
+            futures = [self._pool.submit(evaluate_log, log, settings, None, self.keep) for log in logs]
+            try:
+                for future in as_completed(futures):
+                    finished(future.result())
+            except BaseException:
+                for future in futures:
+                    future.cancel()
+                raise
+        else:
+            for log in logs:
+                finished(evaluate_log(log, settings, keep=self.keep))
 
 
 def check_scheduler(address: str) -> None:

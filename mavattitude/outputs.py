@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import secrets
+import sys
 import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -25,11 +26,18 @@ from pathlib import Path
 
 from .errors import InputError
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
 KIND_NAMES = {"rrd": "Rerun recording", "json": "JSON file", "csv": "CSV file",
               "sim": "log written by the simulator", "md": "report of mavattitude evaluate",
-              "svg": "SVG image", "parquet": "Parquet file"}
+              "svg": "SVG image", "parquet": "Parquet file", "toml": "TOML parameter file",
+              "study": "study of mavattitude tune (SQLite)"}
 CSV_HEADER_STARTS = (b"time_s,", b"log,status,")  # replay --export's, evaluate's results
 REPORT_START = b"# Attitude estimators across logs"
+SQLITE_MAGIC = b"SQLite format 3\x00"
 SIM_MARK = b"mavattitude-sim"  # in the firmware text of every simulated log, near its start
 
 
@@ -49,6 +57,14 @@ def is_kind(path: Path, kind: str) -> bool:
         return head.lstrip().startswith((b"<svg", b"<?xml"))
     if kind == "parquet":
         return head.startswith(b"PAR1")
+    if kind == "toml":
+        try:
+            tomllib.loads(head.decode())
+        except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+            return False
+        return True
+    if kind == "study":
+        return head.startswith(SQLITE_MAGIC)
     if kind == "sim":  # a user's flight log is never "of the simulator's kind"
         return SIM_MARK in head
     raise ValueError(f"unknown output kind {kind!r}")
@@ -151,6 +167,21 @@ class Outputs:
         path = self._unclaimed(path, option)
         if path.exists() or path.is_symlink():
             raise InputError(path, f"exists: {option} never writes over a file; choose another name")
+        self._make_folder(path.parent, option)
+        self.taken.append((path, option))
+        return path
+
+    def database(self, path, option: str) -> Path | None:
+        """Check ``path`` as an SQLite database the command opens and updates in place (a
+        study that a later run resumes): new, empty, or a database already; its folder is made."""
+        if not path:
+            return None
+        path = self._unclaimed(path, option)
+        if path.is_dir():
+            raise InputError(path, f"{option} names a folder; give a file name, e.g. {path / 'study.db'}")
+        if path.is_file() and path.stat().st_size and not is_kind(path, "study"):
+            raise InputError(path, f"exists and is not an SQLite database: {option} will not write into it "
+                                   "(choose another name)")
         self._make_folder(path.parent, option)
         self.taken.append((path, option))
         return path

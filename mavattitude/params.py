@@ -3,7 +3,9 @@
 Every estimator's parameters are a small dataclass with the paper's defaults, each field
 declared with ``param(default, valid)``: ``valid`` is the interval of values that mean
 something, in interval notation (``"[0, inf)"``, ``"(0, 1]"``); a value outside it is refused
-before any work. A class may also list pairs of fields that must be strictly ordered
+before any work. ``tune`` declares the range ``mavattitude tune`` searches (``"log [0.01, 10]"``:
+a scale, log or linear, and an interval inside ``valid``); a field without one is fixed there.
+A class may also list pairs of fields that must be strictly ordered
 (``ORDERED = (("norm_lo", "norm_hi"),)``: a ramp from ``lo`` to ``hi``). A user
 overrides them with ``--params FILE`` (a TOML table per estimator) and ``--set
 NAME.FIELD=VALUE`` (applied after the file, so the command line wins). Below both, a log can
@@ -59,20 +61,61 @@ class Interval:
         return f"{'[' if self.lo_closed else '('}{end(self.lo)}, {end(self.hi)}{']' if self.hi_closed else ')'}"
 
 
-def param(default, valid: str | None = None):
+@dataclass(frozen=True)
+class Search:
+    """The range ``tune`` searches for a parameter: from ``lo`` to ``hi``, on a log or linear
+    scale, whole numbers when the default is one."""
+    lo: float
+    hi: float
+    log: bool
+    integer: bool
+
+    @classmethod
+    def parse(cls, text: str, default) -> Search:
+        scale, _, interval = text.strip().partition(" ")
+        if scale not in ("log", "linear"):
+            raise ValueError(f"a search range starts with 'log' or 'linear', not {text!r}")
+        span = Interval.parse(interval)
+        search = cls(span.lo, span.hi, scale == "log", isinstance(default, int))
+        if not (span.lo_closed and span.hi_closed and span.lo < span.hi):
+            raise ValueError(f"a search range is closed and not empty, e.g. 'log [0.01, 10]', not {text!r}")
+        if search.log and span.lo <= 0:
+            raise ValueError(f"a log-scale search range starts above 0, not {text!r}")
+        return search
+
+    def __str__(self) -> str:
+        return f"{'log' if self.log else 'linear'} [{self.lo:g}, {self.hi:g}]"
+
+
+def param(default, valid: str | None = None, tune: str | None = None):
     """A parameter field: its default and, for numbers, the interval of values that mean
-    something (``valid``, e.g. ``"(0, inf)"`` for a noise density)."""
+    something (``valid``, e.g. ``"(0, inf)"`` for a noise density) and the range ``tune``
+    searches (``tune``, e.g. ``"log [1e-4, 0.1]"``; None: fixed when tuning)."""
     if valid is None and not isinstance(default, bool):
         raise ValueError("a numeric parameter declares its valid interval")
     interval = Interval.parse(valid) if valid is not None else None
     if interval is not None and default not in interval:
         raise ValueError(f"default {default!r} is outside its own valid interval {interval}")
-    return dataclasses.field(default=default, metadata={"valid": interval})
+    search = None
+    if tune is not None:
+        if interval is None:
+            raise ValueError("a flag is not tuned")
+        search = Search.parse(tune, default)
+        if search.lo not in interval or search.hi not in interval:
+            raise ValueError(f"search range {search} leaves the valid interval {interval}")
+        if not search.lo <= default <= search.hi:
+            raise ValueError(f"default {default!r} is outside its own search range {search}")
+    return dataclasses.field(default=default, metadata={"valid": interval, "search": search})
 
 
 def valid_interval(params_class, name: str) -> Interval | None:
     """The valid interval ``param`` declared for a field (None for a flag)."""
     return {f.name: f.metadata.get("valid") for f in dataclasses.fields(params_class)}[name]
+
+
+def search_space(params_class) -> dict[str, Search]:
+    """{field: the range ``tune`` searches} for the fields ``param`` gave one, in field order."""
+    return {f.name: f.metadata["search"] for f in dataclasses.fields(params_class) if f.metadata.get("search")}
 
 
 def load_file(path: str) -> dict[str, dict[str, object]]:
@@ -206,6 +249,22 @@ def convert(value, default, where: str, origin: str = "--set"):
             return int(number)
         return number
     _fail(origin, f"{where}: this parameter cannot be set")
+
+
+def to_toml(params: dict[str, dict[str, object]], comments: dict[str, str] | None = None) -> str:
+    """{estimator: {field: value}} as the TOML ``load_file`` reads (a [NAME] table each), with
+    a comment line above a table where ``comments`` has one. Floats are written with ``repr``,
+    so they read back to the same bits."""
+    lines = []
+    for name, table in params.items():
+        if comments and comments.get(name):
+            lines += [f"# {line}".rstrip() for line in comments[name].splitlines()]
+        lines.append(f'["{name}"]' if not re.fullmatch(r"[A-Za-z0-9_-]+", name) else f"[{name}]")
+        for field, value in table.items():
+            text = ("true" if value else "false") if isinstance(value, bool) else repr(value)
+            lines.append(f"{field} = {text}")
+        lines.append("")
+    return "\n".join(lines)
 
 
 def describe(params_class) -> list[tuple[str, object, Interval | None, str]]:

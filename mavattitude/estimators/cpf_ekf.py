@@ -193,20 +193,20 @@ NAUX = 25
 
 @dataclass
 class CpfEkfParams:
-    gyro_noise: float = param(1.5e-3, "(0, inf)")  # gyro rate noise density, rad/s/√Hz
-    accel_noise: float = param(0.2, "(0, inf)")  # accelerometer noise density (vibration included), m/s²/√Hz
-    gyro_bias_walk: float = param(5e-5, "[0, inf)")  # gyro bias random walk, rad/s/√s
-    accel_bias_walk: float = param(1e-3, "[0, inf)")  # z-accelerometer bias random walk, m/s²/√s
+    gyro_noise: float = param(1.5e-3, "(0, inf)", "log [1e-5, 0.1]")  # gyro rate noise density, rad/s/√Hz
+    accel_noise: float = param(0.2, "(0, inf)", "log [0.01, 2]")  # accelerometer noise density (vibration included), m/s²/√Hz
+    gyro_bias_walk: float = param(5e-5, "[0, inf)", "log [1e-7, 1e-3]")  # gyro bias random walk, rad/s/√s
+    accel_bias_walk: float = param(1e-3, "[0, inf)", "log [1e-5, 0.1]")  # z-accelerometer bias random walk, m/s²/√s
     earth_field_walk: float = param(1e-4, "[0, inf)")  # earth field random walk, gauss/√s
     body_field_walk: float = param(1e-5, "[0, inf)")  # magnetometer bias random walk, gauss/√s
-    mag_noise: float = param(0.05, "(0, inf)")  # magnetometer noise per axis (interference included), gauss (1σ per sample)
+    mag_noise: float = param(0.05, "(0, inf)", "log [0.005, 0.5]")  # magnetometer noise per axis (interference included), gauss (1σ per sample)
     declination_noise_deg: float = param(5.0, "(0, inf)")  # declination pseudo-measurement, degrees (1σ per compass sample)
-    gps_vel_noise: float = param(0.3, "(0, inf)")  # GPS velocity noise per axis, m/s (1σ)
-    gps_pos_noise: float = param(1.0, "(0, inf)")  # GPS horizontal position noise when the log gives no accuracy, m (1σ)
+    gps_vel_noise: float = param(0.3, "(0, inf)", "log [0.05, 3]")  # GPS velocity noise per axis, m/s (1σ)
+    gps_pos_noise: float = param(1.0, "(0, inf)", "log [0.2, 10]")  # GPS horizontal position noise when the log gives no accuracy, m (1σ)
     gps_pos_noise_min: float = param(0.3, "[0, inf)")  # floor under a reported horizontal accuracy, m
     gps_alt_noise: float = param(3.0, "(0, inf)")  # GPS altitude noise (used without a fresh baro), m (1σ)
     gps_delay_s: float = param(0.0, "[0, inf)")  # how old a GPS fix is when logged, s (0: fused as current)
-    baro_noise: float = param(1.0, "(0, inf)")  # baro height noise, m (1σ)
+    baro_noise: float = param(1.0, "(0, inf)", "log [0.1, 10]")  # baro height noise, m (1σ)
     gps_timeout_s: float = param(2.0, "[0, inf)")  # no GPS for longer: synthetic zero velocity, s
     baro_timeout_s: float = param(2.0, "[0, inf)")  # no baro for longer: GPS altitude instead, s
     synthetic_vel_noise: float = param(1.0, "[0, inf)")  # synthetic zero-velocity noise without GPS, m/s (1σ; 0: none)
@@ -222,11 +222,11 @@ class CpfEkfParams:
     earth_field_sigma0: float = param(0.02, "[0, inf)")  # initial earth field 1σ, gauss
     body_field_sigma0: float = param(0.02, "[0, inf)")  # initial magnetometer bias 1σ, gauss
     watchdog: bool = param(True)  # reset the EKF from the complementary filter on divergence (eq 21)
-    reset_threshold: float = param(0.27416, "(0, inf)")  # N of eq 21: squared Euler-angle difference sum, rad²
+    reset_threshold: float = param(0.27416, "(0, inf)", "log [0.01, 3]")  # N of eq 21: squared Euler-angle difference sum, rad²
     reset_cycles: int = param(3, "[1, inf)")  # consecutive watchdog cycles over N that trigger a reset
     reset_bias_covariance: bool = param(True)  # on a reset, bias variances back to their initial values (estimates kept)
     watchdog_period_s: float = param(0.02, "[0, inf)")  # watchdog cycle: one check per this span (the paper's 50 Hz IMU; 0: every IMU sample), s
-    cpf_kp: float = param(0.2, "[0, inf)")  # complementary filter proportional gain, 1/s (as mahony)
+    cpf_kp: float = param(0.2, "[0, inf)", "log [0.01, 10]")  # complementary filter proportional gain, 1/s (as mahony)
     cpf_ki: float = param(0.0005, "[0, inf)")  # complementary filter integral gain, 1/s² (as mahony)
     use_mag: bool = param(True)  # fuse the magnetometer when the log has one
     use_gps: bool = param(True)  # fuse GPS velocity and position when the log has them

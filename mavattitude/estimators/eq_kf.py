@@ -199,21 +199,21 @@ from .consistency import attitude_error, carried, learn_gravity, step_rotation_i
 
 @dataclass
 class EqKfParams:
-    gyro_noise: float = param(1e-3, "(0, inf)")  # rad/s/√Hz, gyro white-noise density (attitude process noise)
-    bias_walk: float = param(3e-5, "[0, inf)")  # rad/s/√s, gyro-bias random walk
-    int_noise: float = param(0.02, "[0, inf)")  # 1: step-rotation uncertainty as a fraction of |ω_k - ω_k-1|·Δt
-    accel_noise: float = param(0.007, "(0, inf)")  # rad·√s (1/√Hz), accelerometer direction noise density; R₀ = σ²/Δt
-    mag_noise: float = param(0.05, "(0, inf)")  # rad·√s, magnetometer heading noise density; R_m = σ²/Δt
+    gyro_noise: float = param(1e-3, "(0, inf)", "log [1e-5, 0.1]")  # rad/s/√Hz, gyro white-noise density (attitude process noise)
+    bias_walk: float = param(3e-5, "[0, inf)", "log [1e-7, 1e-3]")  # rad/s/√s, gyro-bias random walk
+    int_noise: float = param(0.02, "[0, inf)", "linear [0, 0.2]")  # 1: step-rotation uncertainty as a fraction of |ω_k - ω_k-1|·Δt
+    accel_noise: float = param(0.007, "(0, inf)", "log [1e-4, 0.3]")  # rad·√s (1/√Hz), accelerometer direction noise density; R₀ = σ²/Δt
+    mag_noise: float = param(0.05, "(0, inf)", "log [1e-3, 1]")  # rad·√s, magnetometer heading noise density; R_m = σ²/Δt
     init_att_sigma: float = param(0.2, "[0, 3.15]")  # rad, initial attitude uncertainty, 1σ per axis
     init_bias_sigma: float = param(5e-4, "[0, inf)")  # rad/s, initial gyro-bias uncertainty, 1σ per axis
-    norm_lo: float = param(0.05, "[0, inf)")  # 1 (fraction of g): trust falls from 1 when |‖f̃‖/g - 1| exceeds this ...
-    norm_hi: float = param(0.2, "(0, inf)")  # 1 (fraction of g): ... to 0 here
-    rate_lo: float = param(1.0, "[0, inf)")  # rad/s: trust falls from 1 above this rotation rate ...
-    rate_hi: float = param(3.0, "(0, inf)")  # rad/s: ... to 0 here
+    norm_lo: float = param(0.05, "[0, inf)", "log [0.01, 0.1]")  # 1 (fraction of g): trust falls from 1 when |‖f̃‖/g - 1| exceeds this ...
+    norm_hi: float = param(0.2, "(0, inf)", "log [0.11, 1]")  # 1 (fraction of g): ... to 0 here
+    rate_lo: float = param(1.0, "[0, inf)", "log [0.1, 2]")  # rad/s: trust falls from 1 above this rotation rate ...
+    rate_hi: float = param(3.0, "(0, inf)", "log [2.1, 10]")  # rad/s: ... to 0 here
     gate_noise: float = param(0.01, "[0, inf)")  # rad, residual direction noise floor of the gate, 1σ
-    gate_lo: float = param(3.0, "(0, inf)")  # 1 (normalised residual d): trust falls from 1 above this ...
-    gate_hi: float = param(5.0, "(0, inf)")  # 1: ... to 0 here
-    trust_rise: float = param(3.0, "[0, inf)")  # s: the trust climbs from 0 to 1 no faster than over this time
+    gate_lo: float = param(3.0, "(0, inf)", "linear [1, 4]")  # 1 (normalised residual d): trust falls from 1 above this ...
+    gate_hi: float = param(5.0, "(0, inf)", "linear [4.1, 10]")  # 1: ... to 0 here
+    trust_rise: float = param(3.0, "[0, inf)", "linear [0, 10]")  # s: the trust climbs from 0 to 1 no faster than over this time
     trust_lpf: float = param(0.1, "[0, inf)")  # s, time constant of the low-pass f̃ (norm and consistency tests)
     vib_time: float = param(1.0, "[0, inf)")  # s, averaging time of the direction-noise (vibration) estimate
     still_rate: float = param(0.05, "[0, inf)")  # rad/s: still when rotating slower than this ...

@@ -121,14 +121,14 @@ from .mahony import mahony_step
 
 @dataclass
 class MahonyEkfParams:
-    kp: float = param(0.5, "[0, inf)")  # internal Mahony proportional gain, 1/s (mahony's: 0.2; see the docstring)
-    ki: float = param(0.005, "[0, inf)")  # internal Mahony integral gain, 1/s² (mahony's: 0.0005)
+    kp: float = param(0.5, "[0, inf)", "log [0.01, 10]")  # internal Mahony proportional gain, 1/s (mahony's: 0.2; see the docstring)
+    ki: float = param(0.005, "[0, inf)", "log [1e-5, 0.1]")  # internal Mahony integral gain, 1/s² (mahony's: 0.0005)
     use_mag: bool = param(True)  # the internal Mahony corrects heading from the magnetometer
-    q_gyro: float = param(1e-2, "(0, inf)")  # gyro noise variance per axis (eq 12: Q = 1e-2 I₃), (rad/s)²
-    r0: float = param(1e-4, "(0, inf)")  # measurement noise variance per quaternion component at rest (eq 17), 1
-    k_accel: float = param(1000.0, "[0, inf)")  # eq 17's k: R = r0 [1 + k_accel |‖a‖ - g|], 1/(m/s²)
-    k_mahony: float = param(100.0, "[0, inf)")  # Mahony gravity-error weight 1/(1 + k_mahony |ā - ā_ref|); 0: none, 1/(m/s²)
-    accel_lp_s: float = param(0.5, "[0, inf)")  # time constant of ā, the low-passed ‖a‖ - g, s
+    q_gyro: float = param(1e-2, "(0, inf)", "log [1e-5, 1]")  # gyro noise variance per axis (eq 12: Q = 1e-2 I₃), (rad/s)²
+    r0: float = param(1e-4, "(0, inf)", "log [1e-7, 0.1]")  # measurement noise variance per quaternion component at rest (eq 17), 1
+    k_accel: float = param(1000.0, "[0, inf)", "log [1, 1e5]")  # eq 17's k: R = r0 [1 + k_accel |‖a‖ - g|], 1/(m/s²)
+    k_mahony: float = param(100.0, "[0, inf)", "log [0.1, 1e4]")  # Mahony gravity-error weight 1/(1 + k_mahony |ā - ā_ref|); 0: none, 1/(m/s²)
+    accel_lp_s: float = param(0.5, "[0, inf)", "log [0.02, 5]")  # time constant of ā, the low-passed ‖a‖ - g, s
     accel_ref_s: float = param(60.0, "[0, inf)")  # time constant of ā_ref, ā's slow baseline (0: none, ā_ref = 0), s
     weight_min_rate: float = param(20.0, "[0, inf)")  # IMU rate below which the weight stays 1, Hz
     rest_gyro: float = param(STILL_GYRO_RAD_S, "[0, inf)")  # low-passed |ω - b| below this is rest: weight 1, rad/s (0: off)
