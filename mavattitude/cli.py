@@ -324,11 +324,13 @@ def _view(result, rec, sink) -> None:
 
 def cmd_estimators(args) -> int:
     from .estimators import ESTIMATORS, summary
-    from .params import describe
+    from .params import describe, search_space
 
     if args.json:
         print(json.dumps({name: {"summary": summary(cls), "uses_magnetometer": cls.uses_mag,
-                                 "params": {f: {"default": d, "valid": str(v) if v else None, "help": h}
+                                 "params": {f: {"default": d, "valid": str(v) if v else None, "help": h,
+                                                "tune": str(search_space(cls.Params)[f])
+                                                if f in search_space(cls.Params) else None}
                                             for f, d, v, h in describe(cls.Params)},
                                  "diagnostics": dict(cls.DIAGNOSTICS),
                                  "accel_states": list(cls.ACCEL_STATES)}
@@ -339,15 +341,18 @@ def cmd_estimators(args) -> int:
         print(f"{name}: {summary(cls)}")
         print(f"  {heading}")
         rows = describe(cls.Params)
+        searched = search_space(cls.Params)
         width = max((len(f) for f, _, _, _ in rows), default=0)
         for field, default, valid, help_text in rows:
+            tune = f"  [tune: {searched[field]}]" if field in searched else ""
             print(f"  --set {name}.{field:<{width}} = {default!s:<8} {str(valid or 'true/false'):<11} "
-                  f"{help_text}".rstrip())
+                  f"{help_text}{tune}".rstrip())
         for key, text in cls.DIAGNOSTICS.items():
             print(f"  diagnostic {key}: {text}")
         print()
     print("Override parameters with --set NAME.PARAM=VALUE or a TOML file (--params FILE) with a "
-          "[NAME] table per estimator; each value must lie in the interval shown after its default.")
+          "[NAME] table per estimator; each value must lie in the interval shown after its default. "
+          "'mavattitude tune' searches the parameters marked [tune: scale [low, high]].")
     return 0
 
 

@@ -252,12 +252,8 @@ def tune(logs: list[str], settings: TuneSettings, workers, storage=None, progres
     progress = progress or TrialProgress(settings.estimator, quiet=True)
     progress.say(f"scoring {len(logs)} logs with the starting values")
     first = scorer(logs, start)
-    left_out = {}
-    for log in logs:
-        if not math.isfinite(first[log]) or first[log] == DIVERGED_DEG:
-            record = scorer.records[log]
-            left_out[log] = record["error"] or "nothing scored" if record["status"] != "ok" else \
-                "the starting values diverge" if first[log] == DIVERGED_DEG else "nothing scored"
+    left_out = {log: _why_unscored(scorer.records[log], first[log]) for log in logs
+                if not math.isfinite(first[log]) or first[log] == DIVERGED_DEG}
     used = [log for log in logs if log not in left_out]
     if not used:
         raise UsageError(f"no log could be scored for {settings.estimator}: "
@@ -278,6 +274,12 @@ def tune(logs: list[str], settings: TuneSettings, workers, storage=None, progres
     progress.close()
     return TuneResult(settings.estimator, settings.objective, space, start, used, left_out, fits, final,
                       scorer.penalised)
+
+
+def _why_unscored(record: dict, score: float) -> str:
+    if record["status"] != "ok":
+        return record["error"] or record["status"]
+    return "the starting values diverge" if score == DIVERGED_DEG else "nothing scored"
 
 
 class TrialProgress:
@@ -349,8 +351,13 @@ def report_text(result: TuneResult) -> str:
         s, t = aggregate(start.values(), obj), aggregate(tuned.values(), obj)
         better = sum(tuned[k] < start[k] for k in start)
         worse = sum(tuned[k] > start[k] for k in start)
-        lines.append(f"held out, all {len(start)} logs: {obj} {s:.3f} -> {t:.3f} ({_change(s, t)}); "
-                     f"better on {better}, worse on {worse} logs")
+        lines.append(f"held out, all {len(start)} logs: median {np.median(list(start.values())):.3f} -> "
+                     f"{np.median(list(tuned.values())):.3f}, mean {np.mean(list(start.values())):.3f} -> "
+                     f"{np.mean(list(tuned.values())):.3f}; better on {better}, worse on {worse} logs")
+        if t >= s:
+            lines.append(f"warning: on logs it was not fitted to, tuning did not lower the {obj} ({s:.3f} -> "
+                         f"{t:.3f}): the fit below suits these logs, not other flights; keep the start, or "
+                         "tune on more logs, alike in vehicle and flying")
     f = result.final
     lines += ["", f"fit on all {len(f.train)} logs ({f.trials} trials): {obj} {f.start_value:.3f} -> "
                   f"{f.best_value:.3f} ({_change(f.start_value, f.best_value)})"]
@@ -380,8 +387,9 @@ def tuned_toml(result: TuneResult, settings: TuneSettings, command: str) -> str:
                    source=settings.replay.params_source)[name]
     given = set((settings.replay.file_values or {}).get(name, {}))
     given |= {field for est, field, _ in map(parse_assignment, settings.replay.assignments) if est == name}
-    table = {k: getattr(chosen, k) for k in given if k not in result.final.best}
-    table.update(result.final.best)
+    given |= set(result.final.best)
+    table = {f.name: result.final.best.get(f.name, getattr(chosen, f.name))
+             for f in dataclasses.fields(chosen) if f.name in given}
     f = result.final
     note = [f"written by: {command}",
             f"fitted on {len(f.train)} logs: {result.objective} tilt error {f.start_value:.3f} -> {f.best_value:.3f} deg"]

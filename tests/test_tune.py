@@ -243,3 +243,27 @@ def test_a_short_run_writes_toml_that_replay_reads(tmp_path, capsys):
     data = json.loads(report.read_text())
     assert sorted(np.ravel([f["held_out"] for f in data["folds"]])) == sorted(data["logs"])
     assert main(["replay", str(folder / "figure8.tlog"), "--params", str(out), "--no-view"]) == 0
+
+
+@pytest.mark.slow
+def test_a_pool_and_a_dask_cluster_tune_as_one_process_does(tmp_path):
+    import json
+
+    distributed = pytest.importorskip("distributed")
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    for name in ("figure8.tlog", "static.bin", "hover.tlog"):
+        (folder / name).write_bytes((SAMPLE_LOGS / name).read_bytes())
+
+    def tuned(where: str, *extra) -> dict:
+        report = tmp_path / f"{where}.json"
+        assert run(folder, "--estimator", "eskf", "--trials", "4", "--folds", "3", "-q", "-o", tmp_path / f"{where}.toml",
+                   "--json", report, *extra) == 0
+        data = json.loads(report.read_text())
+        return {"folds": data["folds"], "final": data["final"]}
+
+    here = tuned("here", "-j", "1")
+    assert tuned("pool", "-j", "2") == here
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  host="127.0.0.1", dashboard_address=":0") as cluster:
+        assert tuned("dask", "--scheduler", cluster.scheduler_address) == here
