@@ -701,9 +701,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="trials per fit (default 50); the run makes (folds + 1) fits")
     p.add_argument("--folds", type=_number(0, whole=True), default=5, metavar="K",
                    help="folds of the cross-validation by log (default 5; 0 or 1: none, fit on all logs only)")
-    p.add_argument("--objective", choices=("median", "mean"), default="median",
-                   help="what a trial minimises over its logs' tilt errors (default median: one odd log "
-                        "cannot steer the fit)")
+    p.add_argument("--objective", choices=("median", "mean", "geomean"), default="median",
+                   help="what a trial minimises over its logs' tilt errors: median (default), mean, or "
+                        "geomean, the geometric mean, which weighs each log's change by its ratio")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the folds and the sampler (default 0)")
     _estimation_args(p, "log", estimators=False)
     p.add_argument("-j", "--jobs", type=COUNT, default=os.cpu_count() or 1, metavar="N",

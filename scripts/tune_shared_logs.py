@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from mavattitude.estimators import ESTIMATORS
+from mavattitude.tune import OBJECTIVES, aggregate
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -27,6 +28,7 @@ def main() -> int:
     parser.add_argument("--logs", default=str(ROOT.parent / "shared" / "logs"))
     parser.add_argument("--trials", type=int, default=50)
     parser.add_argument("--folds", type=int, default=5)
+    parser.add_argument("--objective", default="median", choices=OBJECTIVES)
     parser.add_argument("--estimators", default=",".join(ESTIMATORS))
     parser.add_argument("--out", default="tuning")
     args = parser.parse_args()
@@ -35,21 +37,24 @@ def main() -> int:
     names = args.estimators.split(",")
     for name in names:
         command = ["mavattitude", "tune", args.logs, "--estimator", name, "--folds", str(args.folds),
-                   "--trials", str(args.trials), "--study", str(out / "study.db"), "--json", str(out / f"{name}.json"),
+                   "--trials", str(args.trials), "--objective", args.objective, "--study", str(out / "study.db"), "--json", str(out / f"{name}.json"),
                    "-o", str(out / f"{name}.toml"), "-q"]
         print("$ " + " ".join(command), file=sys.stderr, flush=True)
         if subprocess.run(command, stdout=subprocess.DEVNULL).returncode:
             return 1
     print(f"tilt error (mean of roll and pitch MAE, deg) against the autopilot, {args.folds}-fold by log, "
-          f"{args.trials} trials per fit")
-    print(f"{'estimator':<11} {'logs':>4}  {'held-out median':>22}  {'held-out mean':>22}  {'better':>6} {'worse':>5}"
-          f"  {'fit on all: median':>22}")
+          f"{args.trials} trials per fit, objective {args.objective}; default -> tuned")
+    print(f"{'estimator':<11} {'logs':>4}  {'held-out median':>22}  {'held-out mean':>22}  "
+          f"{'held-out geomean':>22}  {'better':>6} {'worse':>5}  {'fit on all logs':>22}")
     for name in names:
         r = json.loads((out / f"{name}.json").read_text())
-        h, f = r["held_out"], r["final"]
-        print(f"{name:<11} {len(r['logs']):>4}  {cell(h['start']['median'], h['tuned']['median'])}  "
-              f"{cell(h['start']['mean'], h['tuned']['mean'])}  {h['better']:>6} {h['worse']:>5}  "
-              f"{cell(f['start_value'], f['best_value'])}")
+        start = {log: v for fold in r["folds"] for log, v in fold["held_out_start"].items()}
+        tuned = {log: v for fold in r["folds"] for log, v in fold["held_out_tuned"].items()}
+        better = sum(tuned[log] < start[log] for log in start)
+        worse = sum(tuned[log] > start[log] for log in start)
+        print(f"{name:<11} {len(r['logs']):>4}  " + "  ".join(
+            cell(aggregate(start.values(), o), aggregate(tuned.values(), o)) for o in OBJECTIVES)
+            + f"  {better:>6} {worse:>5}  {cell(r['final']['start_value'], r['final']['best_value'])}")
     return 0
 
 
