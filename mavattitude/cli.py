@@ -248,7 +248,7 @@ def cmd_evaluate(args) -> int:
 
 def cmd_tune(args) -> int:
     from .evaluate import Workers, check_scheduler, find_logs
-    from .tune import TrialProgress, TuneSettings, report_text, tune, tuned_toml
+    from .tune import TrialProgress, TuneSettings, report_text, space_for, tune, tuned_toml
 
     try:
         import optuna  # noqa: F401 - only to say now that it is missing
@@ -262,7 +262,6 @@ def cmd_tune(args) -> int:
         raise UsageError("--ship-logs goes with --scheduler (local workers read the logs themselves)")
     settings = TuneSettings(name, _replay_settings(args, [name]), trials=args.trials, folds=args.folds,
                             objective=args.objective, seed=args.seed)
-    from .tune import space_for
     space_for(settings)  # nothing to search is a usage error, before any log is read
     if args.scheduler:
         check_scheduler(args.scheduler)

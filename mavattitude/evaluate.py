@@ -13,6 +13,7 @@ import glob
 import hashlib
 import json
 import os
+import secrets
 import sys
 import tempfile
 import time
@@ -254,6 +255,7 @@ class Workers:
         self.jobs, self.scheduler, self.ship_logs, self.keep = jobs, scheduler, ship_logs, keep
         self._pool = self._client = None
         self._runs = 0
+        self._token = secrets.token_hex(4)  # task keys are the cluster's: unique to this run
 
     def __enter__(self) -> Workers:
         if self.scheduler:
@@ -290,7 +292,7 @@ class Workers:
             for log in logs:
                 data = Path(log).read_bytes() if self.ship_logs else None
                 futures.append(self._client.submit(evaluate_log, log, settings, data, self.keep, pure=False,
-                                                   key=f"evaluate-{self._runs}-{record_name(log)}"))
+                                                   key=f"evaluate-{self._token}-{self._runs}-{record_name(log)}"))
             for future in as_completed(futures):
                 finished(future.result())
         elif self._pool is not None and len(logs) > 1:
