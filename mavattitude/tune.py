@@ -75,6 +75,7 @@ class TuneResult:
     folds: list[Fit]
     final: Fit
     penalised: int = 0  # log replays counted as diverged over the whole run
+    seconds: float = 0.0  # wall time of the run
 
     def held_out(self) -> tuple[dict[str, float], dict[str, float]]:
         """Every cross-validated log's tilt error (start, tuned), each scored by the fit of
@@ -90,6 +91,7 @@ class TuneResult:
         return {"estimator": self.estimator, "objective": self.objective,
                 "space": {k: str(v) for k, v in self.space.items()}, "start": self.start,
                 "logs": self.logs, "left_out": self.left_out, "penalised_replays": self.penalised,
+                "seconds": round(self.seconds, 1),
                 "folds": [dataclasses.asdict(f) for f in self.folds],
                 "held_out": None if not start else {
                     "start": summary(list(start.values())), "tuned": summary(list(tuned.values())),
@@ -250,6 +252,7 @@ def _suggest(trial, name: str, search: Search):
 def tune(logs: list[str], settings: TuneSettings, workers, storage=None, progress=None) -> TuneResult:
     """Cross-validate (``settings.folds`` folds; fewer than 2 logs or folds: none), then fit on
     every log. ``storage``: an Optuna storage (an SQLite URL) or None (in memory)."""
+    began = time.monotonic()
     space = space_for(settings)
     start = start_values(settings, space)
     scorer = Scorer(workers, settings)
@@ -277,7 +280,7 @@ def tune(logs: list[str], settings: TuneSettings, workers, storage=None, progres
     final = fit(scorer, settings, used, space, start, storage, settings.seed + folds, progress)
     progress.close()
     return TuneResult(settings.estimator, settings.objective, space, start, used, left_out, fits, final,
-                      scorer.penalised)
+                      scorer.penalised, time.monotonic() - began)
 
 
 def _why_unscored(record: dict, score: float) -> str:

@@ -31,11 +31,12 @@ def main() -> int:
     parser.add_argument("--objective", default="median", choices=OBJECTIVES)
     parser.add_argument("--estimators", default=",".join(ESTIMATORS))
     parser.add_argument("--out", default="tuning")
+    parser.add_argument("--table-only", action="store_true", help="only tabulate the JSON a run left in --out")
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     names = args.estimators.split(",")
-    for name in names:
+    for name in [] if args.table_only else names:
         command = ["mavattitude", "tune", args.logs, "--estimator", name, "--folds", str(args.folds),
                    "--trials", str(args.trials), "--objective", args.objective, "--study", str(out / "study.db"), "--json", str(out / f"{name}.json"),
                    "-o", str(out / f"{name}.toml"), "-q"]
@@ -45,7 +46,7 @@ def main() -> int:
     print(f"tilt error (mean of roll and pitch MAE, deg) against the autopilot, {args.folds}-fold by log, "
           f"{args.trials} trials per fit, objective {args.objective}; default -> tuned")
     print(f"{'estimator':<11} {'logs':>4}  {'held-out median':>22}  {'held-out mean':>22}  "
-          f"{'held-out geomean':>22}  {'better':>6} {'worse':>5}  {'fit on all logs':>22}")
+          f"{'held-out geomean':>22}  {'better':>6} {'worse':>5}  {'fit on all logs':>22}  {'run s':>6}")
     for name in names:
         r = json.loads((out / f"{name}.json").read_text())
         start = {log: v for fold in r["folds"] for log, v in fold["held_out_start"].items()}
@@ -54,7 +55,8 @@ def main() -> int:
         worse = sum(tuned[log] > start[log] for log in start)
         print(f"{name:<11} {len(r['logs']):>4}  " + "  ".join(
             cell(aggregate(start.values(), o), aggregate(tuned.values(), o)) for o in OBJECTIVES)
-            + f"  {better:>6} {worse:>5}  {cell(r['final']['start_value'], r['final']['best_value'])}")
+            + f"  {better:>6} {worse:>5}  {cell(r['final']['start_value'], r['final']['best_value'])}"
+            + f"  {r.get('seconds', float('nan')):6.0f}")
     return 0
 
 
