@@ -43,8 +43,9 @@ def main() -> int:
         print("$ " + " ".join(command), file=sys.stderr, flush=True)
         if subprocess.run(command, stdout=subprocess.DEVNULL).returncode:
             return 1
-    print(f"tilt error (mean of roll and pitch MAE, deg) against the autopilot, {args.folds}-fold by log, "
-          f"{args.trials} trials per fit, objective {args.objective}; default -> tuned")
+    first = json.loads((out / f"{names[0]}.json").read_text())
+    print(f"tilt error (mean of roll and pitch MAE, deg) against the autopilot, {len(first['folds'])}-fold by log, "
+          f"{first['final']['trials']} trials per fit, objective {first['objective']}; default -> tuned")
     print(f"{'estimator':<11} {'logs':>4}  {'held-out median':>22}  {'held-out mean':>22}  "
           f"{'held-out geomean':>22}  {'better':>6} {'worse':>5}  {'fit on all logs':>22}  {'run s':>6}")
     for name in names:
