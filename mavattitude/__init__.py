@@ -19,7 +19,7 @@ __version__ = "0.1.0"
 
 
 def load(path, segment: int | None = None):
-    """A log (.bin or .tlog) as a ``flight.Flight``: SI arrays on the autopilot clock, with
+    """A log (.bin, .tlog or .ulg) as a ``flight.Flight``: SI arrays on the autopilot clock, with
     what the reader fixed (``notes``) or had to leave out (``warnings``). ``segment``: the clock
     segment to keep when the autopilot rebooted during the log (default the longest)."""
     from .readers import read_log

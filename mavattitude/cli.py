@@ -28,9 +28,10 @@ from .errors import InputError, UsageError
 from .outputs import Outputs
 
 DESCRIPTION = """\
-Replay ArduPilot flight logs (.bin DataFlash, .tlog telemetry) through attitude estimators
-and compare each estimate with the autopilot's own attitude (ATT / ATTITUDE) or, where the
-log has it, simulator ground truth (SIM / SIMSTATE)."""
+Replay flight logs (ArduPilot .bin DataFlash, MAVLink .tlog telemetry, PX4 .ulg ULog) through
+attitude estimators and compare each estimate with the autopilot's own attitude (ATT /
+ATTITUDE / vehicle_attitude) or, where the log has it, simulator ground truth (SIM / SIMSTATE /
+vehicle_attitude_groundtruth)."""
 
 EPILOG = """\
 examples:
@@ -202,7 +203,7 @@ def cmd_evaluate(args) -> int:
         check_scheduler(args.scheduler)
     logs = find_logs(args.paths)
     if not logs:
-        raise InputError(", ".join(args.paths), "holds no .bin or .tlog log")
+        raise InputError(", ".join(args.paths), "holds no .bin, .tlog or .ulg log")
     with Outputs(inputs=[*logs, args.params], force=args.force) as outputs:
         out = outputs.folder(args.out, "--out", [], "csv")  # its files are claimed one by one below
         files = {name: outputs.file(out / name, "--out", kind) for name, kind in (
@@ -267,7 +268,7 @@ def cmd_tune(args) -> int:
         check_scheduler(args.scheduler)
     logs = find_logs(args.paths)
     if not logs:
-        raise InputError(", ".join(args.paths), "holds no .bin or .tlog log")
+        raise InputError(", ".join(args.paths), "holds no .bin, .tlog or .ulg log")
     with Outputs(inputs=[*logs, args.params], force=args.force) as outputs:
         toml_out = outputs.file(args.output or f"tuned-{name}.toml", "-o", "toml")
         json_out = outputs.file(args.json, "--json", "json")
@@ -366,14 +367,14 @@ def cmd_simulate(args) -> int:
             print(f"{name:12s} {description}")
         return 0
     if not args.output and not args.live:
-        raise UsageError("simulate needs -o FILE.tlog or FILE.bin, or --live URL (or --list)")
+        raise UsageError("simulate needs -o FILE.tlog, FILE.bin or FILE.ulg, or --live URL (or --list)")
     if args.output and args.live:
         raise UsageError("choose -o FILE or --live URL, not both")
     if args.scenario not in SCENARIOS:
         raise UsageError(f"unknown scenario {args.scenario!r}; choose from: {', '.join(SCENARIOS)}")
     suffix = Path(args.output).suffix.lower() if args.output else None
-    if args.output and suffix not in (".tlog", ".bin"):
-        raise UsageError(f"{args.output}: the output must end in .tlog or .bin")
+    if args.output and suffix not in (".tlog", ".bin", ".ulg"):
+        raise UsageError(f"{args.output}: the output must end in .tlog, .bin or .ulg")
     if args.imt and suffix != ".bin":
         raise UsageError("--imt writes DataFlash records: give -o FILE.bin")
     if args.live:
@@ -556,8 +557,8 @@ def _estimation_args(p, source: str, estimators: bool = True) -> None:
         p.add_argument("--estimators", default="mahony", metavar="LIST",
                        help="comma-separated estimator names, or 'all' (default: mahony)")
     p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
-                   help="score against the autopilot's attitude (ATT/ATTITUDE, default) or the "
-                        "simulator's ground truth (SIM/SIMSTATE); with truth the autopilot is "
+                   help="score against the autopilot's attitude (ATT/ATTITUDE/vehicle_attitude, default) or the "
+                        "simulator's ground truth (SIM/SIMSTATE/vehicle_attitude_groundtruth); with truth the autopilot is "
                         "scored too, as the row 'autopilot'")
     p.add_argument("--imu", default=None, metavar="SOURCE",
                    help="IMU source to estimate from, e.g. IMU[1], RAW_IMU, SCALED_IMU2, HIGHRES_IMU "
@@ -619,7 +620,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("info", help="what a log holds: sensors, rates, vehicle, clock",
                        description="Summarise a log: duration, message counts and rates, IMU sources, "
                                    "vehicle and firmware, sensors, accelerometer-norm statistics.")
-    p.add_argument("log", help="a .bin (DataFlash) or .tlog (telemetry) file")
+    p.add_argument("log", help="a .bin (DataFlash), .tlog (telemetry) or .ulg (PX4 ULog) file")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     segment_arg(p)
     quiet_arg(p)
@@ -631,7 +632,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "write a Rerun recording. Without a sink option the recording goes "
                                    "to <log name>.rrd in the current folder.",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("log", help="a .bin (DataFlash) or .tlog (telemetry) file")
+    p.add_argument("log", help="a .bin (DataFlash), .tlog (telemetry) or .ulg (PX4 ULog) file")
     _estimation_args(p, "log")
     trim_arg(p)
     segment_arg(p)
@@ -659,7 +660,7 @@ def build_parser() -> argparse.ArgumentParser:
                "  mavattitude evaluate /shared/logs --estimators all --scheduler tcp://10.0.0.5:8786",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("paths", nargs="+", metavar="PATH",
-                   help="log files, folders (searched recursively for .bin/.tlog logs) or glob patterns")
+                   help="log files, folders (searched recursively for .bin/.tlog/.ulg logs) or glob patterns")
     _estimation_args(p, "log")
     p.add_argument("--baseline", default="mahony", metavar="NAME",
                    help="the estimator ratios are taken to (default mahony; run too if not listed)")
@@ -694,7 +695,7 @@ def build_parser() -> argparse.ArgumentParser:
                "  mavattitude replay flight.bin --estimators mahony --params tuned-mahony.toml\n",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("paths", nargs="+", metavar="PATH",
-                   help="log files, folders (searched recursively for .bin/.tlog logs) or glob patterns")
+                   help="log files, folders (searched recursively for .bin/.tlog/.ulg logs) or glob patterns")
     p.add_argument("--estimator", required=True, metavar="NAME", help="the estimator to tune")
     p.add_argument("--trials", type=COUNT, default=50, metavar="N",
                    help="trials per fit (default 50); the run makes (folds + 1) fits")
@@ -732,17 +733,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the list as JSON")
     p.set_defaults(func=cmd_estimators)
 
-    p = sub.add_parser("simulate", help="write a simulated flight with known truth as .tlog or .bin",
+    p = sub.add_parser("simulate", help="write a simulated flight with known truth as .tlog, .bin or .ulg",
                        description="Simulate a flight (rigid-body trajectory and sensor models) and "
                                    "write it as a genuine ArduPilot .tlog (MAVLink 2) or DataFlash "
-                                   ".bin with ground truth (SIMSTATE / SIM).")
+                                   ".bin, or a PX4 ULog .ulg, with ground truth (SIMSTATE / SIM / "
+                                   "vehicle_attitude_groundtruth).")
     p.add_argument("--scenario", default="figure8", help="scenario name (see --list; default figure8)")
     p.add_argument("--duration", type=POSITIVE, default=120.0, metavar="S", help="seconds (default 120)")
     p.add_argument("--imu-rate", type=POSITIVE, default=100.0, metavar="HZ", help="IMU rate (default 100)")
     p.add_argument("--imt", action="store_true",
                    help="a .bin with delta angles and velocities too (IMT, as ArduPilot logs them)")
     p.add_argument("--seed", type=SEED, default=0, help="sensor-noise seed (default 0)")
-    p.add_argument("-o", "--output", metavar="FILE", help="output file: .tlog or .bin")
+    p.add_argument("-o", "--output", metavar="FILE", help="output file: .tlog, .bin or .ulg")
     p.add_argument("--live", metavar="URL",
                    help="instead of a file, act as an autopilot on this MAVLink connection (e.g. "
                         "udpout:127.0.0.1:14550): stream the flight in real time, honouring "

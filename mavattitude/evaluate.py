@@ -26,7 +26,7 @@ from .errors import InputError, UsageError
 from .pipeline import ReplaySettings
 from .progress import clock
 
-LOG_SUFFIXES = (".bin", ".tlog")
+LOG_SUFFIXES = (".bin", ".tlog", ".ulg")
 RECORD_VERSION = 1
 
 
@@ -34,8 +34,8 @@ RECORD_VERSION = 1
 
 
 def find_logs(paths: list[str]) -> list[str]:
-    """The logs named by ``paths``: files as given, folders searched recursively for .bin /
-    .tlog files (any case) that are logs by their content, and glob patterns. In order,
+    """The logs named by ``paths``: files as given, folders searched recursively for .bin,
+    .tlog and .ulg files (any case) that are logs by their content, and glob patterns. In order,
     each once; InputError for a path that names nothing."""
     from .readers import sniff_format
 
@@ -129,9 +129,9 @@ def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: 
             _kept[path, settings.segment] = flight
     facts = log_facts(flight, choose_imu(flight, settings.imu, settings.imu_family))
     if settings.reference == "truth" and flight.truth is None:
-        return {"status": "skipped", "facts": facts, "error": "no ground truth (SIM / SIMSTATE)"}
+        return {"status": "skipped", "facts": facts, "error": "no ground truth (SIM / SIMSTATE / vehicle_attitude_groundtruth)"}
     if settings.reference == "autopilot" and flight.attitude is None:
-        return {"status": "skipped", "facts": facts, "error": "no attitude reference (ATT / ATTITUDE)"}
+        return {"status": "skipped", "facts": facts, "error": "no attitude reference (ATT / ATTITUDE / vehicle_attitude)"}
     result, _ = replay_flight(flight, settings)
     facts["imu_source"] = result.imu_source
     metrics = result.metrics

@@ -25,9 +25,9 @@ GRAVITY = 9.80665  # m/s², standard gravity
 
 # The IMU families a log can hold (``--imu-source``), told apart by their series' names.
 IMU_FAMILIES = {
-    "imu": "the main loop's samples (IMU, RAW_IMU, SCALED_IMU*, HIGHRES_IMU)",
+    "imu": "the main loop's samples (IMU, RAW_IMU, SCALED_IMU*, HIGHRES_IMU; PX4's sensor_combined)",
     "raw": "the sensor-rate samples (GYR with ACC, 1-8 kHz)",
-    "delta": "delta angles and velocities (IMT)",
+    "delta": "delta angles and velocities (IMT; PX4's vehicle_imu)",
 }
 # The default: the first a log has. The main loop's samples first: on simulated truth neither the
 # deltas nor the sensor-rate samples did better (scripts/imu_source_gain.py), and the sensor-rate
@@ -36,7 +36,7 @@ DEFAULT_FAMILIES = ("imu", "delta", "raw")
 
 
 def imu_family(key: str) -> str:
-    return "raw" if key.startswith("GYR[") else "delta" if key.startswith("IMT[") else "imu"
+    return "raw" if key.startswith("GYR[") else "delta" if key.startswith(("IMT[", "vehicle_imu[")) else "imu"
 
 
 @dataclass
@@ -82,7 +82,7 @@ class BaroSeries:
 
 @dataclass
 class AttitudeSeries:
-    source: str  # "ATT", "ATTITUDE", "SIMSTATE", "SIM", or an estimator's name
+    source: str  # "ATT", "ATTITUDE", "SIMSTATE", "SIM", "vehicle_attitude", or an estimator's name
     t: np.ndarray
     q: np.ndarray  # (N, 4) unit quaternions [w, x, y, z], body -> NED
 
@@ -96,7 +96,7 @@ class AttitudeSeries:
 @dataclass
 class Flight:
     path: str
-    format: str  # "bin" or "tlog"
+    format: str  # "bin", "tlog" or "ulg"
     imu: dict[str, ImuSeries] = field(default_factory=dict)  # every IMU source found
     mag: dict[str, MagSeries] = field(default_factory=dict)
     gps: GpsSeries | None = None

@@ -46,8 +46,11 @@ def summarize(flight: Flight) -> dict:
     if imus[best]["rate_hz"] < LOW_IMU_RATE_HZ:
         warnings.append(f"low IMU rate: {imus[best]['rate_hz']:.1f} Hz (below {LOW_IMU_RATE_HZ:.0f} Hz): "
                         "estimates will be coarse")
-    if flight.mag and "COMPASS_DEC" not in flight.params:
-        warnings.append("no COMPASS_DEC parameter: pass --declination to compare yaw with a true heading")
+    from .pipeline import DECLINATION_PARAMS, resolve_declination
+    declination, source = resolve_declination(flight, None)
+    if flight.mag and source == "none (0)":
+        names = "/".join(name for name, _ in DECLINATION_PARAMS)
+        warnings.append(f"no declination parameter ({names}): pass --declination to compare yaw with a true heading")
     return {
         "log": flight.path,
         "format": flight.format,
@@ -67,8 +70,7 @@ def summarize(flight: Flight) -> dict:
         "message_rates_hz": {k: round(v / duration, 3) if duration > 0 else None
                              for k, v in sorted(flight.message_counts.items())},
         "parameters": len(flight.params),
-        "compass_declination_deg": (round(float(np.degrees(flight.params["COMPASS_DEC"])), 3)
-                                    if "COMPASS_DEC" in flight.params else None),
+        "compass_declination_deg": round(float(np.degrees(declination)), 3) if source != "none (0)" else None,
         "notes": list(flight.notes),
         "warnings": warnings,
     }

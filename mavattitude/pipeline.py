@@ -87,11 +87,18 @@ class ReplayResult:
             close_sink(rec, sink)
 
 
+# The log parameters that hold the declination, in the unit each autopilot keeps it in (rad per unit)
+DECLINATION_PARAMS = (("COMPASS_DEC", 1.0),  # ArduPilot, rad
+                      ("EKF2_MAG_DECL", math.pi / 180),  # PX4 EKF2, deg (learned from GPS, saved)
+                      ("ATT_MAG_DECL", math.pi / 180))  # PX4 attitude estimator (before EKF2), deg
+
+
 def resolve_declination(flight: Flight, override_deg: float | None) -> tuple[float, str]:
     if override_deg is not None:
         return math.radians(override_deg), "--declination"
-    if "COMPASS_DEC" in flight.params:
-        return float(flight.params["COMPASS_DEC"]), "log parameter COMPASS_DEC"
+    for name, to_rad in DECLINATION_PARAMS:
+        if name in flight.params and math.isfinite(flight.params[name]):
+            return float(flight.params[name]) * to_rad, f"log parameter {name}"
     return 0.0, "none (0)"
 
 
@@ -178,7 +185,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     if reference == "truth":
         if flight.truth is None:
             raise InputError(flight.path, "--reference truth, but the log has no ground truth "
-                                          "(SIM in .bin, SIMSTATE in .tlog)")
+                                          "(SIM in .bin, SIMSTATE in .tlog, vehicle_attitude_groundtruth in .ulg)")
         ref = flight.truth
     elif reference == "autopilot":
         ref = flight.attitude
@@ -220,7 +227,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
             comparisons["autopilot"] = compare(ref, flight.attitude, warmup_s=warmup_s, name="autopilot")
     else:
         events.append(Event(flight.time_span[0], "warn",
-                            "the log has no attitude reference (ATT / ATTITUDE): nothing to score against"))
+                            "the log has no attitude reference (ATT / ATTITUDE / vehicle_attitude): nothing to score against"))
     imu_t = runner.estimate(names[0]).t if names else np.empty(0)
     diagnostics = {name: runner.diagnostic_series(name) for name in names}
     estimator_events = {e.name: accel_state_events(imu_t, diagnostics[e.name]["accel_state"], e.ACCEL_STATES)

@@ -1,7 +1,7 @@
 """Log readers: a file in, a :class:`~mavattitude.flight.Flight` out (SI units, autopilot clock).
 
 ``read_log(path)`` picks the format from the file's first bytes, decodes it (``dataflash``:
-in bulk, ``dfrecords``; ``tlog``: pymavlink), follows the clock (``collect``) and builds the
+in bulk, ``dfrecords``; ``tlog``: in bulk, ``tlogrecords``; ``ulog``: pyulog), follows the clock (``collect``) and builds the
 flight's series (``series``): one clock segment (the longest, unless asked), each sample newer
 than the one before it, plausible values. ``sources`` chooses the IMU and compass.
 """
@@ -20,6 +20,7 @@ from .series import IMU_LIMITS, MAG_LIMITS, earth_field_power, fill_series
 from .sources import (IMU_PREFERENCE, best_imu_source, enum_name, identify_vehicle, imu_rate, mag_for_imu,
                       pick_imu, pick_mag)
 from .tlog import TLOG_SEARCH_BYTES, read_tlog, tlog_start
+from .ulog import ULOG_MAGIC, read_ulog
 
 __all__ = ["IMU_LIMITS", "IMU_PREFERENCE", "MAG_LIMITS", "best_imu_source", "earth_field_power", "enum_name",
            "identify_vehicle", "imu_rate", "mag_for_imu", "pick_imu", "pick_mag", "read_log", "sniff_format"]
@@ -28,7 +29,7 @@ DATAFLASH_MAGIC = b"\xa3\x95"
 
 
 def sniff_format(path: str) -> str:
-    """'bin' or 'tlog' from the file's content; InputError if it is neither."""
+    """'bin', 'tlog' or 'ulg' from the file's content; InputError if it is none of them."""
     if not os.path.exists(path):
         raise InputError(path, "no such file")
     if os.path.isdir(path):
@@ -39,12 +40,14 @@ def sniff_format(path: str) -> str:
         raise InputError(path, "empty file")
     if head[:2] == DATAFLASH_MAGIC:
         return "bin"
+    if head.startswith(ULOG_MAGIC):
+        return "ulg"
     if tlog_start(head) is not None:
         return "tlog"
     ext = os.path.splitext(path)[1].lower()
-    kind = {".bin": "DataFlash .bin", ".tlog": "telemetry .tlog"}.get(ext, "MAVLink log")
+    kind = {".bin": "DataFlash .bin", ".tlog": "telemetry .tlog", ".ulg": "PX4 ULog"}.get(ext, "flight log")
     raise InputError(path, f"not a {kind} file (it starts with bytes {head[:10].hex(' ')}; "
-                           "expected a DataFlash header a3 95 or a tlog record)")
+                           "expected a DataFlash header a3 95, a tlog record or the ULog header 'ULog')")
 
 
 @contextlib.contextmanager
@@ -76,25 +79,27 @@ def _captured_output():
 
 
 def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
-    """Read a .bin or .tlog. ``segment``: which clock segment to keep when the autopilot
+    """Read a .bin, .tlog or .ulg. ``segment``: which clock segment to keep when the autopilot
     rebooted during the log (0-based); default the longest."""
     path = str(path)
     fmt = sniff_format(path)
-    with _captured_output() as chatter:  # pymavlink's complaints about corrupt data
-        decoded = read_dataflash(path, progress) if fmt == "bin" else read_tlog(path, progress)
+    reader = {"bin": read_dataflash, "tlog": read_tlog, "ulg": read_ulog}[fmt]
+    with _captured_output() as chatter:  # pymavlink's (or pyulog's) complaints about corrupt data
+        decoded = reader(path, progress)
     col, notes, warnings = decoded.collector, decoded.notes, decoded.warnings
     col.finish()
     complaints = [line for line in chatter() if line.strip()]
     if col.outliers:
         warnings.append(f"dropped {col.outliers} samples whose time fits neither the clock before them nor "
                         "after (corrupt records)")
+    decoder = "pyulog" if fmt == "ulg" else "pymavlink"
     if complaints:
-        warnings.append(f"pymavlink skipped corrupt data ({len(complaints)} reports; first: {complaints[0]})")
+        warnings.append(f"{decoder} skipped corrupt data ({len(complaints)} reports; first: {complaints[0]})")
     if progress is not None:
         progress(1.0)
     segments = col.segments
     if not segments:
-        why = f" (pymavlink: {complaints[0]})" if complaints else ""
+        why = f" ({decoder}: {complaints[0]})" if complaints else ""
         raise InputError(path, f"no time-stamped sensor or attitude messages found{why}")
     if segment is None:
         segment = col.longest_segment()
@@ -107,13 +112,14 @@ def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
     flight = Flight(path=path, format=fmt, params=decoded.params, message_counts=decoded.counts,
                     segments=segments, segment_index=segment, notes=notes, warnings=warnings)
     unusable = fill_series(flight, col, segment)
-    flight.vehicle, flight.firmware = identify_vehicle(decoded.texts)
+    flight.vehicle, flight.firmware = decoded.identity or identify_vehicle(decoded.texts)
     if not flight.imu and unusable:
         raise InputError(path, "IMU data present but none usable: " + "; ".join(unusable))
     if not flight.imu:
         damage = f"; the log is damaged: {'; '.join(warnings)}" if warnings else ""
         raise InputError(path, "no IMU data (looked for IMU/IMU2/IMU3, GYR/ACC and IMT in .bin; RAW_IMU, "
-                               f"SCALED_IMU/2/3 and HIGHRES_IMU in .tlog){damage}")
+                               "SCALED_IMU/2/3 and HIGHRES_IMU in .tlog; sensor_combined and vehicle_imu in "
+                               f".ulg){damage}")
     return flight
 
 

@@ -260,3 +260,4 @@ class Decoded:
     counts: dict[str, int]  # message name -> how many
     notes: list[str] = field(default_factory=list)  # what was fixed or noticed
     warnings: list[str] = field(default_factory=list)  # data lost to damage: the user must hear of it
+    identity: tuple[str, str] | None = None  # (vehicle, firmware) when the format says them (ULog)

@@ -9,7 +9,7 @@ from ..flight import DEFAULT_FAMILIES, IMU_FAMILIES, Flight, ImuSeries, imu_fami
 
 # IMU sources, best first, among those with the same sample rate: float SI data beats
 # integer mG/mrad/s, and the primary instance beats the others.
-IMU_PREFERENCE = ["HIGHRES_IMU", "IMU[0]", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "IMU[1]",
+IMU_PREFERENCE = ["HIGHRES_IMU", "IMU[0]", "sensor_combined", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "IMU[1]",
                   "SCALED_IMU3", "IMU[2]"]
 
 
@@ -78,7 +78,7 @@ def pick_mag(mag_sources: list[str], imu_source: str) -> str | None:
     """``mag_for_imu`` on a list of magnetometer sources."""
     if imu_source in mag_sources:
         return imu_source
-    for key in ("MAG[0]", "HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2"):
+    for key in ("MAG[0]", "vehicle_magnetometer[0]", "HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2"):
         if key in mag_sources:
             return key
     return mag_sources[0] if mag_sources else None

@@ -1,0 +1,146 @@
+"""PX4 ULog flight logs (.ulg), decoded by pyulog (the PX4 project's reader) into columns.
+
+Every topic is a series on PX4's clock (µs since boot; SITL may count from the Unix epoch),
+taken at ``timestamp_sample`` where the topic has it set (when the sensor sampled), else at
+``timestamp`` (when it was published). A sample's place among the others (``arrival``) is its
+``timestamp``: the logger writes in publication order. Units as logged:
+
+| topic | fields used | unit in the log |
+|---|---|---|
+| sensor_combined | gyro_rad[3], accelerometer_m_s2[3] (+ accelerometer_timestamp_relative) | rad/s, m/s², FRD |
+| sensor_combined (logs before ~2018) | magnetometer_ga[3], baro_alt_meter (+ their *_timestamp_relative) | gauss; m |
+| vehicle_imu (instances) | delta_angle[3], delta_velocity[3], delta_angle_dt, delta_velocity_dt | rad, m/s, µs |
+| vehicle_magnetometer (instances) | magnetometer_ga[3] (calibrated, body frame) | gauss |
+| vehicle_gps_position, sensor_gps | latitude_deg/longitude_deg/altitude_msl_m, or lat/lon (1e-7 °) and alt (mm); vel_n/e/d_m_s, fix_type, satellites_used, eph, epv | °, m, m/s, m |
+| vehicle_air_data | baro_pressure_pa, baro_alt_meter | Pa, m |
+| vehicle_attitude | q[4] (EKF2's estimate) | [w, x, y, z], body FRD -> NED |
+| vehicle_attitude_groundtruth (SITL) | q[4] | as vehicle_attitude |
+
+The IMU is ``sensor_combined``: PX4's selected IMU (``sensor_selection``), the one its EKF uses.
+``vehicle_imu[i]`` (every IMU, as delta angles and velocities) is the ``delta`` family where the
+logger kept it at a useful rate (its default profile keeps it at ~2 Hz: too slow to estimate
+from). The compass is ``vehicle_magnetometer[0]``, the one PX4's sensors module selects,
+calibrated and in the body frame; ``sensor_mag`` (uncalibrated, in the sensor's frame) is not
+read. Parameters are kept as PX4 names them (the declination is ``EKF2_MAG_DECL``, degrees).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .collect import Collector, Decoded
+
+GAUSS_TO_TESLA = 1e-4
+US = 1e-6  # s per µs
+RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: the *_timestamp_relative of a sensor not in this sample
+SEA_LEVEL_PA = 101325.0
+TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_magnetometer", "vehicle_gps_position", "sensor_gps",
+          "vehicle_air_data", "vehicle_attitude", "vehicle_attitude_groundtruth"]
+ULOG_MAGIC = b"ULog\x01\x125"
+
+
+def read_ulog(path: str, progress=None) -> Decoded:
+    """Decode a .ulg (the topics of ``TOPICS``); InputError for a file pyulog cannot read."""
+    from pyulog import ULog
+
+    try:
+        ulog = ULog(path, message_name_filter_list=TOPICS, disable_str_exceptions=True)
+    except Exception as exc:  # noqa: BLE001 - pyulog raises what it meets (struct.error, ValueError, ...)
+        raise InputError(path, f"not a readable ULog ({type(exc).__name__}: {exc})") from None
+    if progress is not None:
+        progress(0.5)
+    col = Collector()
+    counts: dict[str, int] = {}
+    notes: list[str] = []
+    warnings = []
+    if ulog.file_corruption:
+        warnings.append("the file is damaged (pyulog found corrupt data and skipped to the next valid message)")
+    if ulog.dropouts:
+        lost_ms = sum(d.duration for d in ulog.dropouts)
+        warnings.append(f"the logger dropped data {len(ulog.dropouts)} times ({lost_ms} ms in all)")
+    for d in ulog.data_list:
+        key = d.name if d.name in ("sensor_combined", "vehicle_attitude", "vehicle_attitude_groundtruth") \
+            else f"{d.name}[{d.multi_id}]"
+        counts[key] = len(d.data["timestamp"])
+        if counts[key]:
+            _add_topic(col, d.name, key, d.data, notes)
+    params = {k: float(v) for k, v in ulog.initial_parameters.items() if isinstance(v, (int, float))}
+    return Decoded(col, params, [], counts, notes=notes, warnings=warnings, identity=_identify(ulog, params))
+
+
+def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]) -> None:
+    order = data["timestamp"].astype(np.int64)
+    sampled = data.get("timestamp_sample", order)  # 0 where a driver left it unset (GPS)
+    t = np.where(sampled > 0, sampled, order).astype(np.float64) * US
+
+    def vector(field, n=3):
+        return np.column_stack([data[f"{field}[{k}]"].astype(np.float64) for k in range(n)])
+
+    if name == "sensor_combined":
+        accel_ok = data["accelerometer_timestamp_relative"] != RELATIVE_TIMESTAMP_INVALID
+        rows = np.hstack([vector("gyro_rad"), vector("accelerometer_m_s2")])
+        col.add_columns("imu", key, order[accel_ok], t[accel_ok], rows[accel_ok])
+        if "magnetometer_ga[0]" in data:  # old logs: the compass in the same topic, repeated
+            _add_relative(col, "mag", key, data, "magnetometer", order, vector("magnetometer_ga") * GAUSS_TO_TESLA)
+        if "baro_alt_meter" in data:
+            # old logs give only the height PX4 computed from pressure in the standard atmosphere
+            # (QNH 1013.25 hPa): that pressure back, for the phase that differences it
+            height = data["baro_alt_meter"].astype(np.float64)
+            pressure = SEA_LEVEL_PA * (1.0 - height / 44330.77) ** (1 / 0.190263)
+            if _add_relative(col, "baro", key, data, "baro", order, np.column_stack([pressure, height])):
+                notes.append("baro pressure from sensor_combined.baro_alt_meter (standard atmosphere)")
+    elif name == "vehicle_imu":
+        angle_dt = data["delta_angle_dt"].astype(np.float64) * US
+        velocity_dt = data["delta_velocity_dt"].astype(np.float64) * US
+        ok = (angle_dt > 0) & (velocity_dt > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):  # as rates over their intervals, as IMT
+            rows = np.hstack([vector("delta_angle") / angle_dt[:, None], vector("delta_velocity") / velocity_dt[:, None]])
+        col.add_columns("imu", key, order[ok], t[ok], rows[ok])
+    elif name == "vehicle_magnetometer":
+        col.add_columns("mag", key, order, t, vector("magnetometer_ga") * GAUSS_TO_TESLA)
+    elif name in ("vehicle_gps_position", "sensor_gps"):
+        col.add_columns("gps", key, order, t, _gps_rows(data))
+    elif name == "vehicle_air_data":
+        col.add_columns("baro", key, order, t, np.column_stack([data["baro_pressure_pa"], data["baro_alt_meter"]]))
+    elif name in ("vehicle_attitude", "vehicle_attitude_groundtruth"):
+        kind = "att_quat" if name == "vehicle_attitude" else "truth_quat"
+        col.add_columns(kind, key, order, t, vector("q", 4))
+
+
+def _add_relative(col: Collector, kind: str, key: str, data: dict, sensor: str, order, rows) -> int:
+    """A sensor carried in sensor_combined at its own time (``<sensor>_timestamp_relative`` after
+    the row's), each sample once: the rows repeat it until the next. Returns how many."""
+    relative = data.get(f"{sensor}_timestamp_relative")
+    if relative is None:
+        return 0
+    valid = relative != RELATIVE_TIMESTAMP_INVALID
+    t = (data["timestamp"].astype(np.int64) + relative.astype(np.int64)) * US
+    new = valid & np.concatenate([[True], t[1:] != t[:-1]])
+    if new.any():
+        col.add_columns(kind, key, order[new], t[new], rows[new])
+    return int(np.count_nonzero(new))
+
+
+def _gps_rows(data: dict) -> np.ndarray:
+    """lat, lon (°), alt (m AMSL), vel N/E/D (m/s), fix type, satellites, horizontal accuracy (m)."""
+    if "latitude_deg" in data:
+        lat, lon, alt = data["latitude_deg"], data["longitude_deg"], data["altitude_msl_m"]
+    else:  # before PX4 1.14: integers
+        lat, lon, alt = data["lat"] * 1e-7, data["lon"] * 1e-7, data["alt"] * 1e-3  # 1e-7 °, mm
+    velocity = np.column_stack([data["vel_n_m_s"], data["vel_e_m_s"], data["vel_d_m_s"]]).astype(np.float64)
+    if "vel_ned_valid" in data:
+        velocity[data["vel_ned_valid"] == 0] = np.nan
+    return np.column_stack([lat, lon, alt, velocity, data["fix_type"], data["satellites_used"], data["eph"]])
+
+
+def _identify(ulog, params: dict) -> tuple[str, str]:
+    """(vehicle, firmware): MAVLink's name of the vehicle type (MAV_TYPE) and PX4's version."""
+    from .sources import enum_name
+
+    info = ulog.msg_info_dict
+    vehicle = enum_name("MAV_TYPE", int(params["MAV_TYPE"])) if "MAV_TYPE" in params else "PX4"
+    release = info.get("ver_sw_release")
+    version = f"v{release >> 24}.{(release >> 16) & 0xFF}.{(release >> 8) & 0xFF}" if release else None
+    git = str(info.get("ver_sw", ""))[:8] or None
+    parts = ["PX4", version, f"({git})" if git else None, info.get("ver_hw")]
+    return vehicle, " ".join(str(p) for p in parts if p)

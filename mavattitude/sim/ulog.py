@@ -1,0 +1,133 @@
+"""PX4 ULog (.ulg) writer: a simulated flight as the topics PX4 logs, so tests have ULog with
+known truth.
+
+A ULog file (https://docs.px4.io/main/en/dev_log/ulog_file_format.html) is a 16-byte header
+('ULog', magic, version, start time in µs) and messages, each a 3-byte header (payload size,
+type) and its payload: flag bits ('B'), a format per topic ('F': "name:type field;..."),
+information ('I': firmware, board), parameters ('P'), then a subscription per topic ('A':
+instance, id, name) and the data ('D': id and the fields packed as the format says), in time
+order. pyulog reads what this writes (tested). What is written:
+
+- sensor_combined (IMU 0, at the IMU rate): gyro_rad (rad/s), accelerometer_m_s2 (m/s²);
+- vehicle_magnetometer (the compass, calibrated: magnetometer_ga, gauss);
+- vehicle_gps_position (latitude_deg, longitude_deg, altitude_msl_m, vel_n/e/d_m_s, eph, epv);
+- vehicle_air_data (baro_pressure_pa, baro_alt_meter);
+- vehicle_attitude (the autopilot's estimate) and vehicle_attitude_groundtruth (truth), q
+  [w, x, y, z] body FRD -> NED, at the .bin's ATT rate;
+- parameters EKF2_MAG_DECL (degrees) and MAV_TYPE (2, quadrotor); the firmware text as
+  information ``ver_sw_branch``.
+"""
+from __future__ import annotations
+
+import math
+import struct
+from pathlib import Path
+
+import numpy as np
+
+HEADER = b"ULog\x01\x12\x35" + bytes([1])  # magic, then file format version 1
+US = 1e6  # µs per s
+TESLA_TO_GAUSS = 1e4
+
+# topic -> its fields: (ULog type, numpy type, count, name); timestamp first, as PX4 has it
+TOPICS = {
+    "sensor_combined": [("uint64_t", "<u8", 1, "timestamp"), ("float", "<f4", 3, "gyro_rad"),
+                        ("uint32_t", "<u4", 1, "gyro_integral_dt"),
+                        ("int32_t", "<i4", 1, "accelerometer_timestamp_relative"),
+                        ("float", "<f4", 3, "accelerometer_m_s2"), ("uint32_t", "<u4", 1, "accelerometer_integral_dt")],
+    "vehicle_magnetometer": [("uint64_t", "<u8", 1, "timestamp"), ("uint64_t", "<u8", 1, "timestamp_sample"),
+                             ("float", "<f4", 3, "magnetometer_ga")],
+    "vehicle_gps_position": [("uint64_t", "<u8", 1, "timestamp"), ("uint64_t", "<u8", 1, "timestamp_sample"),
+                             ("double", "<f8", 1, "latitude_deg"), ("double", "<f8", 1, "longitude_deg"),
+                             ("double", "<f8", 1, "altitude_msl_m"), ("float", "<f4", 1, "vel_n_m_s"),
+                             ("float", "<f4", 1, "vel_e_m_s"), ("float", "<f4", 1, "vel_d_m_s"),
+                             ("float", "<f4", 1, "eph"), ("float", "<f4", 1, "epv"), ("uint8_t", "u1", 1, "fix_type"),
+                             ("bool", "u1", 1, "vel_ned_valid"), ("uint8_t", "u1", 1, "satellites_used")],
+    "vehicle_air_data": [("uint64_t", "<u8", 1, "timestamp"), ("uint64_t", "<u8", 1, "timestamp_sample"),
+                         ("float", "<f4", 1, "baro_alt_meter"), ("float", "<f4", 1, "baro_pressure_pa")],
+    "vehicle_attitude": [("uint64_t", "<u8", 1, "timestamp"), ("uint64_t", "<u8", 1, "timestamp_sample"),
+                         ("float", "<f4", 4, "q")],
+}
+TOPICS["vehicle_attitude_groundtruth"] = TOPICS["vehicle_attitude"]
+
+
+def write_ulog(sim, path) -> None:
+    """Write ``sim`` (a SimFlight) as a PX4 ULog at ``path``."""
+    columns = _topic_columns(sim)
+    definitions = [_message(b"B", bytes(16) + bytes(24))]  # no flags; no appended data
+    for name, fields in TOPICS.items():
+        text = name + ":" + "".join(f"{u}{f'[{n}]' if n > 1 else ''} {field};" for u, _, n, field in fields)
+        definitions.append(_message(b"F", text.encode()))
+    definitions.append(_info("ver_sw_branch", sim.firmware))
+    definitions.append(_info("sys_name", "PX4"))
+    definitions.append(_info("ver_hw", "MAVATTITUDE_SIM"))
+    definitions.append(_message(b"P", _key("float EKF2_MAG_DECL") + struct.pack("<f", math.degrees(sim.declination_rad))))
+    definitions.append(_message(b"P", _key("int32_t MAV_TYPE") + struct.pack("<i", 2)))
+    records, stamps = [], []
+    for msg_id, (name, values) in enumerate(columns.items()):
+        definitions.append(_message(b"A", struct.pack("<BH", 0, msg_id) + name.encode()))
+        rows = _packed(msg_id, TOPICS[name], values)
+        size = rows.dtype.itemsize
+        data = rows.tobytes()
+        records += [data[i * size:(i + 1) * size] for i in range(len(rows))]
+        stamps.append(values["timestamp"])
+    order = np.argsort(np.concatenate(stamps), kind="stable")  # time order; a topic's own order kept
+    start = int(min(s[0] for s in stamps if len(s)))
+    with open(Path(path), "wb") as f:
+        f.write(HEADER + struct.pack("<Q", start))
+        f.write(b"".join(definitions))
+        f.write(b"".join(records[i] for i in order.tolist()))
+
+
+def _topic_columns(sim) -> dict[str, dict[str, np.ndarray]]:
+    """Each topic's fields as arrays, in PX4's units."""
+    def us(t):
+        return np.rint(np.asarray(t) * US).astype(np.uint64)
+
+    imu = sim.imu[0]
+    every = sim.rates.att_every
+    gps, baro, mag = sim.gps, sim.baro, sim.mag
+    dt_us = np.full(len(imu.t), int(round(US / sim.rates.imu)), np.uint32)
+    attitude_t = us(sim.truth.t[::every])
+    return {
+        "sensor_combined": {"timestamp": us(imu.t), "gyro_rad": imu.gyro, "gyro_integral_dt": dt_us,
+                            "accelerometer_timestamp_relative": np.zeros(len(imu.t), np.int32),
+                            "accelerometer_m_s2": imu.accel, "accelerometer_integral_dt": dt_us},
+        "vehicle_magnetometer": {"timestamp": us(mag.t), "timestamp_sample": us(mag.t),
+                                 "magnetometer_ga": mag.field * TESLA_TO_GAUSS},
+        "vehicle_gps_position": {"timestamp": us(gps.t), "timestamp_sample": us(gps.t), "latitude_deg": gps.lat_deg,
+                                 "longitude_deg": gps.lon_deg, "altitude_msl_m": gps.alt_m,
+                                 "vel_n_m_s": gps.vel_ned[:, 0], "vel_e_m_s": gps.vel_ned[:, 1],
+                                 "vel_d_m_s": gps.vel_ned[:, 2], "eph": np.full(len(gps.t), gps.h_acc_m),
+                                 "epv": np.full(len(gps.t), gps.v_acc_m), "fix_type": np.full(len(gps.t), gps.fix_type),
+                                 "vel_ned_valid": np.ones(len(gps.t)), "satellites_used": np.full(len(gps.t), gps.num_sats)},
+        "vehicle_air_data": {"timestamp": us(baro.t), "timestamp_sample": us(baro.t), "baro_alt_meter": baro.alt_m,
+                             "baro_pressure_pa": baro.pressure_pa},
+        "vehicle_attitude": {"timestamp": attitude_t, "timestamp_sample": attitude_t, "q": sim.autopilot_q[::every]},
+        "vehicle_attitude_groundtruth": {"timestamp": attitude_t, "timestamp_sample": attitude_t,
+                                         "q": sim.truth.q[::every]},
+    }
+
+
+def _packed(msg_id: int, fields, values: dict) -> np.ndarray:
+    """The topic's 'D' messages as one structured array (header, id, fields; packed)."""
+    dtype = np.dtype([("size", "<u2"), ("type", "u1"), ("msg_id", "<u2")]
+                     + [(field, np_type, (n,)) if n > 1 else (field, np_type) for _, np_type, n, field in fields])
+    rows = np.zeros(len(values["timestamp"]), dtype)
+    rows["size"], rows["type"], rows["msg_id"] = dtype.itemsize - 3, ord("D"), msg_id
+    for _, _, _, field in fields:
+        rows[field] = values[field]
+    return rows
+
+
+def _message(kind: bytes, payload: bytes) -> bytes:
+    return struct.pack("<HB", len(payload), kind[0]) + payload
+
+
+def _key(text: str) -> bytes:
+    return bytes([len(text)]) + text.encode()
+
+
+def _info(name: str, value: str) -> bytes:
+    data = value.encode()
+    return _message(b"I", _key(f"char[{len(data)}] {name}") + data)
