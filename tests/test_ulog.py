@@ -192,3 +192,17 @@ def test_evaluate_finds_and_scores_ulog(sim_logs, tmp_path):
     assert main(["evaluate", str(folder), "--estimators", "mahony", "--reference", "truth", "--out", str(out),
                  "-j", "1", "-q"]) == 0
     assert "flight.ulg" in (out / "results.csv").read_text()
+
+
+def test_a_topic_without_a_field_we_read_is_a_warning(tmp_path, monkeypatch):
+    from mavattitude.sim import ulog as writer
+
+    fields = [f for f in writer.TOPICS["vehicle_gps_position"] if f[3] != "eph"]
+    monkeypatch.setitem(writer.TOPICS, "vehicle_gps_position", fields)
+    columns = writer._topic_columns
+    monkeypatch.setattr(writer, "_topic_columns", lambda sim: {
+        name: {k: v for k, v in topic.items() if k != "eph"} for name, topic in columns(sim).items()})
+    path = write_log(simulate("hover", 20.0), tmp_path / "other-px4.ulg")
+    flight = read_log(str(path))
+    assert flight.gps is None and flight.imu
+    assert flight.warnings == ["vehicle_gps_position[0]: not read, it has no field 'eph' (a PX4 version not known here)"]

@@ -62,8 +62,12 @@ def read_ulog(path: str, progress=None) -> Decoded:
         key = d.name if d.name in ("sensor_combined", "vehicle_attitude", "vehicle_attitude_groundtruth") \
             else f"{d.name}[{d.multi_id}]"
         counts[key] = len(d.data["timestamp"])
-        if counts[key]:
+        if not counts[key]:
+            continue
+        try:
             _add_topic(col, d.name, key, d.data, notes)
+        except KeyError as exc:  # a PX4 version that names a field otherwise
+            warnings.append(f"{key}: not read, it has no field {exc.args[0]!r} (a PX4 version not known here)")
     params = {k: float(v) for k, v in ulog.initial_parameters.items() if isinstance(v, (int, float))}
     return Decoded(col, params, [], counts, notes=notes, warnings=warnings, identity=_identify(ulog, params))
 
@@ -77,7 +81,7 @@ def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]
         return np.column_stack([data[f"{field}[{k}]"].astype(np.float64) for k in range(n)])
 
     if name == "sensor_combined":
-        accel_ok = data["accelerometer_timestamp_relative"] != RELATIVE_TIMESTAMP_INVALID
+        accel_ok = data.get("accelerometer_timestamp_relative", order * 0) != RELATIVE_TIMESTAMP_INVALID
         rows = np.hstack([vector("gyro_rad"), vector("accelerometer_m_s2")])
         col.add_columns("imu", key, order[accel_ok], t[accel_ok], rows[accel_ok])
         if "magnetometer_ga[0]" in data:  # old logs: the compass in the same topic, repeated
