@@ -117,6 +117,7 @@ def test_gps_baro_compass_and_delta_imus_of_a_newer_log():
     np.testing.assert_allclose(flight.imu["vehicle_imu[1]"].gyro[:, 0], rate, rtol=1e-6)
     assert math.degrees(resolve_declination(flight, None)[0]) == pytest.approx(3.9908, abs=1e-3)
     assert "v1.11.2" in flight.firmware and "CUBEORANGE" in flight.firmware
+    assert "vehicle_imu[0] is the IMU PX4 selected (sensor_selection); sensor_combined carries its samples" in flight.notes
 
 
 def test_a_gps_without_its_sample_time_takes_its_publication_time():

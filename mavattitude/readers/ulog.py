@@ -35,7 +35,7 @@ US = 1e-6  # s per µs
 RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: the *_timestamp_relative of a sensor not in this sample
 SEA_LEVEL_PA = 101325.0
 TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_magnetometer", "vehicle_gps_position", "sensor_gps",
-          "vehicle_air_data", "vehicle_attitude", "vehicle_attitude_groundtruth"]
+          "vehicle_air_data", "vehicle_attitude", "vehicle_attitude_groundtruth", "sensor_selection"]
 ULOG_MAGIC = b"ULog\x01\x125"
 
 
@@ -59,6 +59,8 @@ def read_ulog(path: str, progress=None) -> Decoded:
         lost_ms = sum(d.duration for d in ulog.dropouts)
         warnings.append(f"the logger dropped data {len(ulog.dropouts)} times ({lost_ms} ms in all)")
     for d in ulog.data_list:
+        if d.name == "sensor_selection":
+            continue
         key = d.name if d.name in ("sensor_combined", "vehicle_attitude", "vehicle_attitude_groundtruth") \
             else f"{d.name}[{d.multi_id}]"
         counts[key] = len(d.data["timestamp"])
@@ -68,6 +70,9 @@ def read_ulog(path: str, progress=None) -> Decoded:
             _add_topic(col, d.name, key, d.data, notes)
         except KeyError as exc:  # a PX4 version that names a field otherwise
             warnings.append(f"{key}: not read, it has no field {exc.args[0]!r} (a PX4 version not known here)")
+    selected = _selected_imu(ulog.data_list)
+    if selected:
+        notes.append(f"{selected} is the IMU PX4 selected (sensor_selection); sensor_combined carries its samples")
     params = {k: float(v) for k, v in ulog.initial_parameters.items() if isinstance(v, (int, float))}
     return Decoded(col, params, [], counts, notes=notes, warnings=warnings, identity=_identify(ulog, params))
 
@@ -123,6 +128,16 @@ def _add_relative(col: Collector, kind: str, key: str, data: dict, sensor: str, 
     if new.any():
         col.add_columns(kind, key, order[new], t[new], rows[new])
     return int(np.count_nonzero(new))
+
+
+def _selected_imu(data_list) -> str | None:
+    """The ``vehicle_imu[i]`` whose gyro PX4's ``sensor_selection`` names, when there are several."""
+    selection = next((d.data for d in data_list if d.name == "sensor_selection"), None)
+    imus = [d for d in data_list if d.name == "vehicle_imu" and len(d.data["timestamp"])]
+    if selection is None or len(imus) < 2 or "gyro_device_id" not in selection:
+        return None
+    wanted = selection["gyro_device_id"][-1]
+    return next((f"vehicle_imu[{d.multi_id}]" for d in imus if d.data.get("gyro_device_id", [None])[0] == wanted), None)
 
 
 def _gps_rows(data: dict) -> np.ndarray:
