@@ -156,7 +156,9 @@ class Scorer:
         self.records: dict[str, dict] = {}  # log -> its record at the start values (first scoring)
         self.penalised = 0
 
-    def __call__(self, logs: list[str], values: dict[str, object]) -> dict[str, float]:
+    def __call__(self, logs: list[str], values: dict[str, object], screening: bool = False) -> dict[str, float]:
+        """{log: tilt error}. A log with nothing scored is NaN when ``screening`` (the start
+        values: such a log is left out), else it counts as diverged: those values broke it."""
         key = tuple(sorted(values.items()))
         todo = [log for log in logs if (log, key) not in self.known]
         if todo:
@@ -173,7 +175,8 @@ class Scorer:
 
             # largest first: the longest replay starts at once, not last
             self.workers.run(sorted(todo, key=_size, reverse=True), trial, finished)
-        return {log: self.known[log, key] for log in logs}
+        scores = {log: self.known[log, key] for log in logs}
+        return scores if screening else {log: DIVERGED_DEG if math.isnan(v) else v for log, v in scores.items()}
 
 
 def _size(path: str) -> int:
@@ -258,7 +261,7 @@ def tune(logs: list[str], settings: TuneSettings, workers, storage=None, progres
     scorer = Scorer(workers, settings)
     progress = progress or TrialProgress(settings.estimator, quiet=True)
     progress.say(f"scoring {len(logs)} logs with the starting values")
-    first = scorer(logs, start)
+    first = scorer(logs, start, screening=True)
     left_out = {log: _why_unscored(scorer.records[log], first[log]) for log in logs
                 if not math.isfinite(first[log]) or first[log] == DIVERGED_DEG}
     used = [log for log in logs if log not in left_out]
