@@ -170,7 +170,7 @@ class Scorer:
             def finished(record: dict) -> None:
                 self.records.setdefault(record["log"], record)
                 score = log_score(record, name)
-                self.penalised += score == DIVERGED_DEG
+                self.penalised += score == DIVERGED_DEG or (math.isnan(score) and not screening)
                 self.known[record["log"], key] = score
 
             # largest first: the longest replay starts at once, not last

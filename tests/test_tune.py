@@ -267,3 +267,17 @@ def test_a_pool_and_a_dask_cluster_tune_as_one_process_does(tmp_path):
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                                   host="127.0.0.1", dashboard_address=":0") as cluster:
         assert tuned("dask", "--scheduler", cluster.scheduler_address) == here
+
+
+class NothingScoredAbove(FakeWorkers):
+    """As FakeWorkers, but kp above 2 leaves nothing scored (no roll or pitch)."""
+
+    def run(self, logs, settings, finished):
+        kp = (settings.file_values or {}).get("mahony", {}).get("kp", 0.2)
+        super().run(logs, settings, lambda r: finished({**r, "metrics": {"mahony": {}}} if kp > 2 else r))
+
+
+def test_values_that_leave_nothing_scored_count_as_diverged():
+    result = tune(LOGS, settings(trials=20, folds=0), NothingScoredAbove(best=0.7))
+    assert math.isfinite(result.final.best_value) and result.final.best["kp"] <= 2
+    assert result.penalised > 0
