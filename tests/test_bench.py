@@ -211,6 +211,7 @@ def test_rss_growth_is_the_slope_of_the_second_half():
     assert _rss_figures(list(zip(t, growing)), 100.0, 130.0, 600_000)["mb_per_hour_at_1khz"] == pytest.approx(90.0)
 
 
+@pytest.mark.slow  # times pymavlink reading a log
 def test_read_figures_run_and_report(capsys, tmp_path):
     """``bench --read`` on a short simulated log and a sample .tlog: every figure present and
     consistent (no timed assertion: the speeds are whatever this machine gives)."""

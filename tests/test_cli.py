@@ -114,7 +114,7 @@ def test_simulate_writes_a_log_replay_reads(tmp_path, capsys):
     (["replay", SAMPLE_LOGS / "static.bin", "--imu", "IMU[7]", "--no-view"], 1, "IMU[7]"),
     (["replay", SAMPLE_LOGS / "static.bin", "--warmup", "-1", "--no-view"], 2, "--warmup"),
     (["simulate", "--scenario", "nope", "-o", "x.tlog"], 2, "unknown scenario"),
-    (["simulate", "-o", "x.csv"], 2, "must end in .tlog or .bin"),
+    (["simulate", "-o", "x.csv"], 2, "must end in .tlog, .bin or .ulg"),
 ])
 def test_errors_are_one_line_with_exit_code(capsys, args, code, text):
     got, out, err = run(capsys, *args)

@@ -492,6 +492,7 @@ def _feed(est, path, edit=lambda msg: msg, every=7):
     return est
 
 
+@pytest.mark.slow  # 5 s each: a session stepped packet by packet
 @pytest.mark.parametrize("reference", ["autopilot", "truth"])
 def test_a_session_keeps_only_its_last_seconds_and_scores_as_replay(monkeypatch, reference):
     """Constant memory: a session keeping 2 s of history, forgetting and scoring often,

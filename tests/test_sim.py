@@ -290,7 +290,7 @@ def test_logs_are_deterministic_and_suffix_checked(tmp_path):
         a = write_log(simulate("hover", 8.0, seed=3), tmp_path / f"a{suffix}").read_bytes()
         b = write_log(simulate("hover", 8.0, seed=3), tmp_path / f"b{suffix}").read_bytes()
         assert a == b
-    with pytest.raises(ValueError, match=r"\.tlog or \.bin"):
+    with pytest.raises(ValueError, match=r"\.tlog, \.bin or \.ulg"):
         write_log(simulate("static", 3.0), tmp_path / "log.csv")
     assert not (tmp_path / "log.csv").exists()
     assert write_log(simulate("static", 3.0), tmp_path / "UPPER.BIN").exists()
