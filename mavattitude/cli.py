@@ -187,9 +187,21 @@ def cmd_replay(args) -> int:
 # ---------------------------------------------------------------- evaluate
 
 
+def _logs_to_run(args) -> list[str]:
+    """The logs PATH... names (evaluate, tune), once the --scheduler, if any, answers."""
+    from .evaluate import check_scheduler, find_logs
+
+    if args.scheduler:
+        check_scheduler(args.scheduler)
+    logs = find_logs(args.paths)
+    if not logs:
+        raise InputError(", ".join(args.paths), "holds no .bin, .tlog or .ulg log")
+    return logs
+
+
 def cmd_evaluate(args) -> int:
     from . import evalreport as er
-    from .evaluate import Progress, check_scheduler, find_logs, run_logs
+    from .evaluate import Progress, run_logs
 
     names = _estimator_names(args.estimators)
     if args.ship_logs and not args.scheduler:
@@ -199,11 +211,7 @@ def cmd_evaluate(args) -> int:
         names.append(args.baseline)
         print(f"note: the baseline {args.baseline} is run too", file=sys.stderr)
     settings = _replay_settings(args, names)
-    if args.scheduler:
-        check_scheduler(args.scheduler)
-    logs = find_logs(args.paths)
-    if not logs:
-        raise InputError(", ".join(args.paths), "holds no .bin, .tlog or .ulg log")
+    logs = _logs_to_run(args)
     with Outputs(inputs=[*logs, args.params], force=args.force) as outputs:
         out = outputs.folder(args.out, "--out", [], "csv")  # its files are claimed one by one below
         files = {name: outputs.file(out / name, "--out", kind) for name, kind in (
@@ -248,7 +256,7 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_tune(args) -> int:
-    from .evaluate import Workers, check_scheduler, find_logs
+    from .evaluate import Workers
     from .tune import TrialProgress, TuneSettings, report_text, space_for, tune, tuned_toml
 
     try:
@@ -264,11 +272,7 @@ def cmd_tune(args) -> int:
     settings = TuneSettings(name, _replay_settings(args, [name]), trials=args.trials, folds=args.folds,
                             objective=args.objective, seed=args.seed)
     space_for(settings)  # nothing to search is a usage error, before any log is read
-    if args.scheduler:
-        check_scheduler(args.scheduler)
-    logs = find_logs(args.paths)
-    if not logs:
-        raise InputError(", ".join(args.paths), "holds no .bin, .tlog or .ulg log")
+    logs = _logs_to_run(args)
     with Outputs(inputs=[*logs, args.params], force=args.force) as outputs:
         toml_out = outputs.file(args.output or f"tuned-{name}.toml", "-o", "toml")
         json_out = outputs.file(args.json, "--json", "json")
