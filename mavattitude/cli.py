@@ -284,7 +284,7 @@ def cmd_tune(args) -> int:
             f"in {jobs} process{'es' if jobs > 1 else ''}"
         folds = f"{args.folds}-fold cross-validation, then a fit on all logs" if args.folds >= 2 else \
             "no cross-validation, a fit on all logs"
-        print(f"tuning {name} on {len(logs)} logs {where}: {args.trials} trials per fit, {folds}; "
+        print(f"tuning {name} on {len(logs)} log{'s' if len(logs) != 1 else ''} {where}: {args.trials} trials per fit, {folds}; "
               + (f"study in {study} (a stopped run resumes)" if study else
                  "study in memory (--study FILE keeps it, so that a stopped run resumes)"), file=sys.stderr)
         progress = TrialProgress(name, quiet=args.quiet)

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .errors import UsageError
+from .errors import InputError, UsageError
 from .evalreport import tilt_score
 from .params import Search, build, search_space
 from .pipeline import ReplaySettings
@@ -265,8 +265,9 @@ def tune(logs: list[str], settings: TuneSettings, workers, storage=None, progres
     left_out = {log: _why_unscored(scorer.records[log], first[log]) for log in logs
                 if not math.isfinite(first[log]) or first[log] == DIVERGED_DEG}
     used = [log for log in logs if log not in left_out]
-    if not used:
-        raise UsageError(f"no log could be scored for {settings.estimator}: "
+    if not used:  # the logs' fault, not the command line's
+        raise InputError(", ".join(logs[:3]) + (f" and {len(logs) - 3} more" if len(logs) > 3 else ""),
+                         f"no log could be scored for {settings.estimator}: "
                          + "; ".join(f"{k}: {v}" for k, v in left_out.items()))
     folds = min(settings.folds, len(used)) if settings.folds >= 2 and len(used) >= 2 else 0
     progress.plan(folds + 1, settings.trials)
@@ -289,7 +290,7 @@ def tune(logs: list[str], settings: TuneSettings, workers, storage=None, progres
 def _why_unscored(record: dict, score: float) -> str:
     if record["status"] != "ok":
         return record["error"] or record["status"]
-    return "the starting values diverge" if score == DIVERGED_DEG else "nothing scored"
+    return "the starting values diverge" if score == DIVERGED_DEG else "nothing scored (no longer than --warmup?)"
 
 
 class TrialProgress:
