@@ -851,7 +851,7 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    from .estimators import load_plugins
+    from .estimators import compile_interrupted, load_plugins
     for problem in load_plugins():
         _warn(problem)
     code = _run(args)
@@ -862,9 +862,12 @@ def main(argv=None) -> int:
         closed = False
     if not closed:
         print("mavattitude: the Rerun viewer stopped answering; closed without it", file=sys.stderr)
+    if not closed or (code == 130 and compile_interrupted()):
+        # Rerun's exit handler would wait for that viewer forever; LLVM stopped mid-compile can
+        # crash the interpreter's exit (SIGSEGV): end here, everything written and closed
         sys.stdout.flush()
         sys.stderr.flush()
-        os._exit(code)  # Rerun's exit handler would wait for that viewer forever
+        os._exit(code)
     return code
 
 
