@@ -590,6 +590,19 @@ def _estimation_args(p, source: str, estimators: bool = True) -> None:
                    help="a TOML file of parameters, a [NAME] table per estimator; --set wins over it")
 
 
+def _workers_args(p, keeping: bool = False) -> None:
+    """Where evaluate and tune replay their logs: local processes or a Dask cluster.
+    ``keeping``: each worker keeps the logs it read (tune replays them once per trial)."""
+    keeps = ", each keeping the logs it read" if keeping else ""
+    p.add_argument("-j", "--jobs", type=COUNT, default=os.cpu_count() or 1, metavar="N",
+                   help=f"logs replayed at once, one process each{keeps} (default: the CPUs, {os.cpu_count()})")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="replay on a Dask distributed cluster, e.g. tcp://HOST:8786 (pip install "
+                        "'mavattitude[cluster]'); its workers read the logs at the same paths")
+    p.add_argument("--ship-logs", action="store_true",
+                   help="with --scheduler: send each log's bytes to the worker (workers without the files)")
+
+
 def _viewer_args(group) -> None:
     """Where the Rerun recording goes: one of these (a mutually exclusive group)."""
     group.add_argument("--rrd", metavar="FILE", help="write the Rerun recording to FILE")
@@ -668,13 +681,7 @@ def build_parser() -> argparse.ArgumentParser:
     _estimation_args(p, "log")
     p.add_argument("--baseline", default="mahony", metavar="NAME",
                    help="the estimator ratios are taken to (default mahony; run too if not listed)")
-    p.add_argument("-j", "--jobs", type=COUNT, default=os.cpu_count() or 1, metavar="N",
-                   help=f"logs replayed at once, one process each (default: the CPUs, {os.cpu_count()})")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="run on a Dask distributed cluster, e.g. tcp://HOST:8786 (pip install "
-                        "'mavattitude[cluster]'); its workers read the logs at the same paths")
-    p.add_argument("--ship-logs", action="store_true",
-                   help="with --scheduler: send each log's bytes to the worker (workers without the files)")
+    _workers_args(p)
     p.add_argument("--out", default="evaluation", metavar="DIR", help="where the results go (default evaluation/)")
     trim_arg(p)
     segment_arg(p)
@@ -710,14 +717,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "geomean, the geometric mean, which weighs each log's change by its ratio")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the folds and the sampler (default 0)")
     _estimation_args(p, "log", estimators=False)
-    p.add_argument("-j", "--jobs", type=COUNT, default=os.cpu_count() or 1, metavar="N",
-                   help=f"logs replayed at once, one process each, each keeping the logs it read "
-                        f"(default: the CPUs, {os.cpu_count()})")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="replay on a Dask distributed cluster, e.g. tcp://HOST:8786 (pip install "
-                        "'mavattitude[cluster]'); its workers read the logs at the same paths")
-    p.add_argument("--ship-logs", action="store_true",
-                   help="with --scheduler: send each log's bytes to the worker (workers without the files)")
+    _workers_args(p, keeping=True)
     p.add_argument("--study", metavar="FILE",
                    help="keep the trials in this SQLite file: run the same command again to resume a "
                         "stopped run (default: in memory)")

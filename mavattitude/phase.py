@@ -54,6 +54,11 @@ def pressure_height(pressure_pa: np.ndarray) -> np.ndarray:
     return 44330.77 * (1.0 - (np.asarray(pressure_pa) / SEA_LEVEL_PA) ** 0.190263)
 
 
+def height_pressure(height_m: np.ndarray) -> np.ndarray:
+    """``pressure_height``'s inverse: the pressure (Pa) at a standard-atmosphere height (m)."""
+    return SEA_LEVEL_PA * (1.0 - np.asarray(height_m) / 44330.77) ** (1 / 0.190263)
+
+
 def detect_phase(flight: Flight) -> PhaseSeries | None:
     """The ground/air phase over a whole flight (``PhaseTracker`` over its best height
     source), or None when the log has no height source."""

@@ -303,7 +303,9 @@ class TrialProgress:
         self.tty = self.stream.isatty()
         self.fit_label = ""
         self.total = self.done = self.run = 0  # trials in all, done (stored ones too), run here
+        self.trial, self.start_value, self.best = 0, math.nan, math.nan  # of the fit under way
         self.start = time.monotonic()
+        self._open = False  # a redrawn line is on the terminal
 
     def plan(self, fits: int, trials: int) -> None:
         self.total = fits * trials
@@ -335,7 +337,7 @@ class TrialProgress:
         self._open = self.tty
 
     def _end_line(self) -> None:
-        if getattr(self, "_open", False):
+        if self._open:
             print(file=self.stream, flush=True)
             self._open = False
 

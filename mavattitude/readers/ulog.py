@@ -28,12 +28,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from ..phase import height_pressure
 from .collect import Collector, Decoded
 
 GAUSS_TO_TESLA = 1e-4
-US = 1e-6  # s per µs
+S_PER_US = 1e-6
 RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: the *_timestamp_relative of a sensor not in this sample
-SEA_LEVEL_PA = 101325.0
 TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_magnetometer", "vehicle_gps_position", "sensor_gps",
           "vehicle_air_data", "vehicle_attitude", "vehicle_attitude_groundtruth", "sensor_selection"]
 ULOG_MAGIC = b"ULog\x01\x125"
@@ -80,7 +80,7 @@ def read_ulog(path: str, progress=None) -> Decoded:
 def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]) -> None:
     order = data["timestamp"].astype(np.int64)
     sampled = data.get("timestamp_sample", order)  # 0 where a driver left it unset (GPS)
-    t = np.where(sampled > 0, sampled, order).astype(np.float64) * US
+    t = np.where(sampled > 0, sampled, order).astype(np.float64) * S_PER_US
 
     def vector(field, n=3):
         return np.column_stack([data[f"{field}[{k}]"].astype(np.float64) for k in range(n)])
@@ -95,12 +95,12 @@ def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]
             # old logs give only the height PX4 computed from pressure in the standard atmosphere
             # (QNH 1013.25 hPa): that pressure back, for the phase that differences it
             height = data["baro_alt_meter"].astype(np.float64)
-            pressure = SEA_LEVEL_PA * (1.0 - height / 44330.77) ** (1 / 0.190263)
+            pressure = height_pressure(height)
             if _add_relative(col, "baro", key, data, "baro", order, np.column_stack([pressure, height])):
                 notes.append("baro pressure from sensor_combined.baro_alt_meter (standard atmosphere)")
     elif name == "vehicle_imu":
-        angle_dt = data["delta_angle_dt"].astype(np.float64) * US
-        velocity_dt = data["delta_velocity_dt"].astype(np.float64) * US
+        angle_dt = data["delta_angle_dt"].astype(np.float64) * S_PER_US
+        velocity_dt = data["delta_velocity_dt"].astype(np.float64) * S_PER_US
         ok = (angle_dt > 0) & (velocity_dt > 0)
         with np.errstate(divide="ignore", invalid="ignore"):  # as rates over their intervals, as IMT
             rows = np.hstack([vector("delta_angle") / angle_dt[:, None], vector("delta_velocity") / velocity_dt[:, None]])
@@ -123,7 +123,7 @@ def _add_relative(col: Collector, kind: str, key: str, data: dict, sensor: str, 
     if relative is None:
         return 0
     valid = relative != RELATIVE_TIMESTAMP_INVALID
-    t = (data["timestamp"].astype(np.int64) + relative.astype(np.int64)) * US
+    t = (data["timestamp"].astype(np.int64) + relative.astype(np.int64)) * S_PER_US
     new = valid & np.concatenate([[True], t[1:] != t[:-1]])
     if new.any():
         col.add_columns(kind, key, order[new], t[new], rows[new])

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 HEADER = b"ULog\x01\x12\x35" + bytes([1])  # magic, then file format version 1
-US = 1e6  # µs per s
+US_PER_S = 1e6
 TESLA_TO_GAUSS = 1e4
 
 # topic -> its fields: (ULog type, numpy type, count, name); timestamp first, as PX4 has it
@@ -63,31 +63,26 @@ def write_ulog(sim, path) -> None:
     definitions.append(_info("ver_hw", "MAVATTITUDE_SIM"))
     definitions.append(_message(b"P", _key("float EKF2_MAG_DECL") + struct.pack("<f", math.degrees(sim.declination_rad))))
     definitions.append(_message(b"P", _key("int32_t MAV_TYPE") + struct.pack("<i", 2)))
-    records, stamps = [], []
+    topics = []
     for msg_id, (name, values) in enumerate(columns.items()):
         definitions.append(_message(b"A", struct.pack("<BH", 0, msg_id) + name.encode()))
-        rows = _packed(msg_id, TOPICS[name], values)
-        size = rows.dtype.itemsize
-        data = rows.tobytes()
-        records += [data[i * size:(i + 1) * size] for i in range(len(rows))]
-        stamps.append(values["timestamp"])
-    order = np.argsort(np.concatenate(stamps), kind="stable")  # time order; a topic's own order kept
-    start = int(min(s[0] for s in stamps if len(s)))
+        topics.append(_packed(msg_id, TOPICS[name], values))
+    stamps = np.concatenate([rows["timestamp"] for rows in topics])
     with open(Path(path), "wb") as f:
-        f.write(HEADER + struct.pack("<Q", start))
+        f.write(HEADER + struct.pack("<Q", int(stamps.min())))
         f.write(b"".join(definitions))
-        f.write(b"".join(records[i] for i in order.tolist()))
+        f.write(_in_time_order(topics, stamps).tobytes())
 
 
 def _topic_columns(sim) -> dict[str, dict[str, np.ndarray]]:
     """Each topic's fields as arrays, in PX4's units."""
     def us(t):
-        return np.rint(np.asarray(t) * US).astype(np.uint64)
+        return np.rint(np.asarray(t) * US_PER_S).astype(np.uint64)
 
     imu = sim.imu[0]
     every = sim.rates.att_every
     gps, baro, mag = sim.gps, sim.baro, sim.mag
-    dt_us = np.full(len(imu.t), int(round(US / sim.rates.imu)), np.uint32)
+    dt_us = np.full(len(imu.t), int(round(US_PER_S / sim.rates.imu)), np.uint32)
     attitude_t = us(sim.truth.t[::every])
     return {
         "sensor_combined": {"timestamp": us(imu.t), "gyro_rad": imu.gyro, "gyro_integral_dt": dt_us,
@@ -118,6 +113,22 @@ def _packed(msg_id: int, fields, values: dict) -> np.ndarray:
     for _, _, _, field in fields:
         rows[field] = values[field]
     return rows
+
+
+def _in_time_order(topics: list[np.ndarray], stamps: np.ndarray) -> np.ndarray:
+    """Every topic's 'D' messages as one byte array, in time order (a topic's own order kept
+    among equal times): each message's bytes placed at its offset in that order."""
+    sizes = np.concatenate([np.full(len(rows), rows.dtype.itemsize) for rows in topics])
+    order = np.argsort(stamps, kind="stable")
+    offsets = np.empty(len(order), np.int64)
+    offsets[order] = np.concatenate([[0], np.cumsum(sizes[order])[:-1]])
+    out = np.empty(int(sizes.sum()), np.uint8)
+    first = 0
+    for rows in topics:
+        mine = offsets[first:first + len(rows)]
+        out[mine[:, None] + np.arange(rows.dtype.itemsize)] = rows.view(np.uint8).reshape(len(rows), -1)
+        first += len(rows)
+    return out
 
 
 def _message(kind: bytes, payload: bytes) -> bytes:
