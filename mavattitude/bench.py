@@ -346,5 +346,5 @@ def run(names: list[str], scenario: str, duration: float, imu_rate: float, seed:
     if json_out is not None:  # an outputs.Output
         with json_out.writing() as path:
             Path(path).write_text(json.dumps(result, indent=2) + "\n")
-    failed = any("error" in row for row in result["results"])
-    return 1 if failed or (live_seconds is not None and not result["live"]["target_met"]) else 0
+    # 1 when an estimator could not be timed; a missed speed target is a finding, printed and in the JSON
+    return 1 if any("error" in row for row in result["results"]) else 0

@@ -222,7 +222,7 @@ def test_read_figures_run_and_report(capsys, tmp_path):
                "--log", str(SAMPLE_LOGS / "figure8.tlog"), "--json", str(path)])
     out, err = capsys.readouterr()
     result = json.loads(path.read_text())
-    assert rc in (0, 1), err
+    assert rc == 0, err  # whatever the speeds: a missed target is printed, not an exit status
     reads = {r["format"]: r for r in result["reads"]}
     assert set(reads) == {"bin", "tlog"} and reads["bin"]["log"].startswith("simulated figure8")
     for r in reads.values():
@@ -232,7 +232,7 @@ def test_read_figures_run_and_report(capsys, tmp_path):
     assert e2e["wall_s"] > 0 and e2e["peak_rss_mb"] > e2e["decoded_mb"] > 0 and e2e["rrd_mb"] > 0
     assert result["targets"]["end_to_end_s"] == pytest.approx(30.0 * 30 * 100 / (3600 * 400))
     assert "Reading the message types replay uses" in out and "End to end" in out
-    assert rc == (0 if result["met"]["bin_x_pymavlink"] and result["met"]["end_to_end_s"] else 1)
+    assert "targets:" in out and set(result["met"]) >= {"bin_x_pymavlink", "end_to_end_s"}
 
 
 def test_log_without_read_is_a_usage_error(capsys):

@@ -28,3 +28,10 @@ def test_readme_snippet_runs(index, tmp_path):
     done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True,
                           timeout=600)
     assert done.returncode == 0, f"README snippet {index + 1} failed:\n{done.stderr[-3000:]}"
+
+
+def test_ci_runs_the_readme_test_command():
+    quick_start = README.read_text(encoding="utf-8").split("## Quick start", 1)[1]
+    commands = re.search(r"```sh\n(.*?)```", quick_start, flags=re.S).group(1).strip().splitlines()
+    assert len(commands) == 2, "the Quick start has exactly two commands"
+    assert commands[1] in (ROOT / ".ci" / "run").read_text(encoding="utf-8")
