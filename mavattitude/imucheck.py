@@ -55,9 +55,9 @@ def rate_not_meaningful(rate_hz: float) -> str | None:
 
 def rate_warning(rate_hz: float) -> str | None:
     """The warning for a low IMU rate, None at COARSE_RATE_HZ and above."""
-    why = rate_not_meaningful(rate_hz)
-    if why is not None:
-        return f"low IMU rate: {why}; scores are not meaningful (they measure the sampling, not the estimators)"
+    if rate_not_meaningful(rate_hz) is not None:
+        return (f"low IMU rate: {rate_hz:.1f} Hz, below {MEANINGFUL_RATE_HZ:g} Hz: gyro integration cannot follow the "
+                "vehicle; scores are not meaningful (they measure the sampling, not the estimators)")
     if rate_hz < COARSE_RATE_HZ:
         return (f"low IMU rate: {rate_hz:.1f} Hz (below {COARSE_RATE_HZ:g} Hz): gyro integration is coarse and "
                 "estimates will lag in fast manoeuvres")
