@@ -135,3 +135,22 @@ def test_yaw_without_a_heading_reference_is_marked_drift(capsys):
     assert yaw[0].split()[0] == "yaw" and not yaw[0].endswith(YAW_DRIFT)  # mahony: compass heading
     assert yaw[1].split()[0] == "yaw*" and yaw[1].endswith(YAW_DRIFT)  # eskf: the gyro's alone
     assert YAW_ALIGNED_NOTE in lines[lines.index(yaw[1]) + 1:]  # right under the table
+
+
+def test_live_marks_a_slow_imu_too(tmp_path):
+    """A session's final scores, as replay's: marked when the IMU arrived too slowly."""
+    from pymavlink import mavutil
+
+    from mavattitude.live.estimation import LiveEstimation
+
+    for rate, marked in ((4.0, True), (50.0, False)):
+        path = write_log(simulate("hover", 25.0, seed=6, imu_rate=rate), tmp_path / f"hover-{rate:g}.tlog")
+        session = LiveEstimation(["mahony"])
+        log = mavutil.mavlink_connection(str(path))
+        while (msg := log.recv_msg()) is not None:
+            if msg.get_type() != "BAD_DATA":
+                session.add(msg)
+        session.step(final=True)
+        comparisons, _ = session.final_comparisons()
+        assert (comparisons["mahony"].not_meaningful is not None) == marked, rate
+        assert comparisons["mahony"].axes["roll"] is not None  # scored all the same
