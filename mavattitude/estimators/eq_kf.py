@@ -708,7 +708,8 @@ class EqKf(Estimator):
         lo, hi = (STRICT["norm_lo"], STRICT["norm_hi"]) if p.strict else (p.norm_lo, p.norm_hi)
         if abs(scale_error) <= lo:
             return None
-        learns = "" if p.strict else f" until it has learned the reading of g ({p.still_time:g} s at rest)"
+        learns = "" if p.strict else (f" unless it learns the reading of g while still ({p.still_time:g} s with the "
+                                      f"accelerometer within {p.still_accel:g} m/s²: a vibrating vehicle may never be)")
         return (f"its trust in the accelerometer falls from {100 * lo:g} % off g (none at {100 * hi:g} %){learns}: "
                 "tilt from the gyro alone meanwhile")
 

@@ -660,8 +660,10 @@ class NcsEskf(Estimator):
         if abs(scale_error) <= p.h_threshold_air:
             return None
         tilt = math.degrees(math.asin(p.h_threshold_air / abs(scale_error)))
+        near = (f"; {p.total_threshold - abs(scale_error):.2f} g from its total threshold ({p.total_threshold:g} g), "
+                "which noise and vibration cross: skipped then" if abs(scale_error) > 0.75 * p.total_threshold else "")
         return (f"the scale error reads as a horizontal manoeuvre beyond about {tilt:.0f}° of tilt: there, in the "
-                f"air, the accelerometer is skipped ({p.h_threshold_air:g} g threshold)")
+                f"air, the accelerometer is skipped ({p.h_threshold_air:g} g threshold){near}")
 
     def initialize(self, q0, gyro_bias) -> None:
         p = self.run_params()
