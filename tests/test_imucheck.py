@@ -70,6 +70,14 @@ def test_a_slow_imu_is_scored_but_marked_not_meaningful(rate_logs, tmp_path, cap
     assert metrics["estimators"]["mahony"]["meaningful"] is True and metrics["estimators"]["mahony"]["why"] is None
 
 
+def test_the_view_summary_says_so_too(rate_logs):
+    from mavattitude import replay, view
+
+    slow, fast = (view.summary_markdown(replay(rate_logs[rate], ["mahony", "eskf"])) for rate in (2.0, 50.0))
+    assert "**Not meaningful**: IMU at 2.0 Hz, below 9.5 Hz" in slow and "Not meaningful" not in fast
+    assert "| eskf \\* |" in fast and "\\* yaw drift (no heading reference)" in fast
+
+
 def test_evaluate_leaves_a_slow_imu_out_of_its_rankings(rate_logs, tmp_path, capsys):
     out = tmp_path / "eval"
     assert main(["evaluate", str(rate_logs[2.0].parent), "--estimators", "mahony", "--out", str(out), "-j", "1"]) == 0
