@@ -6,7 +6,8 @@ Rate. Below ``MEANINGFUL_RATE_HZ`` the gyro samples the vehicle's rotation too s
 its integration to follow it, and the scores say more about the rate than about the
 estimators: they are shown, marked "not meaningful", and left out of evaluate's rankings.
 Evidence: a real flight's IMU point-sampled at lower rates (as a telemetry stream sends it),
-all seven estimators against the simulator's truth, tilt MAE (mean of roll and pitch, °):
+all seven estimators against the simulator's truth, tilt MAE (mean of roll and pitch, °;
+``python scripts/imu_rate_sweep.py rate``; the figure-eight simulated at each rate, seed 5):
 - sitl-copter-4.7-400hz.bin (dashes to ±44°, 90 °/s yaw turns, doublets): cpf-ekf / eq-kf /
   ncs-eskf 0.24 / 0.34 / 0.34 at 400 Hz, 0.25 / 0.37 / 0.33 at 25 Hz, 0.35 / 0.46 / 0.50 at
   20 Hz, 1.02 / 1.67 / 2.82 at 10 Hz, 1.40 / 2.00 / 4.39 at 5 Hz, 2.79 / 3.89 / 4.21 at 2 Hz,
@@ -30,7 +31,8 @@ times their full-rate accuracy on an agile flight (above).
 
 Accelerometer scale. Measured as the median ‖a‖ over spans at rest (``accel_at_rest``), as a
 fraction from g: more than ``ACCEL_SCALE_WARN`` off is a warning that names what it does to
-each estimator run (``Estimator.accel_scale_effect``). Of the 48 shared logs (the 11 of
+each estimator run (``Estimator.accel_scale_effect``). Of the 48 shared logs
+(``python scripts/imu_rate_sweep.py accel``: the 11 of
 logs/, the 32 of corpus/, the 5 PX4 ULogs), 43 have a span at rest: 33 of them read g within
 2 %, one -2.2 %, one +3.9 %, then a gap to +5.6-7.6 % (three) and -10 to -20 % (five; the
 erle-aux copter -18.4 %, 8.00 m/s²); of the five without one, two read far off over the whole
