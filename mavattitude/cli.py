@@ -246,7 +246,8 @@ def cmd_evaluate(args) -> int:
             with files["results.parquet"].writing() as path:
                 er.write_parquet(rows, path)
     print(er.ranking_text(summary))
-    print(f"{len(records)} logs: {summary['scored']} scored, {len(summary['failed'])} failed, "
+    print(f"{len(records)} logs: {summary['scored']} scored, {len(summary['not_meaningful'])} not meaningful, "
+          f"{len(summary['failed'])} failed, "
           f"{len(summary['skipped'])} skipped; written to {out}/ (report.md, summary.json, results.csv"
           f"{', results.parquet' if parquet else ''}, tilt_error.svg)")
     return 0

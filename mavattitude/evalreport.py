@@ -3,7 +3,9 @@ summary (JSON), the report (Markdown) and its figure (SVG).
 
 A log's score for an estimator is its tilt error: the mean of its roll and pitch MAE (°)
 against the reference. Yaw is left out of the ranking: without a compass it is the gyro's
-alone and aligned at the start, and with one it depends on the declination the log gives.
+alone and aligned at the start (drift, not a heading), and with one it depends on the
+declination the log gives. A log whose scores are not meaningful (``imucheck``: an IMU too
+slow to follow the vehicle) is left out of every ranking and listed with the reason.
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ from .report import BUCKET_KEYS
 AXES = ("roll", "pitch", "yaw")
 METRIC_KEYS = ("n", "mae", "rmse", "mse", "r2", "max", "sigma1", "sigma3")
 FACT_KEYS = ("format", "vehicle", "firmware", "imu_source", "imu_rate_hz", "duration_s", "gps", "compass",
-             "baro", "clock_segments", "gaps", "reference_suspect")
+             "baro", "clock_segments", "gaps", "reference_suspect", "accel_scale_error", "not_meaningful")
 PAPER_001_CHAIN = ("ncs-eskf", "eskf", "ekf", "mahony")  # paper 001's ranking, best first
 
 
@@ -31,11 +33,17 @@ def tilt_score(metrics: dict) -> float | None:
     return 0.5 * (roll["mae"] + pitch["mae"])
 
 
+def not_meaningful(record: dict) -> str | None:
+    """Why a log's scores are not meaningful (it is left out of the rankings); None: they are."""
+    return record.get("facts", {}).get("not_meaningful")
+
+
 def scores(records: list[dict]) -> dict[str, dict[str, float]]:
-    """log -> estimator (and "autopilot" against truth) -> tilt score, for the logs that ran."""
+    """log -> estimator (and "autopilot" against truth) -> tilt score, for the logs that ran
+    and whose scores are meaningful."""
     out = {}
     for r in records:
-        if r["status"] == "ok":
+        if r["status"] == "ok" and not not_meaningful(r):
             out[r["log"]] = {name: s for name, m in r["metrics"].items() if (s := tilt_score(m)) is not None}
     return out
 
@@ -132,6 +140,8 @@ def summarize(records: list[dict], names: list[str], baseline: str, reference: s
     summary = {
         "reference": reference, "baseline": baseline, "score": "mean of roll and pitch MAE, degrees",
         "logs": len(records), "scored": len(by_log),
+        "not_meaningful": [{"log": r["log"], "why": not_meaningful(r)} for r in records
+                           if r["status"] == "ok" and not_meaningful(r)],
         "failed": [{"log": r["log"], "error": r["error"]} for r in records if r["status"] == "failed"],
         "skipped": [{"log": r["log"], "why": r["error"]} for r in records if r["status"] == "skipped"],
         "reference_suspect": [{"log": r["log"], "spans": r["suspects"]} for r in records if r.get("suspects")],
@@ -181,9 +191,11 @@ def report_markdown(summary: dict, command: str, figure: str | None) -> str:
     lines = [
         "# Attitude estimators across logs", "",
         f"`{command}`", "",
-        f"{summary['logs']} logs: {ok} scored, {len(summary['failed'])} failed, {len(summary['skipped'])} skipped. "
+        f"{summary['logs']} logs: {ok} scored, {len(summary['not_meaningful'])} not meaningful (left out), "
+        f"{len(summary['failed'])} failed, {len(summary['skipped'])} skipped. "
         f"Score: the mean of roll and pitch MAE (°) against the {summary['reference']} reference, after the "
-        f"warm-up; ratios are to `{summary['baseline']}` on the same log.", "",
+        f"warm-up; ratios are to `{summary['baseline']}` on the same log. Yaw is not ranked: an estimator "
+        "without a heading reference gives the gyro's drift, not a heading.", "",
         "## Ranking", "",
         "| estimator | logs | median | mean | p90 | × baseline (geo-mean) | wins | mean rank "
         "| ≤ 0.8× baseline | > 2× baseline |",
@@ -223,6 +235,9 @@ def report_markdown(summary: dict, command: str, figure: str | None) -> str:
             spans = "; ".join((f"{s['start_s']:.1f}-{s['end_s']:.1f} s" if s["end_s"] is not None else "whole log")
                               + f": {s['detail']}" for s in entry["spans"])
             lines.append(f"- `{_short(entry['log'])}`: {spans}")
+    if summary["not_meaningful"]:
+        lines += ["", "## Not meaningful (left out of the ranking)", ""]
+        lines += [f"- `{n['log']}`: {n['why']}" for n in summary["not_meaningful"]]
     if summary["failed"]:
         lines += ["", "## Failed", ""] + [f"- {f['error']}" for f in summary["failed"]]
     if summary["skipped"]:
@@ -243,6 +258,11 @@ def ranking_text(summary: dict) -> str:
         lines.append(f"{n:12s} {e['logs']:5d} {_f(e['median']):>7s} {_f(e['mean']):>7s} {_f(e['p90']):>7s} "
                      f"{_f(e['ratio_to_baseline_geomean'], 2):>6s} {e['wins']:5d} {_f(e['mean_rank'], 2):>5s} "
                      f"{e['logs_at_most_0.8x_baseline']:6d} {e['logs_over_2x_baseline']:4d}")
+    left_out = summary.get("not_meaningful", [])
+    if left_out:
+        named = "; ".join(f"{_short(n['log'])}: {n['why']}" for n in left_out[:3])
+        lines.append(f"left out, scores not meaningful: {len(left_out)} log{'s' if len(left_out) != 1 else ''} "
+                     f"({named}{'; ...' if len(left_out) > 3 else ''}; see report.md)")
     return "\n".join(lines)
 
 

@@ -136,6 +136,8 @@ def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: 
     facts["imu_source"] = result.imu_source
     metrics = result.metrics
     facts["board_trim"] = metrics["scoring"]["board_trim"]
+    facts["not_meaningful"] = metrics["scoring"]["why"]  # left out of the rankings when set
+    facts["accel_scale_error"] = metrics["scoring"]["accel_g_reading"]["scale_error"]
     facts["reference_suspect"] = len(metrics["scoring"]["reference_suspect"])
     return {"status": "ok", "facts": facts, "metrics": metrics["estimators"], "reference": metrics["reference"],
             "suspects": metrics["scoring"]["reference_suspect"]}

@@ -5,8 +5,9 @@ import os
 
 import numpy as np
 
+from . import estimators as est
 from .flight import GRAVITY, Flight
-from .runner import LOW_IMU_RATE_HZ
+from .imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful, rate_warning
 from .readers import best_imu_source, imu_rate
 
 
@@ -21,6 +22,7 @@ def summarize(flight: Flight) -> dict:
     imus = {}
     for key, s in flight.imu.items():
         norm = np.linalg.norm(s.accel, axis=1)
+        g_reading, at_rest = accel_at_rest(s.t, s.gyro, s.accel)
         imus[key] = {
             "samples": len(s.t),
             "rate_hz": round(imu_rate(s), 2),
@@ -29,6 +31,9 @@ def summarize(flight: Flight) -> dict:
             "accel_norm_ms2": {"mean": round(float(norm.mean()), 4), "std": round(float(norm.std()), 4),
                                "min": round(float(norm.min()), 4), "max": round(float(norm.max()), 4),
                                "median": round(float(np.median(norm)), 4)},
+            # the accelerometer's reading of g: median |a| at rest (else over the whole series)
+            "accel_g_reading": {"ms2": None if g_reading is None else round(g_reading, 4), "at_rest": at_rest,
+                                "scale_error": None if g_reading is None else round(g_reading / GRAVITY - 1.0, 4)},
             "best": key == best,
         }
     sensors = {
@@ -43,9 +48,13 @@ def summarize(flight: Flight) -> dict:
     for kind, s in flight.all_series():
         rates[s.source if kind in ("imu", "mag") else f"{kind}:{s.source}"] = round(_rate(s.t), 2)
     warnings = list(flight.warnings)
-    if imus[best]["rate_hz"] < LOW_IMU_RATE_HZ:
-        warnings.append(f"low IMU rate: {imus[best]['rate_hz']:.1f} Hz (below {LOW_IMU_RATE_HZ:.0f} Hz): "
-                        "estimates will be coarse")
+    best_rate = imu_rate(flight.imu[best])
+    if (low_rate := rate_warning(best_rate)) is not None:
+        warnings.append(low_rate)
+    reading = imus[best]["accel_g_reading"]
+    scale = accel_scale_warning(reading["ms2"], reading["at_rest"], [est.create(name) for name in est.ESTIMATORS])
+    if scale is not None:
+        warnings.append(scale)
     from .pipeline import DECLINATION_PARAMS, resolve_declination
     declination, source = resolve_declination(flight, None)
     if flight.mag and source == "none (0)":
@@ -65,6 +74,7 @@ def summarize(flight: Flight) -> dict:
         "sensors": sensors,
         "imu_sources": imus,
         "best_imu": best,
+        "scores": {"meaningful": rate_not_meaningful(best_rate) is None, "why": rate_not_meaningful(best_rate)},
         "sample_rates_hz": rates,
         "message_counts": dict(sorted(flight.message_counts.items())),
         "message_rates_hz": {k: round(v / duration, 3) if duration > 0 else None
@@ -94,6 +104,10 @@ def render(info: dict) -> str:
         a = imu["accel_norm_ms2"]
         lines.append(f"   {'*' if imu['best'] else ' '} {key:16s} {imu['samples']:8d} samples  {imu['rate_hz']:7.1f} Hz"
                      f"   |accel| mean {a['mean']:.3f} ± {a['std']:.3f} m/s² (g = {GRAVITY})")
+        g = imu["accel_g_reading"]
+        if g["ms2"] is not None:
+            lines.append(f"{'':30s}reads g as {g['ms2']:.3f} m/s² ({100 * g['scale_error']:+.1f} %) "
+                         + ("at rest" if g["at_rest"] else "over the whole log (no rest span)"))
     for note in info["notes"]:
         lines.append(f"  note: {note}")
     for warning in info["warnings"]:

@@ -64,6 +64,9 @@ class Comparison:
     n_in_gaps: int = 0
     n_excluded: int = 0  # reference samples inside an excluded (suspect) span, not scored
     overlap_s: float | None = None  # s from the first reference time inside the estimate to the last; None: none
+    # Why the scores do not measure the estimator (an IMU too slow to follow the vehicle:
+    # ``imucheck``), set by the caller; None: they do.
+    not_meaningful: str | None = None
 
 
 def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float = 10.0,

@@ -13,12 +13,13 @@ from . import quaternion as quat
 from . import estimators as est
 from .errors import InputError, UsageError
 from .events import Event
-from .flight import AttitudeSeries, Flight
+from .flight import GRAVITY, AttitudeSeries, Flight
+from .imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful
 from .metrics import Comparison, compare
 from .params import build, log_defaults
 from .phase import PhaseSeries
 from .refcheck import check_reference, excluded_spans
-from .readers import best_imu_source, mag_for_imu
+from .readers import best_imu_source, imu_rate, mag_for_imu
 from .runner import REINIT_GAP_S, Runner
 
 
@@ -44,13 +45,22 @@ class ReplayResult:
     trim: tuple[float, float] | None = None  # (roll, pitch) rad the estimates were turned by, see board_trim
     suspects: list = field(default_factory=list)  # refcheck.Suspect: where the reference is not trusted
     restarts: list[float] = field(default_factory=list)  # s: where the estimators started again after a gap
+    imu_rate_hz: float = 0.0  # the IMU's median rate
+    not_meaningful: str | None = None  # why the estimators' scores are not meaningful (imucheck); None: they are
+    accel_g_reading: tuple[float | None, bool] = (None, False)  # m/s², whether at rest (imucheck.accel_at_rest)
 
     @property
     def scoring(self) -> dict:
-        """How the estimates were scored, beyond the reference: the board trim applied."""
+        """How the estimates were scored, beyond the reference: the board trim applied, whether
+        the scores mean anything (the IMU's rate) and the accelerometer's reading of g."""
         trim = None if self.trim is None else {"roll_deg": round(math.degrees(self.trim[0]), 4),
                                                "pitch_deg": round(math.degrees(self.trim[1]), 4)}
-        return {"board_trim": trim, "reference_suspect": [s.as_dict() for s in self.suspects]}
+        g, at_rest = self.accel_g_reading
+        return {"board_trim": trim, "reference_suspect": [s.as_dict() for s in self.suspects],
+                "meaningful": self.not_meaningful is None, "why": self.not_meaningful,
+                "imu_rate_hz": round(self.imu_rate_hz, 3),
+                "accel_g_reading": {"ms2": None if g is None else round(g, 4), "at_rest": at_rest,
+                                    "scale_error": None if g is None else round(g / GRAVITY - 1.0, 4)}}
 
     @property
     def metrics(self) -> dict:
@@ -196,6 +206,12 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                                         progress)
     estimates = {name: runner.estimate(name) for name in names}
     events = _events(flight, runner, dec_source)
+    imu = flight.imu[runner.imu_source]
+    rate = imu_rate(imu)
+    not_meaningful = rate_not_meaningful(rate)
+    g_reading = accel_at_rest(imu.t, imu.gyro, imu.accel)
+    if (scale := accel_scale_warning(*g_reading, runner.estimators)) is not None:
+        events.append(Event(float(imu.t[0]), "warn", scale))
     applied_trim = board_trim(flight) if (trim and reference == "autopilot") else None
     if applied_trim:
         estimates = {name: trimmed(series, applied_trim) for name, series in estimates.items()}
@@ -223,6 +239,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
             comparisons[name] = compare(ref, series, warmup_s=warmup_s, align_yaw=not runner.has_heading[name],
                                         name=name, restarts=restarts, max_gap_s=REINIT_GAP_S,
                                         exclude=excluded_spans(suspects))
+            comparisons[name].not_meaningful = not_meaningful
         if reference == "truth" and flight.attitude is not None:
             comparisons["autopilot"] = compare(ref, flight.attitude, warmup_s=warmup_s, name="autopilot")
     else:
@@ -241,7 +258,8 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                         mag_source=runner.mag_source, alignment=runner.alignment, phase=runner.phase_series(),
                         diagnostics=diagnostics, estimator_events=estimator_events,
                         params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(),
-                        trim=applied_trim, suspects=suspects, restarts=restarts)
+                        trim=applied_trim, suspects=suspects, restarts=restarts, imu_rate_hz=rate,
+                        not_meaningful=not_meaningful, accel_g_reading=g_reading)
 
 
 @dataclass(frozen=True)

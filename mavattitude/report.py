@@ -15,7 +15,10 @@ from .metrics import AXES, AxisMetrics, Comparison
 from .quaternion import to_euler, wrap_deg
 
 BUCKET_KEYS = ("lt_0.5", "0.5_1", "1_2", "gt_2")  # [0,0.5), [0.5,1), [1,2), [2,inf) degrees
-YAW_ALIGNED_NOTE = "* initial yaw aligned: no heading reference"
+YAW_DRIFT = "drift (no heading reference)"  # beside the yaw of an estimator without one
+YAW_ALIGNED_NOTE = ("* yaw drift (no heading reference: no compass used): the gyro's yaw, its start aligned to the "
+                    "reference; not a heading, so not comparable with an estimator that has one")
+NOT_MEANINGFUL = "NOT MEANINGFUL"
 CSV_HEADER = "time_s,roll_deg,pitch_deg,yaw_deg"
 CSV_DECIMALS = 6  # µs for time (ArduPilot stamps in µs), 1e-6° for angles
 
@@ -26,8 +29,10 @@ CSV_DECIMALS = 6  # µs for time (ArduPilot stamps in µs), 1e-6° for angles
 def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str:
     """A fixed-width table: per estimator and axis, n and MAE, RMSE, max |error| (degrees), R².
 
-    Yaw is shown as ``yaw*`` (with a footnote) where the estimator had no heading reference and
-    its initial yaw was aligned; an axis with no scored sample shows "n/a".
+    Yaw is shown as ``yaw*``, marked as drift (YAW_DRIFT, with a footnote) where the estimator
+    had no heading reference and its initial yaw was aligned; an axis with no scored sample
+    shows "n/a". Scores that are not meaningful (``Comparison.not_meaningful``: an IMU too slow
+    to follow the vehicle) are shown with one decimal, under a line that says why.
     """
     name_w = max([len("estimator")] + [len(name) for name in comparisons])
     cols = ("n", "MAE", "RMSE", "max", "R²")
@@ -38,21 +43,24 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str
         return f"{name:<{name_w}}  {axis:<5}  {body}".rstrip()
 
     header = row("estimator", "axis", cols)
-    lines = [f"Attitude error against {reference_name} (degrees; R² unitless)",
-             header, "-" * len(header)]
+    lines = [f"Attitude error against {reference_name} (degrees; R² unitless)"]
+    for why in dict.fromkeys(c.not_meaningful for c in comparisons.values() if c.not_meaningful):
+        lines.append(f"{NOT_MEANINGFUL}: {why}. The scores below are shown, not to be relied on or ranked.")
+    lines += [header, "-" * len(header)]
     any_aligned = False
     for name, comp in comparisons.items():
+        digits, r2_digits = (1, 2) if comp.not_meaningful else (3, 4)
         for k, axis in enumerate(AXES):
-            label = axis
+            label, remark = axis, ""
             if axis == "yaw" and comp.yaw_aligned:
-                label, any_aligned = "yaw*", True
+                label, remark, any_aligned = "yaw*", f"  {YAW_DRIFT}", True
             m = comp.axes.get(axis)
             if m is None:
                 cells = ("0", "n/a", "n/a", "n/a", "n/a")
             else:
-                cells = (f"{m.n:d}", f"{m.mae:.3f}", f"{m.rmse:.3f}", f"{m.max:.3f}",
-                         "n/a" if not np.isfinite(m.r2) else f"{m.r2:.4f}")
-            lines.append(row(name if k == 0 else "", label, cells))
+                cells = (f"{m.n:d}", f"{m.mae:.{digits}f}", f"{m.rmse:.{digits}f}", f"{m.max:.{digits}f}",
+                         "n/a" if not np.isfinite(m.r2) else f"{m.r2:.{r2_digits}f}")
+            lines.append(row(name if k == 0 else "", label, cells) + remark)
     if not comparisons:
         lines.append("(no estimates)")
     if any_aligned:
@@ -69,7 +77,9 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
 
     M holds ``n``, ``mae``, ``rmse``, ``mse`` (deg²), ``r2``, ``max``, ``sigma1``, ``sigma3``
     (degrees) and ``buckets`` (shares keyed by ``BUCKET_KEYS``); the yaw M also holds
-    ``aligned``. M is null for an axis with no scored sample; a non-finite number is null.
+    ``aligned`` (true: drift, no heading reference). M is null for an axis with no scored sample; a
+    non-finite number is null. ``meaningful``: false where the scores do not measure the
+    estimator (``why``: the reason, e.g. an IMU too slow to follow the vehicle; null when true).
     ``unscored_in_gaps``: reference samples in a gap of the estimate or across a restart;
     ``unscored_suspect_reference``: in a span where the reference is not trusted (``refcheck``).
     ``extras`` adds keys per estimator next to the axes: ``events`` (what became of its
@@ -86,6 +96,8 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
             if entry is not None and axis == "yaw":
                 entry["aligned"] = bool(comp.yaw_aligned)
             axes[axis] = entry
+        axes["meaningful"] = comp.not_meaningful is None
+        axes["why"] = comp.not_meaningful
         axes["unscored_in_gaps"] = comp.n_in_gaps
         axes["unscored_suspect_reference"] = comp.n_excluded
         axes.update(_clean((extras or {}).get(name, {})))

@@ -38,13 +38,12 @@ from . import quaternion as quat
 from .events import Event
 from .flight import AttitudeSeries
 from .growing import Growing
+from .imucheck import rate_warning
 from .phase import STALE_S, PhaseTracker, pressure_height
 
 # An IMU gap longer than this restarts the estimators from a fresh alignment: after it the
 # vehicle may be anywhere (logging paused while disarmed, a crash and a pick-up).
 REINIT_GAP_S = 2.0
-# IMU rates below this leave the gyro integration too coarse for good estimates.
-LOW_IMU_RATE_HZ = 20.0
 # Rows estimated per kernel call at most (5.5 min at 400 Hz): an hour-long log's per-sample
 # scratch and diagnostics (cpf-ekf: 29 float64 a row) stay a few tens of MB, not gigabytes.
 STEP_ROWS = 1 << 17
@@ -237,9 +236,8 @@ class Runner:
         rate = float(1.0 / np.median(np.diff(t))) if len(t) > 1 else 0.0
         self.events.append(Event(t0, "info", f"IMU source {self.imu_source} at {rate:.1f} Hz, "
                                              f"magnetometer {self.mag_source if has_mag else 'none'}"))
-        if rate < LOW_IMU_RATE_HZ:
-            self.events.append(Event(t0, "warn", f"low IMU rate: {rate:.1f} Hz (below {LOW_IMU_RATE_HZ:.0f} Hz): "
-                                                 "gyro integration is coarse and estimates will lag"))
+        if (low_rate := rate_warning(rate)) is not None:
+            self.events.append(Event(t0, "warn", low_rate))
         if alignment.still_span:
             a, b = alignment.still_span
             bias = np.degrees(alignment.gyro_bias)

@@ -801,8 +801,10 @@ def summary_markdown(result: ReplayResult) -> str:
         n = max((m.n for c in result.comparisons.values() for m in c.axes.values() if m is not None), default=0)
         warmup = next(iter(result.comparisons.values())).warmup_s
         lines += ["", f"## Errors against {result.reference.source} (deg): RMSE / max", "",
-                  f"Scored: {n:,} reference samples after a {warmup:g} s warm-up.", "",
-                  "| estimate | roll | pitch | yaw |", "|---|---|---|---|"]
+                  f"Scored: {n:,} reference samples after a {warmup:g} s warm-up.", ""]
+        for why in dict.fromkeys(c.not_meaningful for c in result.comparisons.values() if c.not_meaningful):
+            lines += [f"**Not meaningful**: {why}. The scores are shown, not to be relied on or ranked.", ""]
+        lines += ["| estimate | roll | pitch | yaw |", "|---|---|---|---|"]
     aligned = []
     for name, c in result.comparisons.items():
         cells = [f"{_fmt(m.rmse)} / {_fmt(m.max)}" if m is not None else "–"
@@ -812,8 +814,8 @@ def summary_markdown(result: ReplayResult) -> str:
         if c.yaw_aligned:
             aligned.append(f"- {name}: " + ", ".join(f"{off:+.1f}° from {start:.0f} s" for start, off in c.yaw_offsets_deg))
     if aligned:
-        lines += ["", "\\* no heading reference: a yaw offset per span between restarts is removed from its yaw "
-                      "error, and from its yaw in the plots and the 3D view:", ""] + aligned
+        lines += ["", "\\* yaw drift (no heading reference): a yaw offset per span between restarts is removed from "
+                      "its yaw error, and from its yaw in the plots and the 3D view:", ""] + aligned
     if fl.warnings:
         lines += ["", "## Data the reader left out", ""] + [f"- {w}" for w in fl.warnings]
     if fl.notes:

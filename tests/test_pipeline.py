@@ -82,6 +82,7 @@ def test_low_imu_rate_warns(sim_logs):
     flight.imu = {"RAW_IMU": ImuSeries("RAW_IMU", imu.t[every], imu.gyro[every], imu.accel[every])}
     result = run_replay(flight, ["mahony"])
     assert any("low IMU rate: 5.0 Hz" in e.text for e in result.events)
+    assert "5.0 Hz" in result.comparisons["mahony"].not_meaningful  # scored, but marked
 
 
 def test_estimating_in_steps_changes_nothing_and_reports_progress(sim_logs, monkeypatch):

@@ -9,8 +9,8 @@ import pytest
 from mavattitude.flight import AttitudeSeries
 from mavattitude.metrics import AXES, AxisMetrics, Comparison, compare
 from mavattitude.quaternion import from_euler, to_euler
-from mavattitude.report import (BUCKET_KEYS, CSV_HEADER, YAW_ALIGNED_NOTE, _fixed_point_csv,
-                                format_table, to_json_dict, write_csv, write_json)
+from mavattitude.report import (BUCKET_KEYS, CSV_HEADER, NOT_MEANINGFUL, YAW_ALIGNED_NOTE, YAW_DRIFT,
+                                _fixed_point_csv, format_table, to_json_dict, write_csv, write_json)
 
 
 def series(t, roll_deg, pitch_deg, yaw_deg, source="test") -> AttitudeSeries:
@@ -64,11 +64,26 @@ def test_table_marks_aligned_yaw_and_missing_axes(comparisons):
     lines = text.splitlines()
     yaw_lines = [line for line in lines if line.split()[:1] in (["yaw"], ["yaw*"])]
     assert [line.split()[0] for line in yaw_lines] == ["yaw", "yaw*"]
-    assert yaw_lines[1].split()[1:] == ["0", "n/a", "n/a", "n/a", "n/a"]
+    assert yaw_lines[1].split()[1:6] == ["0", "n/a", "n/a", "n/a", "n/a"]
     assert lines[-1] == YAW_ALIGNED_NOTE
+    assert yaw_lines[1].endswith(YAW_DRIFT)  # on the row itself, not only in the footnote
     # fixed width: every data row as wide as the header or narrower, columns right-aligned
     header = lines[1]
-    assert all(len(line) == len(header) for line in lines[3:-1])
+    assert all(len(line.removesuffix(f"  {YAW_DRIFT}")) == len(header) for line in lines[3:-1])
+
+
+def test_table_marks_scores_that_are_not_meaningful(comparisons):
+    why = "IMU at 1.0 Hz, below 9.5 Hz: gyro integration cannot follow the vehicle"
+    comparisons["ncs-eskf"].not_meaningful = why
+    lines = format_table(comparisons, "ATT").splitlines()
+    assert lines[1] == f"{NOT_MEANINGFUL}: {why}. The scores below are shown, not to be relied on or ranked."
+    assert lines[2].split()[:2] == ["estimator", "axis"]  # above the table, before its header
+    ncs_roll = next(line for line in lines if line.startswith("ncs-eskf"))
+    assert ncs_roll.split()[3:6] == ["0.8", "1.0", "3.2"]  # one decimal, not three
+    assert "1.234" in "\n".join(lines)  # a meaningful row keeps its three
+    d = to_json_dict("flight.bin", "ATT", comparisons)["estimators"]
+    assert (d["ncs-eskf"]["meaningful"], d["ncs-eskf"]["why"]) == (False, why)
+    assert (d["mahony"]["meaningful"], d["mahony"]["why"]) == (True, None)
 
 
 def test_table_without_alignment_has_no_footnote(comparisons):
@@ -88,8 +103,9 @@ def test_json_schema(comparisons):
     assert list(d["estimators"]) == ["mahony", "ncs-eskf"]
     base = {"n", "mae", "rmse", "mse", "r2", "max", "sigma1", "sigma3", "buckets"}
     for name, axes in d["estimators"].items():
-        assert list(axes) == [*AXES, "unscored_in_gaps", "unscored_suspect_reference"]
+        assert list(axes) == [*AXES, "meaningful", "why", "unscored_in_gaps", "unscored_suspect_reference"]
         assert axes["unscored_in_gaps"] == 0
+        assert axes["meaningful"] is True and axes["why"] is None
         for axis in AXES:
             m = axes[axis]
             if m is None:

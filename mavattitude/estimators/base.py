@@ -82,6 +82,12 @@ class Estimator:
         that parameter) does not turn it off."""
         return self.uses_mag and mag_available and bool(getattr(self.params, "use_mag", True))
 
+    def accel_scale_effect(self, scale_error: float) -> str | None:
+        """What an accelerometer that reads g at rest as (1 + ``scale_error``) g does to this
+        estimator, in a few words for a warning (``imucheck``); None: nothing worth saying (it
+        takes the reading's direction only, or learns the scale)."""
+        return None
+
 
 def needs_compile(estimator_classes) -> list[str]:
     """Names of the estimators whose compiled kernels are not in numba's cache yet."""

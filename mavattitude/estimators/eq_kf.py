@@ -702,6 +702,17 @@ class EqKf(Estimator):
         "accel_state": "0 used (w = 1), 1 down-weighted (0 < w < 1), 2 skipped (w = 0)",
     }
 
+    def accel_scale_effect(self, scale_error: float) -> str | None:
+        """Its trust falls with ‖f̃‖ against g_a: GRAVITY until learned at rest (never, strict)."""
+        p = self.params
+        lo, hi = (STRICT["norm_lo"], STRICT["norm_hi"]) if p.strict else (p.norm_lo, p.norm_hi)
+        if abs(scale_error) <= lo:
+            return None
+        learns = "" if p.strict else (f" unless it learns the reading of g while still ({p.still_time:g} s with the "
+                                      f"accelerometer within {p.still_accel:g} m/s²: a vibrating vehicle may never be)")
+        return (f"its trust in the accelerometer falls from {100 * lo:g} % off g (none at {100 * hi:g} %){learns}: "
+                "tilt from the gyro alone meanwhile")
+
     def initialize(self, q0, gyro_bias) -> None:
         q0 = np.array(q0, dtype=np.float64).reshape(4)
         p = self.params

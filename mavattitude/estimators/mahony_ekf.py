@@ -388,6 +388,15 @@ class MahonyEkf(Estimator):
                          "the coasting limit's D/(D + B), 1 at rest, 0-1",
     }
 
+    def accel_scale_effect(self, scale_error: float) -> str | None:
+        """Eq 17 takes ‖a‖ - g for a manoeuvre: R grows with a scale error all the time."""
+        p = self.params
+        growth = 1.0 + p.k_accel * abs(scale_error) * GRAVITY
+        if growth < 2.0:
+            return None
+        return (f"its accelerometer noise (eq 17: R grows with |‖a‖ - g|) is {growth:.0f} times its rest value "
+                f"even at rest: the accelerometer's pull on the tilt about {np.sqrt(growth):.0f} times slower")
+
     def initialize(self, q0, gyro_bias) -> None:
         q0 = np.array(q0, dtype=np.float64)
         x = q0 / np.linalg.norm(q0)

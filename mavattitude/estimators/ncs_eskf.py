@@ -650,6 +650,21 @@ class NcsEskf(Estimator):
                   "residual noise and the tilt uncertainty), g",
     }
 
+    def accel_scale_effect(self, scale_error: float) -> str | None:
+        """Both gates compare with GRAVITY: the total one ‖a‖ - g, the horizontal one the
+        residual a - C(q)ᵀ(-g n), whose body x/y part a scale error makes (‖a‖ - g) sin(tilt)."""
+        p = self.run_params()
+        if abs(scale_error) > p.total_threshold:
+            return (f"‖a‖ is more than its total threshold ({p.total_threshold:g} g) from g even at rest: "
+                    "the accelerometer is never used, tilt from the gyro alone")
+        if abs(scale_error) <= p.h_threshold_air:
+            return None
+        tilt = math.degrees(math.asin(p.h_threshold_air / abs(scale_error)))
+        near = (f"; {p.total_threshold - abs(scale_error):.2f} g from its total threshold ({p.total_threshold:g} g), "
+                "which noise and vibration cross: skipped then" if abs(scale_error) > 0.75 * p.total_threshold else "")
+        return (f"the scale error reads as a horizontal manoeuvre beyond about {tilt:.0f}° of tilt: there, in the "
+                f"air, the accelerometer is skipped ({p.h_threshold_air:g} g threshold){near}")
+
     def initialize(self, q0, gyro_bias) -> None:
         p = self.run_params()
         q0 = np.array(q0, dtype=np.float64)

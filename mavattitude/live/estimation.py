@@ -41,7 +41,8 @@ from ..metrics import AXES, Comparison, compare
 from ..readers import IMU_LIMITS, MAG_LIMITS, earth_field_power, pick_imu, pick_mag
 from ..readers.collect import CORRUPT, HELD, ClockTracker
 from ..readers.tlog import MessageDecoder
-from ..runner import Chunk, Runner
+from ..imucheck import rate_not_meaningful
+from ..runner import IMU, Chunk, Runner
 from ..running_metrics import RunningComparison, joined
 from .loss import SampleLoss
 
@@ -434,7 +435,13 @@ class LiveEstimation:
             return {}, None
         seg = max(candidates, key=lambda s: s.runner.estimated)
         self._score(seg)
-        return {name: score.result() for name, score in seg.scores.items()}, seg
+        comparisons = {name: score.result() for name, score in seg.scores.items()}
+        t = seg.runner.store[IMU].column(0)  # the rows kept: the rate of the last seconds
+        why = rate_not_meaningful(float(1.0 / np.median(np.diff(t)))) if len(t) > 1 else None
+        for name in self.names:
+            if name in comparisons:
+                comparisons[name].not_meaningful = why
+        return comparisons, seg
 
 
 def _attitude(kind: str, row: tuple) -> np.ndarray | None:

@@ -22,7 +22,7 @@ from datetime import datetime, timezone
 
 from ..errors import InputError
 from ..events import Event
-from ..runner import LOW_IMU_RATE_HZ
+from ..imucheck import COARSE_RATE_HZ
 from ..sink import Sink
 from .estimation import HISTORY_S, LiveEstimation
 from ..readers import enum_name, identify_vehicle
@@ -438,9 +438,9 @@ def _report_rates(est: LiveEstimation, monitor: LinkMonitor, wanted: dict[str, f
     rate = rates[imu]
     if imu in wanted and rate < 0.8 * wanted[imu]:
         _session_event(est, "warn", f"the vehicle sends {imu} at {rate:.1f} Hz, not the {wanted[imu]:g} Hz asked")
-    if rate < LOW_IMU_RATE_HZ:
+    if rate < COARSE_RATE_HZ:
         _session_event(est, "warn", f"IMU rate {rate:.1f} Hz is too low for good estimates (want ≥ "
-                                    f"{LOW_IMU_RATE_HZ:.0f} Hz; raise the stream rate, or use --imu-rate)")
+                                    f"{COARSE_RATE_HZ:.0f} Hz; raise the stream rate, or use --imu-rate)")
 
 
 def loss_text(monitor: LinkMonitor, samples, drops: int | None) -> str:
