@@ -130,6 +130,7 @@ def _replay_settings(args, names: list[str]):
 
 
 def cmd_replay(args) -> int:
+    from .events import grouped_lines
     from .pipeline import choose_imu, replay_flight
     from .progress import ProgressBar
     from .report import (csv_file_name, estimator_extras, format_events, format_table, nothing_scored,
@@ -153,9 +154,10 @@ def cmd_replay(args) -> int:
             result, notes = replay_flight(flight, settings, progress)
         for note in notes:
             print(f"note: {note}")
-        for event in result.events:
-            if event.level == "warn":
-                _warn(event.text)
+        # one line per kind, before the table: they say how to read it, and on stderr they stay
+        # on the screen when the table goes to a file
+        for line in grouped_lines(result.events):
+            _warn(line)
         if result.reference is not None:
             trim = "" if result.trim is None else (
                 f"; estimates turned by the board trim (roll {math.degrees(result.trim[0]):.2f}°, "
@@ -171,7 +173,8 @@ def cmd_replay(args) -> int:
         if json_out:
             with json_out.writing() as path:
                 write_json(path, flight.path, result.reference.source if result.reference else "none",
-                           result.comparisons, estimator_extras(result), scoring=result.scoring)
+                           result.comparisons, estimator_extras(result), scoring=result.scoring,
+                           events=result.events)
             print(f"metrics written to {json_out.path}")
         if export:
             if result.reference is None:
