@@ -58,15 +58,18 @@ def _read(path: str, segment: int | None, quiet: bool = False):
         return read_log(path, segment=segment, progress=progress)
 
 
-def _compile(names: list[str]):
-    """Start compiling what these estimators need and is not cached yet (said on stderr)."""
+def _compile(names: list[str], quiet: bool = False):
+    """Start compiling what these estimators need and is not cached yet (said on stderr, and
+    then, but for ``quiet``, each estimator as it is done and the time so far)."""
     from .estimators import needs_compile, precompile
+    from .progress import StepsLine
 
     pending = needs_compile(names)
-    if pending:
-        print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
-              file=sys.stderr, flush=True)
-    return precompile(pending)
+    if not pending:
+        return precompile(pending)
+    print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
+          file=sys.stderr, flush=True)
+    return precompile(pending, StepsLine("compiling (first run only)", len(pending), quiet))
 
 
 def _warn(text: str) -> None:
@@ -145,7 +148,7 @@ def cmd_replay(args) -> int:
                                 [csv_file_name(n) for n in ("reference", *names)], "csv")
         sink = None if args.no_view else _plan_sink(args, outputs, default_rrd=Path(args.log).stem + ".rrd")
         rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
-        compiling = _compile(names)  # in other processes, while the log is read
+        compiling = _compile(names, args.quiet)  # in other processes, while the log is read
         flight = _read(args.log, args.segment, args.quiet)
         compiling.wait()
         with ProgressBar(f"estimating with {len(names)} estimator{'s' if len(names) > 1 else ''}",
@@ -223,7 +226,7 @@ def cmd_evaluate(args) -> int:
         records_dir = out / "logs"
         records_dir.mkdir(exist_ok=True)
         if not args.scheduler:
-            _compile(names).wait()  # once here, not in every worker
+            _compile(names, args.quiet).wait()  # once here, not in every worker
         where = f"on the Dask cluster at {args.scheduler}" if args.scheduler else \
             f"in {min(args.jobs, len(logs))} process{'es' if min(args.jobs, len(logs)) > 1 else ''}"
         print(f"evaluating {', '.join(names)} on {len(logs)} logs {where}; records in {records_dir}/",
@@ -281,7 +284,7 @@ def cmd_tune(args) -> int:
         json_out = outputs.file(args.json, "--json", "json")
         study = outputs.database(args.study, "--study")
         if not args.scheduler:
-            _compile([name]).wait()  # once here, not in every worker
+            _compile([name], args.quiet).wait()  # once here, not in every worker
         jobs = min(args.jobs, len(logs))
         where = f"on the Dask cluster at {args.scheduler}" if args.scheduler else \
             f"in {jobs} process{'es' if jobs > 1 else ''}"

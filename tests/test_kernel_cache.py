@@ -1,7 +1,10 @@
-"""numba's cache is emptied of our kernels when any kernel source changed (kernel_cache)."""
+"""numba's cache is emptied of our kernels when any kernel source changed (kernel_cache); a first
+compile says each estimator as it is done."""
 from __future__ import annotations
 
 from types import SimpleNamespace
+
+import pytest
 
 from mavattitude import kernel_cache
 from mavattitude.estimators.mahony import mahony_run
@@ -40,3 +43,62 @@ def test_the_stamp_covers_the_inlined_helpers():
              if b"njit" in p.read_bytes()}
     assert {"quaternion.py", "estimators/consistency.py", "estimators/mahony.py"} <= files
     assert hashlib.sha1(b"").hexdigest() != stamp
+
+
+def test_a_first_compile_says_each_estimator_and_the_time_so_far(monkeypatch):
+    """Processes that compile say when each estimator is done; what none took is compiled here,
+    one by one; each is named on the progress line with its time (the compile itself faked)."""
+    import io
+    import subprocess
+    import sys
+    import time
+
+    import mavattitude.estimators as est
+    from mavattitude.progress import StepsLine
+
+    compiled_here = []
+    monkeypatch.setattr(est, "warm_up", lambda names: None)
+    monkeypatch.setattr(est, "compile_kernels", lambda names: compiled_here.extend(names))
+    now = time.time()
+    worker = ("import sys, time; [print(n, float(sys.argv[1]) + 3.0 * k, flush=True) or time.sleep(0.05) "
+              "for k, n in enumerate(sys.argv[2:], 1)]")
+    processes = [subprocess.Popen([sys.executable, "-c", worker, str(now), *share], stdout=subprocess.PIPE)
+                 for share in (["cpf-ekf"], ["ekf", "eskf"])]
+    stream = io.StringIO()
+    compiling = est.Compiling(processes, ["cpf-ekf", "ekf", "eskf", "mahony"], StepsLine("compiling", 0, stream=stream))
+    compiling.started = now
+    compiling.wait()
+    lines = stream.getvalue().splitlines()
+    assert lines[0] == "compiling: estimation core done at 0 s (1/5)"
+    # the processes' lines in whichever order they came, each with its own time
+    assert sorted(line.rsplit(" (", 1)[0] for line in lines[1:4]) == [
+        "compiling: cpf-ekf done at 3 s", "compiling: ekf done at 3 s", "compiling: eskf done at 6 s"]
+    assert [line.rsplit(" (", 1)[1] for line in lines[1:4]] == ["2/5)", "3/5)", "4/5)"]
+    assert lines[4].startswith("compiling: mahony done at ") and lines[4].endswith("(5/5)")
+    assert lines[5].startswith("compiling: 5/5 done in ")
+    assert compiled_here == ["mahony"]  # no process had it
+    assert all(p.returncode == 0 for p in processes)
+
+
+@pytest.mark.slow
+def test_a_real_first_run_names_each_estimator_as_it_is_compiled(tmp_path):
+    """An empty cache (its own NUMBA_CACHE_DIR): replay says what it compiles, then each
+    estimator and the estimation core as they are done, with the time, and the total."""
+    import os
+    import re
+    import subprocess
+    import sys
+
+    from conftest import SAMPLE_LOGS
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cold"))
+    done = subprocess.run([sys.executable, "-m", "mavattitude", "replay", str(SAMPLE_LOGS / "static.bin"),
+                           "--estimators", "mahony,eskf", "--no-view"], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.splitlines()
+    assert lines[0].startswith("compiling mahony, eskf (first run on this machine only")
+    steps = [re.fullmatch(r"compiling \(first run only\): (\S.*) done at (\d+) s \((\d)/3\)", line) for line in lines[1:4]]
+    assert all(steps), lines
+    assert sorted(m[1] for m in steps) == ["eskf", "estimation core", "mahony"]
+    assert re.fullmatch(r"compiling \(first run only\): 3/3 done in \d+ s", lines[4])
