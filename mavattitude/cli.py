@@ -58,18 +58,21 @@ def _read(path: str, segment: int | None, quiet: bool = False):
         return read_log(path, segment=segment, progress=progress)
 
 
-def _compile(names: list[str], quiet: bool = False):
+def _compile(names: list[str], quiet: bool = False, log: str | None = None):
     """Start compiling what these estimators need and is not cached yet (said on stderr, and
-    then, but for ``quiet``, each estimator as it is done and the time so far)."""
+    then, but for ``quiet``, each as it is done and the time so far). ``log``: the log to be
+    read here, whose reader compiles as it reads (the caller says ``done("log reader")``)."""
     from .estimators import needs_compile, precompile
     from .progress import StepsLine
+    from .readers import reader_needs_compile
 
     pending = needs_compile(names)
-    if not pending:
+    also = ["log reader"] if log is not None and reader_needs_compile(log) else []
+    if not pending and not also:
         return precompile(pending)
-    print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
+    print(f"compiling {', '.join(also + pending)} (first run on this machine only; cached afterwards) ...",
           file=sys.stderr, flush=True)
-    return precompile(pending, StepsLine("compiling (first run only)", len(pending), quiet))
+    return precompile(pending, StepsLine("compiling (first run only)", len(pending), quiet), also)
 
 
 def _warn(text: str) -> None:
@@ -148,8 +151,9 @@ def cmd_replay(args) -> int:
                                 [csv_file_name(n) for n in ("reference", *names)], "csv")
         sink = None if args.no_view else _plan_sink(args, outputs, default_rrd=Path(args.log).stem + ".rrd")
         rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
-        compiling = _compile(names, args.quiet)  # in other processes, while the log is read
+        compiling = _compile(names, args.quiet, args.log)  # in other processes, while the log is read
         flight = _read(args.log, args.segment, args.quiet)
+        compiling.done("log reader")
         compiling.wait()
         with ProgressBar(f"estimating with {len(names)} estimator{'s' if len(names) > 1 else ''}",
                          len(flight.imu[choose_imu(flight, settings.imu, settings.imu_family)].t),

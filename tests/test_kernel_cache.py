@@ -65,25 +65,29 @@ def test_a_first_compile_says_each_estimator_and_the_time_so_far(monkeypatch):
     processes = [subprocess.Popen([sys.executable, "-c", worker, str(now), *share], stdout=subprocess.PIPE)
                  for share in (["cpf-ekf"], ["ekf", "eskf"])]
     stream = io.StringIO()
-    compiling = est.Compiling(processes, ["cpf-ekf", "ekf", "eskf", "mahony"], StepsLine("compiling", 0, stream=stream))
+    compiling = est.Compiling(processes, ["cpf-ekf", "ekf", "eskf", "mahony"], StepsLine("compiling", 0, stream=stream),
+                              also=["log reader"])
     compiling.started = now
+    compiling.done("log reader", now + 1.0)  # said by the caller, once its log is read
+    compiling.done("the reader of another format")  # not counted: not said
     compiling.wait()
     lines = stream.getvalue().splitlines()
-    assert lines[0] == "compiling: estimation core done at 0 s (1/5)"
+    assert lines[:2] == ["compiling: log reader done at 1 s (1/6)", "compiling: estimation core done at 0 s (2/6)"]
     # the processes' lines in whichever order they came, each with its own time
-    assert sorted(line.rsplit(" (", 1)[0] for line in lines[1:4]) == [
+    assert sorted(line.rsplit(" (", 1)[0] for line in lines[2:5]) == [
         "compiling: cpf-ekf done at 3 s", "compiling: ekf done at 3 s", "compiling: eskf done at 6 s"]
-    assert [line.rsplit(" (", 1)[1] for line in lines[1:4]] == ["2/5)", "3/5)", "4/5)"]
-    assert lines[4].startswith("compiling: mahony done at ") and lines[4].endswith("(5/5)")
-    assert lines[5].startswith("compiling: 5/5 done in ")
+    assert [line.rsplit(" (", 1)[1] for line in lines[2:5]] == ["3/6)", "4/6)", "5/6)"]
+    assert lines[5].startswith("compiling: mahony done at ") and lines[5].endswith("(6/6)")
+    assert lines[6].startswith("compiling: 6/6 done in ") and len(lines) == 7
     assert compiled_here == ["mahony"]  # no process had it
     assert all(p.returncode == 0 for p in processes)
 
 
 @pytest.mark.slow
 def test_a_real_first_run_names_each_estimator_as_it_is_compiled(tmp_path):
-    """An empty cache (its own NUMBA_CACHE_DIR): replay says what it compiles, then each
-    estimator and the estimation core as they are done, with the time, and the total."""
+    """An empty cache (its own NUMBA_CACHE_DIR): replay says what it compiles, then the log
+    reader, each estimator and the estimation core as they are done, with the time, and the
+    total."""
     import os
     import re
     import subprocess
@@ -97,8 +101,20 @@ def test_a_real_first_run_names_each_estimator_as_it_is_compiled(tmp_path):
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     lines = done.stderr.splitlines()
-    assert lines[0].startswith("compiling mahony, eskf (first run on this machine only")
-    steps = [re.fullmatch(r"compiling \(first run only\): (\S.*) done at (\d+) s \((\d)/3\)", line) for line in lines[1:4]]
+    assert lines[0].startswith("compiling log reader, mahony, eskf (first run on this machine only")
+    steps = [re.fullmatch(r"compiling \(first run only\): (\S.*) done at (\d+) s \((\d)/4\)", line) for line in lines[1:5]]
     assert all(steps), lines
-    assert sorted(m[1] for m in steps) == ["eskf", "estimation core", "mahony"]
-    assert re.fullmatch(r"compiling \(first run only\): 3/3 done in \d+ s", lines[4])
+    assert steps[0][1] == "log reader"  # as soon as the log is read
+    assert sorted(m[1] for m in steps[1:]) == ["eskf", "estimation core", "mahony"]
+    assert re.fullmatch(r"compiling \(first run only\): 4/4 done in \d+ s", lines[5])
+
+
+def test_a_log_whose_reader_is_cached_needs_no_compile(tmp_path):
+    from conftest import SAMPLE_LOGS
+    from mavattitude.readers import read_log, reader_needs_compile
+
+    for name in ("static.bin", "figure8.tlog"):
+        read_log(str(SAMPLE_LOGS / name))  # compiles its reader if it must, and caches it
+        assert not reader_needs_compile(str(SAMPLE_LOGS / name))
+    (tmp_path / "notes.bin").write_text("not a log")
+    assert not reader_needs_compile(str(tmp_path / "notes.bin")) and not reader_needs_compile(str(tmp_path / "none"))

@@ -141,17 +141,22 @@ def _noticing_interrupts():
         raise KeyboardInterrupt
 
 
+CORE = "estimation core"  # the runner's own kernels: a step of every first compile
+
+
 class Compiling:
     """Kernels compiling in other processes (``precompile``); ``wait`` before using them.
     ``pending``: every estimator that was to compile, those the processes have and the rest;
-    ``progress``: told as each is done (``progress.StepsLine``), or None."""
+    ``progress``: told as each is done (``progress.StepsLine``), or None; ``also``: other
+    steps it counts, which the caller says are ``done`` (the log reader's kernels)."""
 
-    def __init__(self, processes=(), pending=(), progress=None):
+    def __init__(self, processes=(), pending=(), progress=None, also=()):
         self.processes = list(processes)
         self.pending = list(pending)
         self.progress = progress
+        self.steps_left = {*pending, *also, CORE}
         if progress is not None:
-            progress.total = len(self.pending) + 1  # and the estimation core
+            progress.total = len(self.steps_left)
         self.started = time.time()  # the processes say when each estimator was done on this clock
 
     def wait(self) -> None:
@@ -159,9 +164,9 @@ class Compiling:
         what no process took (or one that failed left)."""
         try:
             with _noticing_interrupts() as interrupted:
-                if self.pending:
+                if self.progress is not None or self.processes:
                     warm_up([])  # the estimation core's own kernels, here, meanwhile
-                    self._step("estimation core")
+                    self.done(CORE)
                 self._follow_processes(interrupted)
                 processes, self.processes = self.processes, []
                 for p in processes:
@@ -173,12 +178,17 @@ class Compiling:
                     if interrupted:
                         break
                     compile_kernels([name])
-                    self._step(name)
+                    self.done(name)
         finally:
             if self.progress is not None:
                 self.progress.close()
 
-    def _step(self, name: str, at: float | None = None) -> None:
+    def done(self, name: str, at: float | None = None) -> None:
+        """``name`` is compiled, at ``at`` (``time.time()``; default now). A step not counted
+        (the log reader when it was cached) is let pass."""
+        if name not in self.steps_left:
+            return
+        self.steps_left.remove(name)
         if name in self.pending:
             self.pending.remove(name)
         if self.progress is not None:
@@ -203,29 +213,29 @@ class Compiling:
                 *lines, key.data[0] = (key.data[0] + chunk).split(b"\n")
                 for line in lines:
                     name, at = line.decode().rsplit(" ", 1)
-                    self._step(name, float(at))
+                    self.done(name, float(at))
             if self.progress is not None:
                 self.progress.tick()
         selector.close()
 
 
-def precompile(names: list[str], progress=None) -> Compiling:
+def precompile(names: list[str], progress=None, also=()) -> Compiling:
     """Start compiling the kernels of ``names`` that are not cached yet, in one process per
     core, each with a fair share: a first run then waits for the longest share rather than
     the sum (here, all seven: 33 s in one process). Returns at once; the caller reads its log
     meanwhile and calls ``wait`` before it estimates, which compiles here what no process
     took (an estimator alone, or on one core) or a failed process left. Estimators registered
     at run time (not importable by a new process) compile on first use instead.
-    ``progress``: see ``Compiling``."""
+    ``progress``, ``also``: see ``Compiling``."""
     import subprocess
     import sys
 
     pending = [n for n in needs_compile(names) if n in COMPILE_SECONDS]
-    if not pending:
+    if not pending and not also:
         return Compiling()
     workers = min(len(pending), os.cpu_count() or 1)
     if workers < 2:
-        return Compiling(pending=pending, progress=progress)
+        return Compiling(pending=pending, progress=progress, also=also)
     shares: list[list[str]] = [[] for _ in range(workers)]
     loads = [0.0] * workers
     for name in sorted(pending, key=lambda n: -COMPILE_SECONDS[n]):  # longest first, to the lightest
@@ -235,7 +245,7 @@ def precompile(names: list[str], progress=None) -> Compiling:
     code = ("import sys; from mavattitude.estimators import compile_kernels; "
             "compile_kernels(sys.argv[1:], report=sys.stdout)")
     return Compiling((subprocess.Popen([sys.executable, "-c", code, *share], stdout=subprocess.PIPE,
-                                       stderr=subprocess.DEVNULL) for share in shares), pending, progress)
+                                       stderr=subprocess.DEVNULL) for share in shares), pending, progress, also)
 
 
 def compile_kernels(names: list[str], report=None) -> None:
