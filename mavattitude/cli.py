@@ -72,7 +72,7 @@ def _compile(names: list[str], quiet: bool = False, log: str | None = None):
         return precompile(pending)
     print(f"compiling {', '.join(also + pending)} (first run on this machine only; cached afterwards) ...",
           file=sys.stderr, flush=True)
-    return precompile(pending, StepsLine("compiling (first run only)", len(pending), quiet), also)
+    return precompile(pending, StepsLine("compiling (first run only)", quiet=quiet), also)
 
 
 def _warn(text: str) -> None:

@@ -64,7 +64,7 @@ class StepsLine:
     (first run only): mahony 4 s, ekf 9 s, 3/8, 0:21"; ``tick`` keeps its clock going), else a
     line per step; a last line says when all were done. Nothing with ``quiet``."""
 
-    def __init__(self, label: str, total: int, quiet: bool = False, stream=None):
+    def __init__(self, label: str, total: int = 0, quiet: bool = False, stream=None):
         self.label, self.total = label, total
         self.start = self.last = time.monotonic()
         self.done: list[tuple[str, float]] = []

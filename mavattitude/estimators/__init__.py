@@ -212,8 +212,11 @@ class Compiling:
                     continue
                 *lines, key.data[0] = (key.data[0] + chunk).split(b"\n")
                 for line in lines:
-                    name, at = line.decode().rsplit(" ", 1)
-                    self.done(name, float(at))
+                    name, _, at = line.decode(errors="replace").rpartition(" ")
+                    try:
+                        self.done(name, float(at))
+                    except ValueError:
+                        pass  # not a report (something the process printed): its estimators are said at the end
             if self.progress is not None:
                 self.progress.tick()
         selector.close()
