@@ -58,15 +58,21 @@ def _read(path: str, segment: int | None, quiet: bool = False):
         return read_log(path, segment=segment, progress=progress)
 
 
-def _compile(names: list[str]):
-    """Start compiling what these estimators need and is not cached yet (said on stderr)."""
+def _compile(names: list[str], quiet: bool = False, log: str | None = None):
+    """Start compiling what these estimators need and is not cached yet (said on stderr, and
+    then, but for ``quiet``, each as it is done and the time so far). ``log``: the log to be
+    read here, whose reader compiles as it reads (the caller says ``done("log reader")``)."""
     from .estimators import needs_compile, precompile
+    from .progress import StepsLine
+    from .readers import reader_needs_compile
 
     pending = needs_compile(names)
-    if pending:
-        print(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...",
-              file=sys.stderr, flush=True)
-    return precompile(pending)
+    also = ["log reader"] if log is not None and reader_needs_compile(log) else []
+    if not pending and not also:
+        return precompile(pending)
+    print(f"compiling {', '.join(also + pending)} (first run on this machine only; cached afterwards) ...",
+          file=sys.stderr, flush=True)
+    return precompile(pending, StepsLine("compiling (first run only)", quiet=quiet), also)
 
 
 def _warn(text: str) -> None:
@@ -130,6 +136,7 @@ def _replay_settings(args, names: list[str]):
 
 
 def cmd_replay(args) -> int:
+    from .events import grouped_lines
     from .pipeline import choose_imu, replay_flight
     from .progress import ProgressBar
     from .report import (csv_file_name, estimator_extras, format_events, format_table, nothing_scored,
@@ -144,8 +151,9 @@ def cmd_replay(args) -> int:
                                 [csv_file_name(n) for n in ("reference", *names)], "csv")
         sink = None if args.no_view else _plan_sink(args, outputs, default_rrd=Path(args.log).stem + ".rrd")
         rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
-        compiling = _compile(names)  # in other processes, while the log is read
+        compiling = _compile(names, args.quiet, args.log)  # in other processes, while the log is read
         flight = _read(args.log, args.segment, args.quiet)
+        compiling.done("log reader")
         compiling.wait()
         with ProgressBar(f"estimating with {len(names)} estimator{'s' if len(names) > 1 else ''}",
                          len(flight.imu[choose_imu(flight, settings.imu, settings.imu_family)].t),
@@ -153,9 +161,10 @@ def cmd_replay(args) -> int:
             result, notes = replay_flight(flight, settings, progress)
         for note in notes:
             print(f"note: {note}")
-        for event in result.events:
-            if event.level == "warn":
-                _warn(event.text)
+        # one line per kind, before the table: they say how to read it, and on stderr they stay
+        # on the screen when the table goes to a file
+        for line in grouped_lines(result.events):
+            _warn(line)
         if result.reference is not None:
             trim = "" if result.trim is None else (
                 f"; estimates turned by the board trim (roll {math.degrees(result.trim[0]):.2f}°, "
@@ -171,7 +180,8 @@ def cmd_replay(args) -> int:
         if json_out:
             with json_out.writing() as path:
                 write_json(path, flight.path, result.reference.source if result.reference else "none",
-                           result.comparisons, estimator_extras(result), scoring=result.scoring)
+                           result.comparisons, estimator_extras(result), scoring=result.scoring,
+                           events=result.events)
             print(f"metrics written to {json_out.path}")
         if export:
             if result.reference is None:
@@ -220,7 +230,7 @@ def cmd_evaluate(args) -> int:
         records_dir = out / "logs"
         records_dir.mkdir(exist_ok=True)
         if not args.scheduler:
-            _compile(names).wait()  # once here, not in every worker
+            _compile(names, args.quiet).wait()  # once here, not in every worker
         where = f"on the Dask cluster at {args.scheduler}" if args.scheduler else \
             f"in {min(args.jobs, len(logs))} process{'es' if min(args.jobs, len(logs)) > 1 else ''}"
         print(f"evaluating {', '.join(names)} on {len(logs)} logs {where}; records in {records_dir}/",
@@ -279,7 +289,7 @@ def cmd_tune(args) -> int:
         json_out = outputs.file(args.json, "--json", "json")
         study = outputs.database(args.study, "--study")
         if not args.scheduler:
-            _compile([name]).wait()  # once here, not in every worker
+            _compile([name], args.quiet).wait()  # once here, not in every worker
         jobs = min(args.jobs, len(logs))
         where = f"on the Dask cluster at {args.scheduler}" if args.scheduler else \
             f"in {jobs} process{'es' if jobs > 1 else ''}"

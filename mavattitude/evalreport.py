@@ -144,7 +144,8 @@ def summarize(records: list[dict], names: list[str], baseline: str, reference: s
                            if r["status"] == "ok" and not_meaningful(r)],
         "failed": [{"log": r["log"], "error": r["error"]} for r in records if r["status"] == "failed"],
         "skipped": [{"log": r["log"], "why": r["error"]} for r in records if r["status"] == "skipped"],
-        "reference_suspect": [{"log": r["log"], "spans": r["suspects"]} for r in records if r.get("suspects")],
+        "reference_suspect": [{"log": r["log"], "spans": r.get("suspects", []), "notes": r.get("reference_notes", [])}
+                              for r in records if r.get("suspects") or r.get("reference_notes")],
         "estimators": estimators,
     }
     if all(n in names for n in PAPER_001_CHAIN):
@@ -230,11 +231,11 @@ def report_markdown(summary: dict, command: str, figure: str | None) -> str:
     if summary["reference_suspect"]:
         lines += ["", "## References not trusted", "",
                   "Spans where the log's own IMU says the autopilot's attitude cannot be right; they are "
-                  "not scored (the rest of the log is).", ""]
+                  "not scored (the rest of the log is). A note on the whole log says what was done instead.", ""]
         for entry in summary["reference_suspect"]:
-            spans = "; ".join((f"{s['start_s']:.1f}-{s['end_s']:.1f} s" if s["end_s"] is not None else "whole log")
-                              + f": {s['detail']}" for s in entry["spans"])
-            lines.append(f"- `{_short(entry['log'])}`: {spans}")
+            said = [f"{s['start_s']:.1f}-{s['end_s']:.1f} s: {s['detail']}" for s in entry["spans"]]
+            said += [f"whole log: {n['detail']}" for n in entry["notes"]]
+            lines.append(f"- `{_short(entry['log'])}`: {'; '.join(said)}")
     if summary["not_meaningful"]:
         lines += ["", "## Not meaningful (left out of the ranking)", ""]
         lines += [f"- `{n['log']}`: {n['why']}" for n in summary["not_meaningful"]]

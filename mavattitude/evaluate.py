@@ -140,7 +140,7 @@ def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: 
     facts["accel_scale_error"] = metrics["scoring"]["accel_g_reading"]["scale_error"]
     facts["reference_suspect"] = len(metrics["scoring"]["reference_suspect"])
     return {"status": "ok", "facts": facts, "metrics": metrics["estimators"], "reference": metrics["reference"],
-            "suspects": metrics["scoring"]["reference_suspect"]}
+            "suspects": metrics["scoring"]["reference_suspect"], "reference_notes": metrics["scoring"]["reference_notes"]}
 
 
 def log_facts(flight, source: str) -> dict:

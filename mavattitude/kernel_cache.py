@@ -27,6 +27,13 @@ def sources_stamp(kernels_only: bool = True) -> str:
     return digest.hexdigest()
 
 
+def cached(kernel) -> bool:
+    """Whether numba's cache holds this kernel (its index file exists): if not, its first call
+    compiles it. True for a function numba does not cache."""
+    index = getattr(getattr(getattr(kernel, "_cache", None), "_cache_file", None), "_index_path", None)
+    return index is None or os.path.exists(index)
+
+
 def cache_root(kernel) -> Path | None:
     """Where numba caches this package's kernels: the package itself (a __pycache__ beside
     each module) or its mirror under NUMBA_CACHE_DIR / the user cache."""

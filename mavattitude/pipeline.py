@@ -18,7 +18,7 @@ from .imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful
 from .metrics import Comparison, compare
 from .params import build, log_defaults
 from .phase import PhaseSeries
-from .refcheck import check_reference, excluded_spans
+from .refcheck import check_reference, excluded_spans, whole_log_notes
 from .readers import best_imu_source, imu_rate, mag_for_imu
 from .runner import REINIT_GAP_S, Runner
 
@@ -44,6 +44,7 @@ class ReplayResult:
     aiding: aid.Aiding | None = None  # GPS / baro on the IMU clock, when an estimator used them
     trim: tuple[float, float] | None = None  # (roll, pitch) rad the estimates were turned by, see board_trim
     suspects: list = field(default_factory=list)  # refcheck.Suspect: where the reference is not trusted
+    reference_notes: list = field(default_factory=list)  # refcheck.LogNote: about the reference as a whole
     restarts: list[float] = field(default_factory=list)  # s: where the estimators started again after a gap
     imu_rate_hz: float = 0.0  # the IMU's median rate
     not_meaningful: str | None = None  # why the estimators' scores are not meaningful (imucheck); None: they are
@@ -51,12 +52,14 @@ class ReplayResult:
 
     @property
     def scoring(self) -> dict:
-        """How the estimates were scored, beyond the reference: the board trim applied, whether
+        """How the estimates were scored, beyond the reference: the board trim applied, the
+        spans of reference not scored and the notes on the reference as a whole, whether
         the scores mean anything (the IMU's rate) and the accelerometer's reading of g."""
         trim = None if self.trim is None else {"roll_deg": round(math.degrees(self.trim[0]), 4),
                                                "pitch_deg": round(math.degrees(self.trim[1]), 4)}
         g, at_rest = self.accel_g_reading
         return {"board_trim": trim, "reference_suspect": [s.as_dict() for s in self.suspects],
+                "reference_notes": [n.as_dict() for n in self.reference_notes],
                 "meaningful": self.not_meaningful is None, "why": self.not_meaningful,
                 "imu_rate_hz": round(self.imu_rate_hz, 3),
                 "accel_g_reading": {"ms2": None if g is None else round(g, 4), "at_rest": at_rest,
@@ -68,7 +71,7 @@ class ReplayResult:
         diagnostics and parameters; ``scoring``."""
         from .report import estimator_extras, to_json_dict
         return to_json_dict(self.flight.path, self.reference.source if self.reference else "none",
-                            self.comparisons, estimator_extras(self), scoring=self.scoring)
+                            self.comparisons, estimator_extras(self), scoring=self.scoring, events=self.events)
 
     def write_json(self, path) -> None:
         """The metrics as JSON (``replay --json``)."""
@@ -76,7 +79,7 @@ class ReplayResult:
         from .report import estimator_extras, write_json
         with Outputs(inputs=[self.flight.path]) as outputs, outputs.file(path, "write_json", "json").writing() as to:
             write_json(to, self.flight.path, self.reference.source if self.reference else "none",
-                       self.comparisons, estimator_extras(self), scoring=self.scoring)
+                       self.comparisons, estimator_extras(self), scoring=self.scoring, events=self.events)
 
     def write_csv(self, folder) -> None:
         """reference.csv and <estimator>.csv in ``folder`` (``replay --export``)."""
@@ -226,14 +229,16 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                                 "they are left out of the metrics)"))
     restarts = [t for t, _ in runner.restarts]
     comparisons = {}
-    suspects = []
+    suspects, notes = [], []
     if ref is not None and reference == "autopilot":
         phase = runner.phase_series()
         suspects = check_reference(ref, flight.imu[runner.imu_source], applied_trim,
-                                   phase.on_clock if phase is not None else None, flight.gps,
-                                   flight.repeated.get(ref.source, 0))
-        events += [Event(s.start, "warn", f"reference not trusted {_span_text(s)}: {s.detail}"
-                         + (" (not scored there)" if s.end is not None else "")) for s in suspects]
+                                   phase.on_clock if phase is not None else None, flight.gps)
+        notes = whole_log_notes(ref, flight.repeated.get(ref.source, 0))
+        events += [Event(s.start, "warn", f"reference not trusted {s.start:.1f}-{s.end:.1f} s: {s.detail} "
+                         "(not scored there)", kind=f"reference not trusted ({s.kind}), not scored there")
+                   for s in suspects]
+        events += [Event(float(ref.t[0]), "warn", note.detail) for note in notes]
     if ref is not None:
         for name, series in estimates.items():
             comparisons[name] = compare(ref, series, warmup_s=warmup_s, align_yaw=not runner.has_heading[name],
@@ -258,7 +263,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                         mag_source=runner.mag_source, alignment=runner.alignment, phase=runner.phase_series(),
                         diagnostics=diagnostics, estimator_events=estimator_events,
                         params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(),
-                        trim=applied_trim, suspects=suspects, restarts=restarts, imu_rate_hz=rate,
+                        trim=applied_trim, suspects=suspects, reference_notes=notes, restarts=restarts, imu_rate_hz=rate,
                         not_meaningful=not_meaningful, accel_g_reading=g_reading)
 
 
@@ -297,10 +302,6 @@ def replay_flight(flight: Flight, settings: ReplaySettings, progress=None) -> tu
                         params=params, use_mag=settings.use_mag, trim=settings.trim)
     result.events += [Event(flight.time_span[0], "info", note) for note in notes]
     return result, notes
-
-
-def _span_text(s) -> str:
-    return f"from {s.start:.1f} s" if s.end is None else f"{s.start:.1f}-{s.end:.1f} s"
 
 
 def _events(flight: Flight, runner: Runner, dec_source: str) -> list[Event]:

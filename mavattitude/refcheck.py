@@ -14,11 +14,12 @@ A real log's reference is the autopilot's estimate, and it has faults of its own
   jumped (a crash that saturated its estimate, a lane switch, a reset). Yaw is not judged: an
   EKF's yaw resets to its compass or GPS are its own business, and yaw is not ranked.
   The span flagged runs from the jump to ``JUMP_HOLD_S`` after it.
-- **repeated times**: reference samples that repeat the time of the one before (dropped by
-  the reader): the log is flagged, no span (what is left is in order).
+- **repeated times**: reference samples that repeat the time of the one before (the reader
+  keeps the first of each time and drops the rest): not a span but a note on the whole log
+  (``LogNote``), saying what was done; what is left is in order and scored.
 
 Reference samples inside a flagged span are not scored (``metrics.compare(exclude=...)``); the
-spans, and the log, are listed in the table, the JSON and evaluate's report.
+spans and the notes are listed on the terminal, in the JSON and in evaluate's report.
 """
 from __future__ import annotations
 
@@ -42,34 +43,51 @@ REPEATED_SHARE = 0.005  # flag the log when more reference samples than this rep
 
 @dataclass
 class Suspect:
-    """A stretch of reference that is not to be trusted (``end`` None: the whole log, not excluded)."""
-    kind: str  # "tilt at rest", "tilt jump", "repeated times"
+    """A stretch of reference that is not to be trusted, and not scored: [start, end] s."""
+    kind: str  # "tilt at rest", "tilt jump"
     start: float
-    end: float | None
+    end: float
     detail: str
 
     def as_dict(self) -> dict:
-        return {"kind": self.kind, "start_s": round(self.start, 3),
-                "end_s": None if self.end is None else round(self.end, 3), "detail": self.detail}
+        return {"kind": self.kind, "start_s": round(self.start, 3), "end_s": round(self.end, 3), "detail": self.detail}
 
 
-def check_reference(ref: AttitudeSeries, imu: ImuSeries, trim, in_air_at=None, gps: GpsSeries | None = None,
-                    repeated: int = 0) -> list[Suspect]:
+@dataclass
+class LogNote:
+    """Something wrong with the reference over the whole log, and what was done about it
+    (nothing is left out of the scoring for it)."""
+    kind: str  # "repeated times"
+    detail: str
+
+    def as_dict(self) -> dict:
+        return {"kind": self.kind, "detail": self.detail}
+
+
+def check_reference(ref: AttitudeSeries, imu: ImuSeries, trim, in_air_at=None,
+                    gps: GpsSeries | None = None) -> list[Suspect]:
     """Every suspect stretch of ``ref``, in time order. ``trim``: (roll, pitch) rad or None;
-    ``in_air_at``: t -> 1 (air) / 0 (ground) / NaN (unknown), or None when unknown;
-    ``repeated``: reference samples the reader dropped for repeating a time."""
+    ``in_air_at``: t -> 1 (air) / 0 (ground) / NaN (unknown), or None when unknown."""
     suspects = []
     if in_air_at is not None:
         suspects += _tilt_at_rest(ref, imu, trim, in_air_at, gps)
     suspects += _tilt_jumps(ref, imu)
-    if repeated and repeated > REPEATED_SHARE * (len(ref.t) + repeated):
-        suspects.append(Suspect("repeated times", float(ref.t[0]), None,
-                                f"{repeated} {ref.source} samples repeat the time of the one before"))
     return sorted(suspects, key=lambda s: s.start)
 
 
+def whole_log_notes(ref: AttitudeSeries, repeated: int = 0) -> list[LogNote]:
+    """The notes on ``ref`` as a whole. ``repeated``: reference samples the reader dropped for
+    repeating the time of the one before."""
+    total = len(ref.t) + repeated
+    if not repeated or repeated <= REPEATED_SHARE * total:
+        return []
+    return [LogNote("repeated times", f"{ref.source} timestamps repeat {repeated:,} times "
+                                      f"({100.0 * repeated / total:.1f} % of its samples); the repeats were "
+                                      "dropped, the first of each time kept; the rest is scored")]
+
+
 def excluded_spans(suspects: list[Suspect]) -> list[tuple[float, float]]:
-    return [(s.start, s.end) for s in suspects if s.end is not None]
+    return [(s.start, s.end) for s in suspects]
 
 
 def _moving(gps: GpsSeries | None, t: np.ndarray) -> np.ndarray:

@@ -72,7 +72,7 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str
 
 
 def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
-                 extras: dict[str, dict] | None = None, scoring: dict | None = None) -> dict:
+                 extras: dict[str, dict] | None = None, scoring: dict | None = None, events=None) -> dict:
     """The JSON summary: ``{"log", "reference", "estimators": {name: {"roll": M, "pitch": M, "yaw": M}}}``.
 
     M holds ``n``, ``mae``, ``rmse``, ``mse`` (deg²), ``r2``, ``max``, ``sigma1``, ``sigma3``
@@ -85,7 +85,8 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
     ``extras`` adds keys per estimator next to the axes: ``events`` (what became of its
     accelerometer updates: {state: {samples, spans, seconds}}; a watchdog's resets:
     ``resets``: {count, times}), ``diagnostics`` (median and
-    max of each diagnostic series) and ``params``.
+    max of each diagnostic series) and ``params``. ``events``: every ``events.Event`` as
+    {t_s, level, kind, text}, each one (the terminal shows a line per kind).
     """
     estimators = {}
     for name, comp in comparisons.items():
@@ -105,6 +106,8 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
     out = {"log": str(log), "reference": str(reference), "estimators": estimators}
     if scoring is not None:
         out["scoring"] = _clean(scoring)
+    if events is not None:
+        out["events"] = [e.as_dict() for e in sorted(events, key=lambda e: e.t)]
     return out
 
 
@@ -158,16 +161,12 @@ def nothing_scored(comparisons: dict[str, Comparison], warmup_s: float) -> str |
 
 def format_events(result) -> str:
     """One line per estimator state other than "used": how often and how long the
-    accelerometer update was skipped or down-weighted; and one line for a watchdog's resets."""
+    accelerometer update was skipped or down-weighted (a watchdog's resets are warnings)."""
     lines = []
     n = len(result.flight.imu[result.imu_source].t)
     for name, states in result.estimator_events.items():
         for state, c in states.items():
-            if state == "resets":
-                times = ", ".join(f"{t:.1f}" for t in c["times"][:10]) + (" ..." if c["count"] > 10 else "")
-                lines.append(f"{name}: {c['count']} watchdog reset{'s' if c['count'] != 1 else ''}"
-                             + (f" at {times} s" if c["count"] else ""))
-            elif c["samples"]:
+            if state != "resets" and c["samples"]:
                 lines.append(f"{name}: accelerometer {state}: {c['spans']} span{'s' if c['spans'] != 1 else ''}, "
                              f"{c['seconds']:.1f} s "
                              f"({100.0 * c['samples'] / max(n, 1):.1f} % of samples)")
@@ -175,12 +174,13 @@ def format_events(result) -> str:
 
 
 def write_json(path, log: str, reference: str, comparisons: dict[str, Comparison],
-               extras: dict[str, dict] | None = None, scoring: dict | None = None, link: dict | None = None) -> Path:
+               extras: dict[str, dict] | None = None, scoring: dict | None = None, link: dict | None = None,
+               events=None) -> Path:
     """Write ``to_json_dict`` to ``path`` (strict JSON: no NaN), creating its directory;
     ``link``: a live session's link figures, as "link"."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = to_json_dict(log, reference, comparisons, extras, scoring)
+    data = to_json_dict(log, reference, comparisons, extras, scoring, events)
     if link is not None:
         data["link"] = link
     text = json.dumps(data, indent=2, allow_nan=False)

@@ -44,6 +44,7 @@ from .phase import STALE_S, PhaseTracker, pressure_height
 # An IMU gap longer than this restarts the estimators from a fresh alignment: after it the
 # vehicle may be anywhere (logging paused while disarmed, a crash and a pick-up).
 REINIT_GAP_S = 2.0
+GAP_KIND = f"IMU gap over {REINIT_GAP_S:g} s, estimators re-initialised"  # the gap events' Event.kind
 # Rows estimated per kernel call at most (5.5 min at 400 Hz): an hour-long log's per-sample
 # scratch and diagnostics (cpf-ekf: 29 float64 a row) stay a few tens of MB, not gigabytes.
 STEP_ROWS = 1 << 17
@@ -192,7 +193,7 @@ class Runner:
             if self.running and a > 0 and t[a] - t[a - 1] > REINIT_GAP_S:
                 self.running = False
                 self.events.append(Event(float(t[a]), "warn", f"IMU gap of {t[a] - t[a - 1]:.1f} s: "
-                                                              "estimators re-initialised"))
+                                                              "estimators re-initialised", kind=GAP_KIND))
             gaps = np.flatnonzero(np.diff(t[a:]) > REINIT_GAP_S)
             b = a + int(gaps[0]) + 1 if len(gaps) else len(t)
             if not self.running and not self._start_run(a, b, complete=final or b < len(t)):
@@ -273,9 +274,10 @@ class Runner:
                     kept[key].extend(_nothing(a, new[key].dtype))
                 kept[key].extend(new[key] if key in new else _nothing(len(t), kept[key].view().dtype))
             if "reset" in new:
-                for tr in t[new["reset"] == 1.0]:
-                    self.events.append(Event(float(tr), "warn", f"{e.name}: watchdog reset (EKF attitude too "
-                                                                "far from its complementary filter): restarted from it"))
+                kind = f"{e.name}: watchdog reset (EKF attitude too far from its complementary filter, restarted from it)"
+                self.events += [Event(float(tr), "warn", f"{e.name}: watchdog reset (EKF attitude too far from its "
+                                      "complementary filter): restarted from it", kind=kind)
+                                for tr in t[new["reset"] == 1.0]]
         return Chunk(t, out, diagnostics, in_air)
 
     # ------------------------------------------------------------ forgetting (a live session)

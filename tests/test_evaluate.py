@@ -153,6 +153,21 @@ def test_summary_arithmetic():
     assert chain["whole_chain"] == 1  # only log a
 
 
+def test_the_report_lists_spans_not_scored_and_notes_on_a_whole_log():
+    def rec(log, suspects=(), notes=()):
+        return {"log": log, "status": "ok", "error": None, "facts": {}, "suspects": list(suspects),
+                "reference_notes": list(notes), "metrics": {"mahony": {"roll": {"mae": 1.0}, "pitch": {"mae": 1.0}}}}
+
+    span = {"kind": "tilt jump", "start_s": 40.0, "end_s": 45.25, "detail": "ATT's tilt jumped 60°"}
+    note = {"kind": "repeated times", "detail": "ATT timestamps repeat 2,442 times; the repeats were dropped"}
+    s = er.summarize([rec("a", [span]), rec("b", notes=[note]), rec("c")], ["mahony"], "mahony", "autopilot")
+    assert s["reference_suspect"] == [{"log": "a", "spans": [span], "notes": []},
+                                      {"log": "b", "spans": [], "notes": [note]}]
+    text = er.report_markdown(s, "mavattitude evaluate", "tilt_error.svg")
+    assert "- `a`: 40.0-45.2 s: ATT's tilt jumped 60°\n" in text
+    assert "- `b`: whole log: ATT timestamps repeat 2,442 times; the repeats were dropped\n" in text
+
+
 @pytest.mark.slow
 def test_dask_cluster_on_loopback_gives_the_local_numbers(logs, tmp_path):
     distributed = pytest.importorskip("distributed")

@@ -9,7 +9,6 @@ import json
 import re
 from dataclasses import replace
 
-import numpy as np
 import pytest
 
 from conftest import SAMPLE_LOGS

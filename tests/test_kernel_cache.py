@@ -1,7 +1,10 @@
-"""numba's cache is emptied of our kernels when any kernel source changed (kernel_cache)."""
+"""numba's cache is emptied of our kernels when any kernel source changed (kernel_cache); a first
+compile says each estimator as it is done."""
 from __future__ import annotations
 
 from types import SimpleNamespace
+
+import pytest
 
 from mavattitude import kernel_cache
 from mavattitude.estimators.mahony import mahony_run
@@ -40,3 +43,78 @@ def test_the_stamp_covers_the_inlined_helpers():
              if b"njit" in p.read_bytes()}
     assert {"quaternion.py", "estimators/consistency.py", "estimators/mahony.py"} <= files
     assert hashlib.sha1(b"").hexdigest() != stamp
+
+
+def test_a_first_compile_says_each_estimator_and_the_time_so_far(monkeypatch):
+    """Processes that compile say when each estimator is done; what none took is compiled here,
+    one by one; each is named on the progress line with its time (the compile itself faked)."""
+    import io
+    import subprocess
+    import sys
+    import time
+
+    import mavattitude.estimators as est
+    from mavattitude.progress import StepsLine
+
+    compiled_here = []
+    monkeypatch.setattr(est, "warm_up", lambda names: None)
+    monkeypatch.setattr(est, "compile_kernels", lambda names: compiled_here.extend(names))
+    now = time.time()
+    worker = ("import sys, time; [print(n, float(sys.argv[1]) + 3.0 * k, flush=True) or time.sleep(0.05) "
+              "for k, n in enumerate(sys.argv[2:], 1)]")
+    processes = [subprocess.Popen([sys.executable, "-c", worker, str(now), *share], stdout=subprocess.PIPE)
+                 for share in (["cpf-ekf"], ["ekf", "eskf"])]
+    stream = io.StringIO()
+    compiling = est.Compiling(processes, ["cpf-ekf", "ekf", "eskf", "mahony"], StepsLine("compiling", 0, stream=stream),
+                              also=["log reader"])
+    compiling.started = now
+    compiling.done("log reader", now + 1.0)  # said by the caller, once its log is read
+    compiling.done("the reader of another format")  # not counted: not said
+    compiling.wait()
+    lines = stream.getvalue().splitlines()
+    assert lines[:2] == ["compiling: log reader done at 1 s (1/6)", "compiling: estimation core done at 0 s (2/6)"]
+    # the processes' lines in whichever order they came, each with its own time
+    assert sorted(line.rsplit(" (", 1)[0] for line in lines[2:5]) == [
+        "compiling: cpf-ekf done at 3 s", "compiling: ekf done at 3 s", "compiling: eskf done at 6 s"]
+    assert [line.rsplit(" (", 1)[1] for line in lines[2:5]] == ["3/6)", "4/6)", "5/6)"]
+    assert lines[5].startswith("compiling: mahony done at ") and lines[5].endswith("(6/6)")
+    assert lines[6].startswith("compiling: 6/6 done in ") and len(lines) == 7
+    assert compiled_here == ["mahony"]  # no process had it
+    assert all(p.returncode == 0 for p in processes)
+
+
+@pytest.mark.slow
+def test_a_real_first_run_names_each_estimator_as_it_is_compiled(tmp_path):
+    """An empty cache (its own NUMBA_CACHE_DIR): replay says what it compiles, then the log
+    reader, each estimator and the estimation core as they are done, with the time, and the
+    total."""
+    import os
+    import re
+    import subprocess
+    import sys
+
+    from conftest import SAMPLE_LOGS
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cold"))
+    done = subprocess.run([sys.executable, "-m", "mavattitude", "replay", str(SAMPLE_LOGS / "static.bin"),
+                           "--estimators", "mahony,eskf", "--no-view"], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.splitlines()
+    assert lines[0].startswith("compiling log reader, mahony, eskf (first run on this machine only")
+    steps = [re.fullmatch(r"compiling \(first run only\): (\S.*) done at (\d+) s \((\d)/4\)", line) for line in lines[1:5]]
+    assert all(steps), lines
+    assert steps[0][1] == "log reader"  # as soon as the log is read
+    assert sorted(m[1] for m in steps[1:]) == ["eskf", "estimation core", "mahony"]
+    assert re.fullmatch(r"compiling \(first run only\): 4/4 done in \d+ s", lines[5])
+
+
+def test_a_log_whose_reader_is_cached_needs_no_compile(tmp_path):
+    from conftest import SAMPLE_LOGS
+    from mavattitude.readers import read_log, reader_needs_compile
+
+    for name in ("static.bin", "figure8.tlog"):
+        read_log(str(SAMPLE_LOGS / name))  # compiles its reader if it must, and caches it
+        assert not reader_needs_compile(str(SAMPLE_LOGS / name))
+    (tmp_path / "notes.bin").write_text("not a log")
+    assert not reader_needs_compile(str(tmp_path / "notes.bin")) and not reader_needs_compile(str(tmp_path / "none"))

@@ -103,3 +103,66 @@ def test_estimating_in_steps_changes_nothing_and_reports_progress(sim_logs, monk
         for key, values in whole.diagnostics[name].items():
             np.testing.assert_array_equal(steps.diagnostics[name][key], values)
         assert steps.comparisons[name].axes == whole.comparisons[name].axes
+
+
+# ---------------------------------------------------------------- warnings on the terminal
+
+
+def test_warnings_are_one_line_per_kind_with_the_count_and_the_first_times():
+    from mavattitude.events import Event, grouped_lines
+
+    events = [Event(40.1, "warn", "IMU gap of 3.0 s: estimators re-initialised", kind="IMU gap"),
+              Event(12.3, "warn", "IMU gap of 2.5 s: estimators re-initialised", kind="IMU gap"),
+              Event(5.0, "warn", "no initial still period"),
+              Event(88.0, "warn", "IMU gap of 9.0 s: estimators re-initialised", kind="IMU gap"),
+              Event(90.0, "info", "in the air", kind="IMU gap"),  # another level: not counted
+              Event(95.5, "warn", "IMU gap of 4.0 s: estimators re-initialised", kind="IMU gap"),
+              Event(99.0, "warn", "the same words twice"), Event(99.5, "warn", "the same words twice"),
+              Event(100.0, "warn", "IMU gap of 2.1 s: estimators re-initialised", kind="IMU gap")]
+    assert grouped_lines(events[:2]) == ["IMU gap: 2 times, at 12.3, 40.1 s"]
+    assert grouped_lines(events) == ["no initial still period",  # alone: its own text, in time order
+                                     "IMU gap: 5 times, at 12.3, 40.1, 88.0, … s",
+                                     "the same words twice: 2 times, at 99.0, 99.5 s"]
+    assert grouped_lines(events[3:4]) == ["IMU gap of 9.0 s: estimators re-initialised"]
+    assert grouped_lines(events, level="info") == ["in the air"]
+
+
+def test_many_imu_gaps_are_one_warning_line_and_every_one_stays_in_the_json(capsys):
+    from conftest import SAMPLE_LOGS
+    from mavattitude.events import grouped_lines
+    from mavattitude.runner import GAP_KIND
+
+    flight = read_log(str(SAMPLE_LOGS / "static.bin"))
+    holes = [(8.0, 11.0), (14.0, 17.5), (20.0, 23.0), (26.0, 30.0), (33.0, 36.0)]
+    for source, imu in flight.imu.items():
+        keep = np.ones(len(imu.t), dtype=bool)
+        for a, b in holes:
+            keep &= (imu.t < a) | (imu.t > b)
+        flight.imu[source] = replace(imu, t=imu.t[keep], gyro=imu.gyro[keep], accel=imu.accel[keep],
+                                     arrival=None if imu.arrival is None else imu.arrival[keep])
+    result = run_replay(flight, ["mahony", "eskf"], warmup_s=0.0)
+    gaps = [e for e in result.events if e.kind == GAP_KIND]
+    assert len(gaps) == len(holes) and all(e.text.startswith("IMU gap of ") for e in gaps)
+    lines = [line for line in grouped_lines(result.events) if line.startswith(GAP_KIND)]
+    first = ", ".join(f"{e.t:.1f}" for e in gaps[:3])
+    assert lines == [f"{GAP_KIND}: 5 times, at {first}, … s"]
+    assert [e["text"] for e in result.metrics["events"] if e["kind"] == GAP_KIND] == [e.text for e in gaps]
+
+
+def test_a_real_log_s_27_watchdog_resets_are_one_warning_line(tmp_path, capsys):
+    from conftest import shared_log
+    from mavattitude.cli import main
+
+    log = shared_log("copter-4.1-flight.tlog")
+    out = tmp_path / "m.json"
+    assert main(["replay", str(log), "--estimators", "cpf-ekf", "--no-view", "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    warnings = [line for line in err.splitlines() if line.startswith("warning: ")]
+    resets = [line for line in warnings if "watchdog reset" in line]
+    got = __import__("json").loads(out.read_text())
+    times = got["estimators"]["cpf-ekf"]["events"]["resets"]["times"]
+    assert len(times) == 27
+    assert resets == ["warning: cpf-ekf: watchdog reset (EKF attitude too far from its complementary filter, "
+                      f"restarted from it): 27 times, at {times[0]:.1f}, {times[1]:.1f}, {times[2]:.1f}, … s"]
+    assert len(warnings) <= 6  # the log's own few, not 27 more
+    assert sum("watchdog reset" in e["text"] for e in got["events"]) == 27  # each one kept in the JSON

@@ -140,11 +140,33 @@ def test_a_reference_the_imu_contradicts_is_flagged_and_not_scored(broken_refere
     assert m["roll"]["max"] < 1.0
 
 
-def test_repeated_reference_times_flag_the_log_without_a_span():
-    from mavattitude.refcheck import check_reference
+def test_repeated_reference_times_are_a_note_on_the_whole_log_not_a_span():
+    """What happened and what was done, said plainly: on the terminal, and in the JSON as a
+    note of its own, not a span with no end; everything left is scored."""
+    from mavattitude.pipeline import run_replay
+    from mavattitude.refcheck import whole_log_notes
 
     flight = read_log(str(__import__("conftest").SAMPLE_LOGS / "static.bin"))
-    imu = flight.imu[next(iter(flight.imu))]
-    suspects = check_reference(flight.attitude, imu, None, repeated=len(flight.attitude.t) // 10)
-    assert [(s.kind, s.end) for s in suspects] == [("repeated times", None)]
-    assert check_reference(flight.attitude, imu, None, repeated=0) == []
+    assert whole_log_notes(flight.attitude, 0) == [] and whole_log_notes(flight.attitude, 1) == []
+    flight.repeated[flight.attitude.source] = 2442  # as the reader counts the samples it dropped
+    result = run_replay(flight, ["mahony"])
+    share = 100.0 * 2442 / (len(flight.attitude.t) + 2442)
+    said = (f"ATT timestamps repeat 2,442 times ({share:.1f} % of its samples); the repeats were dropped, "
+            "the first of each time kept; the rest is scored")
+    assert [e.text for e in result.events if e.level == "warn" and "repeat" in e.text] == [said]
+    scoring = result.metrics["scoring"]
+    assert scoring["reference_notes"] == [{"kind": "repeated times", "detail": said}]
+    assert scoring["reference_suspect"] == []
+    assert result.comparisons["mahony"].n_excluded == 0
+
+
+def test_a_real_log_whose_att_times_repeat_says_what_was_done(tmp_path, capsys):
+    log = __import__("conftest").shared_log("corpus/real-copter-3.3dev-erlepxf-dcm-althold-error-erle-20140318.bin")
+    got = scores(log, tmp_path)
+    err = capsys.readouterr().err
+    notes = got["scoring"]["reference_notes"]
+    assert [n["kind"] for n in notes] == ["repeated times"]
+    assert notes[0]["detail"].startswith("ATT timestamps repeat 566 times (")
+    assert f"warning: {notes[0]['detail']}" in err.splitlines()
+    assert "not trusted from" not in err
+    assert all(s["end_s"] is not None for s in got["scoring"]["reference_suspect"])

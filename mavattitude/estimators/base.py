@@ -23,11 +23,12 @@ counts the accel states into the JSON events and the view shows them.
 """
 from __future__ import annotations
 
-import os
 from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
+
+from ..kernel_cache import cached
 
 # A step longer than this is a gap in the data, not an interval to integrate the gyro over.
 MAX_STEP_S = 1.5
@@ -91,15 +92,7 @@ class Estimator:
 
 def needs_compile(estimator_classes) -> list[str]:
     """Names of the estimators whose compiled kernels are not in numba's cache yet."""
-    pending = []
-    for cls in estimator_classes:
-        for kernel in cls.kernels:
-            cache = getattr(kernel, "_cache", None)
-            index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
-            if index is not None and not os.path.exists(index):
-                pending.append(cls.name)
-                break
-    return pending
+    return [cls.name for cls in estimator_classes if not all(cached(kernel) for kernel in cls.kernels)]
 
 
 class FilterState(NamedTuple):

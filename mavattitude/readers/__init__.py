@@ -15,6 +15,7 @@ import tempfile
 
 from ..errors import InputError
 from ..flight import Flight
+from ..kernel_cache import cached
 from .dataflash import read_dataflash
 from .series import IMU_LIMITS, MAG_LIMITS, earth_field_power, fill_series
 from .sources import (IMU_PREFERENCE, best_imu_source, enum_name, identify_vehicle, imu_rate, mag_for_imu,
@@ -23,7 +24,8 @@ from .tlog import TLOG_SEARCH_BYTES, read_tlog, tlog_start
 from .ulog import ULOG_MAGIC, read_ulog
 
 __all__ = ["IMU_LIMITS", "IMU_PREFERENCE", "MAG_LIMITS", "best_imu_source", "earth_field_power", "enum_name",
-           "identify_vehicle", "imu_rate", "mag_for_imu", "pick_imu", "pick_mag", "read_log", "sniff_format"]
+           "identify_vehicle", "imu_rate", "mag_for_imu", "pick_imu", "pick_mag", "read_log", "reader_needs_compile",
+           "sniff_format"]
 
 DATAFLASH_MAGIC = b"\xa3\x95"
 
@@ -76,6 +78,20 @@ def _captured_output():
             sink.seek(0)
             lines += sink.read().decode(errors="replace").splitlines()
             lines += out.getvalue().splitlines() + err.getvalue().splitlines()
+
+
+def reader_needs_compile(path: str) -> bool:
+    """Whether reading this log compiles its reader's kernels first (numba's cache has not
+    got them yet): a first run's reading is slow. False for a file that is no log."""
+    from . import collect, dfrecords, tlogrecords
+
+    try:
+        fmt = sniff_format(path)
+    except (InputError, OSError):
+        return False  # read_log says what is wrong with it
+    kernels = {"bin": (dfrecords._scan, dfrecords._gather), "tlog": (tlogrecords._scan, tlogrecords._gather),
+               "ulg": ()}[fmt]  # those every read of the format runs
+    return not all(cached(kernel) for kernel in (collect._track, *kernels))
 
 
 def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
