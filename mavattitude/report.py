@@ -23,11 +23,12 @@ CSV_DECIMALS = 6  # µs for time (ArduPilot stamps in µs), 1e-6° for angles
 # ---------------------------------------------------------------- terminal table
 
 
-def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str:
+def format_table(comparisons: dict[str, Comparison], reference_name: str, declination=None) -> str:
     """A fixed-width table: per estimator and axis, n and MAE, RMSE, max |error| (degrees), R².
 
     Yaw is shown as ``yaw*`` (with a footnote) where the estimator had no heading reference and
-    its initial yaw was aligned; an axis with no scored sample shows "n/a".
+    its initial yaw was aligned; an axis with no scored sample shows "n/a". ``declination``
+    (a ``declination.Declination``): said under the title, with where it came from.
     """
     name_w = max([len("estimator")] + [len(name) for name in comparisons])
     cols = ("n", "MAE", "RMSE", "max", "R²")
@@ -38,8 +39,10 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str
         return f"{name:<{name_w}}  {axis:<5}  {body}".rstrip()
 
     header = row("estimator", "axis", cols)
-    lines = [f"Attitude error against {reference_name} (degrees; R² unitless)",
-             header, "-" * len(header)]
+    lines = [f"Attitude error against {reference_name} (degrees; R² unitless)"]
+    if declination is not None:
+        lines.append(f"declination {declination.text()}")
+    lines += [header, "-" * len(header)]
     any_aligned = False
     for name, comp in comparisons.items():
         for k, axis in enumerate(AXES):
@@ -64,7 +67,7 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str
 
 
 def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
-                 extras: dict[str, dict] | None = None, scoring: dict | None = None) -> dict:
+                 extras: dict[str, dict] | None = None, scoring: dict | None = None, declination=None) -> dict:
     """The JSON summary: ``{"log", "reference", "estimators": {name: {"roll": M, "pitch": M, "yaw": M}}}``.
 
     M holds ``n``, ``mae``, ``rmse``, ``mse`` (deg²), ``r2``, ``max``, ``sigma1``, ``sigma3``
@@ -75,7 +78,8 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
     ``extras`` adds keys per estimator next to the axes: ``events`` (what became of its
     accelerometer updates: {state: {samples, spans, seconds}}; a watchdog's resets:
     ``resets``: {count, times}), ``diagnostics`` (median and
-    max of each diagnostic series) and ``params``.
+    max of each diagnostic series) and ``params``. ``declination`` (a ``declination.Declination``)
+    adds ``declination_deg`` (null where none was found and 0 used) and ``declination_source``.
     """
     estimators = {}
     for name, comp in comparisons.items():
@@ -91,6 +95,9 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
         axes.update(_clean((extras or {}).get(name, {})))
         estimators[str(name)] = axes
     out = {"log": str(log), "reference": str(reference), "estimators": estimators}
+    if declination is not None:
+        out["declination_deg"] = round(declination.deg, 4) if declination.known else None
+        out["declination_source"] = declination.source
     if scoring is not None:
         out["scoring"] = _clean(scoring)
     return out
@@ -163,12 +170,13 @@ def format_events(result) -> str:
 
 
 def write_json(path, log: str, reference: str, comparisons: dict[str, Comparison],
-               extras: dict[str, dict] | None = None, scoring: dict | None = None, link: dict | None = None) -> Path:
+               extras: dict[str, dict] | None = None, scoring: dict | None = None, link: dict | None = None,
+               declination=None) -> Path:
     """Write ``to_json_dict`` to ``path`` (strict JSON: no NaN), creating its directory;
     ``link``: a live session's link figures, as "link"."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = to_json_dict(log, reference, comparisons, extras, scoring)
+    data = to_json_dict(log, reference, comparisons, extras, scoring, declination)
     if link is not None:
         data["link"] = link
     text = json.dumps(data, indent=2, allow_nan=False)

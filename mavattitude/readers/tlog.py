@@ -12,6 +12,7 @@ Units as sent (MAVLink common/ardupilotmega definitions):
 | ATTITUDE | roll, pitch, yaw | rad |
 | ATTITUDE_QUATERNION | q1..q4 | - |
 | SIMSTATE (ArduPilot SITL truth) | roll, pitch, yaw | rad |
+| SYSTEM_TIME | time_unix_usec (else GPS_RAW_INT time_usec when a UNIX time) | µs: the log's date |
 | PARAM_VALUE | param_id, param_value | - |
 
 Time: the autopilot's ``time_boot_ms`` / ``time_usec`` (µs since boot), never the ground
@@ -29,7 +30,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import InputError
-from .collect import Collector, Decoded
+from .collect import Collector, Decoded, first_utc
 from .dfrecords import open_log
 from .tlogrecords import decode, dialect, msgid, packet_bytes, scan
 
@@ -74,6 +75,7 @@ def tlog_start(data: bytes) -> int | None:
 IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
 SAMPLE_MESSAGES = IMU_MESSAGES + ("GPS_RAW_INT", "SCALED_PRESSURE", "ATTITUDE", "ATTITUDE_QUATERNION", "SIMSTATE")
 OTHER_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "AUTOPILOT_VERSION", "HEARTBEAT")
+TIME_MESSAGES = ("SYSTEM_TIME",)  # the log's date only
 VEHICLE_MESSAGES = IMU_MESSAGES + ("ATTITUDE",)  # what only a vehicle sends (``is_vehicle``)
 
 
@@ -228,10 +230,10 @@ def read_tlog(path: str, progress=None) -> Decoded:
         start = tlog_start(f.read(TLOG_SEARCH_BYTES))
     if start is None:
         raise InputError(path, "not a readable telemetry log (no MAVLink records found)")
-    packets = scan(data, start, list(SAMPLE_MESSAGES + OTHER_MESSAGES))
+    packets = scan(data, start, list(SAMPLE_MESSAGES + OTHER_MESSAGES + TIME_MESSAGES))
     if progress is not None:
         progress(0.5)
-    names = {msgid(name): name for name in SAMPLE_MESSAGES + OTHER_MESSAGES}
+    names = {msgid(name): name for name in SAMPLE_MESSAGES + OTHER_MESSAGES + TIME_MESSAGES}
     rows_of = {name: np.flatnonzero(packets.msgids == i) for i, name in names.items()}
     text_rows = np.sort(np.concatenate([rows_of[name] for name in OTHER_MESSAGES]))
     mav = dialect.MAVLink(None)  # the few text and identity messages: pymavlink decodes them
@@ -259,7 +261,8 @@ def read_tlog(path: str, progress=None) -> Decoded:
             order[name] = packets.offsets[rows]
     col = Collector()
     _collect(col, columns, order)
-    out = Decoded(col, decoder.params, decoder.texts, packets.counts, warnings=_damage(packets))
+    out = Decoded(col, decoder.params, decoder.texts, packets.counts, warnings=_damage(packets),
+                  utc_s=_utc(data, packets, rows_of["SYSTEM_TIME"][mine[rows_of["SYSTEM_TIME"]]], columns))
     others = sorted(set(packets.sysids[~mine & after_first].tolist()) - {vehicle})
     if others:
         out.notes.append(f"ignored messages from other MAVLink systems {others} (vehicle is system {vehicle})")
@@ -297,6 +300,18 @@ def _collect(col: Collector, columns: dict, order: dict) -> None:
             kind, values = sample_values(name, m)
             values = np.column_stack([np.broadcast_to(np.asarray(v, np.float64), t.shape) for v in values])
             col.add_columns(kind, name, at[has_time], t[has_time], values[has_time])
+
+
+def _utc(data, packets, system_time_rows, columns: dict) -> float | None:
+    """The vehicle's first set UNIX time (s): SYSTEM_TIME's, else a GPS_RAW_INT time_usec that
+    is one (older ArduPilot sends the fix's UNIX time there)."""
+    if len(system_time_rows):
+        found = first_utc(decode(data, packets, "SYSTEM_TIME", system_time_rows)["time_unix_usec"] * 1e-6)
+        if found is not None:
+            return found
+    if "GPS_RAW_INT" in columns:
+        return first_utc(np.asarray(columns["GPS_RAW_INT"].time_usec, np.float64) * 1e-6)
+    return None
 
 
 def _damage(packets) -> list[str]:
