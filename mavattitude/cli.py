@@ -18,6 +18,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 import textwrap
 import time
@@ -559,7 +560,13 @@ _home.__name__ = "LAT,LON"
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line usage errors, as every other error here is."""
+    """argparse with one-line usage errors, as every other error here is; a value that starts
+    with a minus and a digit is a value, not an option (``--home -35.36,149.17``), as Python
+    3.13's argparse has it (before, only a plain negative number was)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"-\.?\d")
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
