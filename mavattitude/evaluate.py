@@ -137,6 +137,7 @@ def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: 
     metrics = result.metrics
     facts["board_trim"] = metrics["scoring"]["board_trim"]
     facts["reference_suspect"] = len(metrics["scoring"]["reference_suspect"])
+    facts["declination_deg"], facts["declination_source"] = metrics["declination_deg"], metrics["declination_source"]
     return {"status": "ok", "facts": facts, "metrics": metrics["estimators"], "reference": metrics["reference"],
             "suspects": metrics["scoring"]["reference_suspect"]}
 
