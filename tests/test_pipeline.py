@@ -1,7 +1,6 @@
-"""Replay: magnetometer on the IMU clock, declination, restarts after gaps, scoring rows."""
+"""Replay: magnetometer on the IMU clock, restarts after gaps, scoring rows (the declination: test_declination)."""
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import numpy as np

@@ -4,7 +4,6 @@ the real samples in ../shared/logs/ulog against pyulog's raw values, detection b
 damaged files as one-line errors."""
 from __future__ import annotations
 
-import math
 import shutil
 
 import numpy as np
