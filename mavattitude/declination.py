@@ -84,9 +84,11 @@ class Fix:
 
 
 def _decimal_year(when: datetime.datetime) -> float:
-    start = datetime.datetime(when.year, 1, 1, tzinfo=datetime.timezone.utc)
-    end = datetime.datetime(when.year + 1, 1, 1, tzinfo=datetime.timezone.utc)
-    return when.year + (when - start) / (end - start)
+    """The year of the day's start (UTC): the field moves less than 0.001° a day, and a live
+    session and the replay of its recording, whose times differ by seconds, get one value."""
+    day = when.astimezone(datetime.timezone.utc).date()
+    return day.year + (day - datetime.date(day.year, 1, 1)).days / (datetime.date(day.year + 1, 1, 1)
+                                                                    - datetime.date(day.year, 1, 1)).days
 
 
 def _model(when: datetime.datetime | None) -> tuple[int, float, str, str]:

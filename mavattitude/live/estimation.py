@@ -18,10 +18,11 @@ On the autopilot's clock, per clock segment:
   judged on its first ``MAG_SCALE_SAMPLES`` (a log: on the median of all);
 - the IMU and compass sources are chosen once ``ALIGN_S`` of IMU data is in (every source has
   shown up by then; ``imu_source`` chooses), and, when a compass is there and the session
-  asked for COMPASS_DEC, once it has arrived or ``DECLINATION_WAIT_S`` more have passed. A log
-  chooses on all of its data: pass the same ``imu_source`` to compare the two;
+  asked for COMPASS_DEC and COMPASS_AUTODEC, once they have arrived or ``DECLINATION_WAIT_S``
+  more have passed. A log chooses on all of its data: pass the same ``imu_source`` to compare
+  the two;
 - the declination is chosen then too, as a log's is (``declination.choose``: the vehicle's
-  parameters, its first good GPS fix so far, today's date). It stays for the session: when the
+  parameters, its first good GPS fix so far, its date, else today's). It stays for the session: when the
   vehicle has no fix yet, the first good one later gets an event with the model's value there.
 
 Memory stays flat however long a session runs: each estimate is scored as it comes
@@ -51,7 +52,7 @@ from ..running_metrics import RunningComparison, joined
 from .loss import SampleLoss
 
 ALIGN_S = 3.0  # s of IMU data before the sources are chosen
-DECLINATION_WAIT_S = 2.0  # s more of IMU data to wait for a COMPASS_DEC that was asked for
+DECLINATION_WAIT_S = 2.0  # s more of IMU data to wait for the COMPASS_DEC and COMPASS_AUTODEC asked for
 MAG_SCALE_SAMPLES = 5  # compass samples that decide its unit
 HISTORY_S = 60.0  # s of samples, estimates and references kept (at least the rolling window)
 SCORE_EVERY_S = 0.5  # s of estimates between scorings (each one computes errors for every estimator)
@@ -280,8 +281,9 @@ class LiveEstimation:
         span = max(s.column(0)[-1] for s in seg.imu.values()) - first
         if span < ALIGN_S:
             return False  # let every source (and the compass, and COMPASS_DEC) show up first
+        asked = ("COMPASS_DEC", "COMPASS_AUTODEC")  # both: COMPASS_DEC alone is read as set by hand
         if (self.expect_declination and self.declination_deg is None and seg.mag and self.use_mag
-                and "COMPASS_DEC" not in self.decoder.params and span < ALIGN_S + DECLINATION_WAIT_S):
+                and not all(name in self.decoder.params for name in asked) and span < ALIGN_S + DECLINATION_WAIT_S):
             return False
         if self.imu_choice is not None:
             if self.imu_choice not in seg.imu:
@@ -304,19 +306,24 @@ class LiveEstimation:
         """The session's declination (``declination.choose``) on what the vehicle sent so far."""
         gps = self.seg.gps.view()  # t, lat, lon, alt, vn, ve, vd, fix, sats, h_acc, v_acc, arrival
         good = np.flatnonzero(decl.is_good_fix(gps[:, 1], gps[:, 2], gps[:, 7], gps[:, 8], gps[:, 9]))
-        fix = decl.Fix(*gps[good[0], 1:4]) if len(good) else None
-        chosen = decl.choose(self.decoder.params, fix, datetime.datetime.now(datetime.timezone.utc),
-                             self.declination_deg, self.home, where="vehicle")
+        fix = decl.Fix(*map(float, gps[good[0], 1:4])) if len(good) else None
+        chosen = decl.choose(self.decoder.params, fix, self._date(), self.declination_deg, self.home, where="vehicle")
         self.declination, self.declination_choice = chosen.rad, chosen
         self.awaiting_fix = chosen.kind in ("held", "none")
         self.events.append(Event(t, "info", f"declination {chosen.text()}"))
         if has_mag and not chosen.known:
             self.events.append(Event(t, "warn", decl.NO_DECLINATION))
 
+    def _date(self) -> datetime.datetime:
+        """The vehicle's date (SYSTEM_TIME, as the replay of the recording takes it), else today's."""
+        if self.decoder.utc_s is not None:
+            return datetime.datetime.fromtimestamp(self.decoder.utc_s, datetime.timezone.utc)
+        return datetime.datetime.now(datetime.timezone.utc)
+
     def _fix_came(self, t: float, fix: decl.Fix) -> None:
         """The first good fix after the start: what the declination is there (the session keeps its own)."""
         self.awaiting_fix = False
-        there = decl.choose(self.decoder.params, fix, datetime.datetime.now(datetime.timezone.utc), where="vehicle")
+        there = decl.choose(self.decoder.params, fix, self._date(), where="vehicle")
         self.events.append(Event(t, "info", f"GPS fix: the declination there is {there.text()}; this session "
                                             f"keeps its {math.degrees(self.declination):.2f}° (--home or "
                                             "--declination give it from the start)"))

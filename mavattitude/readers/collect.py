@@ -265,7 +265,7 @@ def gps_to_unix(week, week_ms):
 
 def first_utc(unix_s) -> float | None:
     """The first of these UNIX times (s) that is a set clock (``UTC_RANGE_S``); None if none is."""
-    unix_s = np.asarray(unix_s, np.float64)
+    unix_s = np.atleast_1d(np.asarray(unix_s, np.float64))
     hits = np.flatnonzero((unix_s >= UTC_RANGE_S[0]) & (unix_s <= UTC_RANGE_S[1]))
     return float(unix_s[hits[0]]) if len(hits) else None
 

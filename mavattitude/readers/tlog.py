@@ -74,8 +74,7 @@ def tlog_start(data: bytes) -> int | None:
 # The messages whose samples we keep, by kind, and those read for their text or numbers only.
 IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
 SAMPLE_MESSAGES = IMU_MESSAGES + ("GPS_RAW_INT", "SCALED_PRESSURE", "ATTITUDE", "ATTITUDE_QUATERNION", "SIMSTATE")
-OTHER_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "AUTOPILOT_VERSION", "HEARTBEAT")
-TIME_MESSAGES = ("SYSTEM_TIME",)  # the log's date only
+OTHER_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "AUTOPILOT_VERSION", "HEARTBEAT", "SYSTEM_TIME")
 VEHICLE_MESSAGES = IMU_MESSAGES + ("ATTITUDE",)  # what only a vehicle sends (``is_vehicle``)
 
 
@@ -166,22 +165,27 @@ class MessageDecoder:
 
     ``decode(msg, add)`` calls ``add(kind, key, t, row)`` for each sample a message carries
     (kinds: imu, mag, gps, baro, att_euler, att_quat, truth_euler; ``t`` seconds since boot),
-    and keeps parameters (``params``) and identity texts (``texts``: STATUSTEXT, version,
-    heartbeat type). A message without a boot time (SIMSTATE, or a GPS_RAW_INT with a zero or
-    UNIX-epoch time) takes the latest boot time of the vehicle's other sample messages: ArduPilot
-    sends it in the same burst as the message that carried that time.
+    and keeps parameters (``params``), identity texts (``texts``: STATUSTEXT, version,
+    heartbeat type) and the vehicle's first set UNIX time (``utc_s``, s: SYSTEM_TIME's). A
+    message without a boot time (SIMSTATE, or a GPS_RAW_INT with a zero or UNIX-epoch time)
+    takes the latest boot time of the vehicle's other sample messages: ArduPilot sends it in the
+    same burst as the message that carried that time.
     """
 
     def __init__(self):
         self.params: dict[str, float] = {}
         self.texts: list[str] = []
+        self.utc_s: float | None = None
         self.heard_heartbeat = False
         self.last_t = None  # the vehicle's latest boot time, for messages that carry none
 
     def note(self, msg) -> None:
-        """A parameter, a text or the vehicle's identity."""
+        """A parameter, a text, the vehicle's identity or its UNIX time."""
         name = msg.get_type()
-        if name == "PARAM_VALUE":
+        if name == "SYSTEM_TIME":
+            if self.utc_s is None:
+                self.utc_s = first_utc(msg.time_unix_usec * 1e-6)
+        elif name == "PARAM_VALUE":
             self.params[msg.param_id] = float(msg.param_value)
         elif name == "STATUSTEXT":
             self.texts.append(msg.text)
@@ -230,10 +234,10 @@ def read_tlog(path: str, progress=None) -> Decoded:
         start = tlog_start(f.read(TLOG_SEARCH_BYTES))
     if start is None:
         raise InputError(path, "not a readable telemetry log (no MAVLink records found)")
-    packets = scan(data, start, list(SAMPLE_MESSAGES + OTHER_MESSAGES + TIME_MESSAGES))
+    packets = scan(data, start, list(SAMPLE_MESSAGES + OTHER_MESSAGES))
     if progress is not None:
         progress(0.5)
-    names = {msgid(name): name for name in SAMPLE_MESSAGES + OTHER_MESSAGES + TIME_MESSAGES}
+    names = {msgid(name): name for name in SAMPLE_MESSAGES + OTHER_MESSAGES}
     rows_of = {name: np.flatnonzero(packets.msgids == i) for i, name in names.items()}
     text_rows = np.sort(np.concatenate([rows_of[name] for name in OTHER_MESSAGES]))
     mav = dialect.MAVLink(None)  # the few text and identity messages: pymavlink decodes them
@@ -261,8 +265,10 @@ def read_tlog(path: str, progress=None) -> Decoded:
             order[name] = packets.offsets[rows]
     col = Collector()
     _collect(col, columns, order)
+    gps_utc = first_utc(np.asarray(columns["GPS_RAW_INT"].time_usec, np.float64) * 1e-6) \
+        if "GPS_RAW_INT" in columns else None  # older ArduPilot sends the fix's UNIX time there
     out = Decoded(col, decoder.params, decoder.texts, packets.counts, warnings=_damage(packets),
-                  utc_s=_utc(data, packets, rows_of["SYSTEM_TIME"][mine[rows_of["SYSTEM_TIME"]]], columns))
+                  utc_s=decoder.utc_s if decoder.utc_s is not None else gps_utc)
     others = sorted(set(packets.sysids[~mine & after_first].tolist()) - {vehicle})
     if others:
         out.notes.append(f"ignored messages from other MAVLink systems {others} (vehicle is system {vehicle})")
@@ -300,18 +306,6 @@ def _collect(col: Collector, columns: dict, order: dict) -> None:
             kind, values = sample_values(name, m)
             values = np.column_stack([np.broadcast_to(np.asarray(v, np.float64), t.shape) for v in values])
             col.add_columns(kind, name, at[has_time], t[has_time], values[has_time])
-
-
-def _utc(data, packets, system_time_rows, columns: dict) -> float | None:
-    """The vehicle's first set UNIX time (s): SYSTEM_TIME's, else a GPS_RAW_INT time_usec that
-    is one (older ArduPilot sends the fix's UNIX time there)."""
-    if len(system_time_rows):
-        found = first_utc(decode(data, packets, "SYSTEM_TIME", system_time_rows)["time_unix_usec"] * 1e-6)
-        if found is not None:
-            return found
-    if "GPS_RAW_INT" in columns:
-        return first_utc(np.asarray(columns["GPS_RAW_INT"].time_usec, np.float64) * 1e-6)
-    return None
 
 
 def _damage(packets) -> list[str]:
