@@ -29,18 +29,21 @@ def load(path, segment: int | None = None):
 
 def replay(log, estimators=("mahony",), reference: str = "autopilot", params: dict | None = None,
            imu: str | None = None, warmup: float = 10.0, declination: float | None = None,
-           use_mag: bool = True, trim: bool = True, imu_source: str | None = None):
+           use_mag: bool = True, trim: bool = True, imu_source: str | None = None,
+           home: tuple[float, float] | None = None):
     """Run ``estimators`` over a log (a path, or a flight from ``load``) and score them, as
     ``mavattitude replay`` does: a ``pipeline.ReplayResult`` with ``metrics`` (the --json
     dict), ``estimates`` (name -> series with ``t``, ``q``, ``euler``), ``reference``,
     ``events``, and ``write_json``, ``write_csv``, ``write_rrd``.
 
     ``params``: {estimator: {parameter: value}} (or a parameter dataclass), checked against
-    each parameter's valid range; ``declination`` in degrees (default the log's COMPASS_DEC);
+    each parameter's valid range; ``declination`` in degrees (default: as the autopilot had it,
+    ``declination.choose``); ``home``: (lat, lon) degrees where the log has no GPS fix;
     ``trim``: turn the estimates by the log's board trim before scoring against the autopilot.
     ``imu`` names one IMU series (e.g. "IMU[1]"); ``imu_source`` a family: "imu", "raw" or
     "delta" (default: the best the log has).
     """
+    from .declination import Fix
     from .params import build, log_defaults
     from .pipeline import run_replay
 
@@ -52,4 +55,4 @@ def replay(log, estimators=("mahony",), reference: str = "autopilot", params: di
     chosen.update({n: v for n, v in (params or {}).items() if not isinstance(v, dict)})
     return run_replay(flight, names, reference=reference, imu_source=imu, warmup_s=warmup,
                       declination_deg=declination, params=chosen, use_mag=use_mag, trim=trim,
-                      imu_family=imu_source)
+                      imu_family=imu_source, home=Fix(*home) if home is not None else None)

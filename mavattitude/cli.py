@@ -18,6 +18,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 import textwrap
 import time
@@ -128,7 +129,8 @@ def _replay_settings(args, names: list[str]):
 
     settings = ReplaySettings(
         names=tuple(names), reference=args.reference, imu=args.imu, imu_family=args.imu_source, warmup_s=args.warmup,
-        declination_deg=args.declination, use_mag=not args.no_mag, trim=not args.no_trim, segment=args.segment,
+        declination_deg=args.declination, home=args.home, use_mag=not args.no_mag, trim=not args.no_trim,
+        segment=args.segment,
         file_values=load_file(args.params) if args.params else None,
         assignments=tuple(args.set or ()), params_source=args.params or "--params")
     settings.check()  # bad values fail before any log is read
@@ -172,7 +174,7 @@ def cmd_replay(args) -> int:
             print(f"{flight.path}: {len(result.flight.imu[result.imu_source].t)} samples of "
                   f"{result.imu_source}, scored against {result.reference.source} "
                   f"({args.reference}) after a {args.warmup:g} s warm-up{trim}")
-            print(format_table(result.comparisons, result.reference.source))
+            print(format_table(result.comparisons, result.reference.source, result.declination))
             why = nothing_scored(result.comparisons, args.warmup)
             if why:
                 _warn(why)
@@ -181,7 +183,7 @@ def cmd_replay(args) -> int:
             with json_out.writing() as path:
                 write_json(path, flight.path, result.reference.source if result.reference else "none",
                            result.comparisons, estimator_extras(result), scoring=result.scoring,
-                           events=result.events)
+                           events=result.events, declination=result.declination)
             print(f"metrics written to {json_out.path}")
         if export:
             if result.reference is None:
@@ -457,7 +459,7 @@ def cmd_live(args) -> int:
             url=args.url, baud=args.baud, sysid=args.sysid, names=names, params=params,
             imu_rate=args.imu_rate, request=not args.no_request, imu_source=args.imu, window=args.window,
             timeout=args.timeout, record=str(record) if record else None, warmup=args.warmup,
-            declination=args.declination, reference=args.reference, use_mag=not args.no_mag,
+            declination=args.declination, home=args.home, reference=args.reference, use_mag=not args.no_mag,
             duration=args.duration, sink=sink))
         print(f"session: {result.seconds:.1f} s, {result.monitor.packets} packets ("
               + loss_text(result.monitor, result.estimation.samples_lost, result.kernel_drops)
@@ -469,7 +471,7 @@ def cmd_live(args) -> int:
             where = (f" (clock segment {result.segment} of {n_segments}: the vehicle rebooted)"
                      if n_segments > 1 else "")
             print(f"final metrics against {result.reference} after a {args.warmup:g} s warm-up{where}:")
-            print(format_table(result.comparisons, result.reference))
+            print(format_table(result.comparisons, result.reference, result.estimation.declination_choice))
             why = nothing_scored(result.comparisons, args.warmup)
             if why:
                 _warn(why)
@@ -478,7 +480,8 @@ def cmd_live(args) -> int:
                                         else "no reference attitude (ATTITUDE / SIMSTATE) arrived"))
         if json_out:
             with json_out.writing() as path:
-                write_json(path, args.url, result.reference or "none", result.comparisons, link=result.link())
+                write_json(path, args.url, result.reference or "none", result.comparisons, link=result.link(),
+                           declination=result.estimation.declination_choice)
             print(f"metrics written to {json_out.path}")
         if sink is not None and sink.kind == "rrd":
             sink.file.commit()
@@ -553,8 +556,27 @@ DEGREES = _number(-180.0, 180.0)
 SEED = _number(0, 2**32 - 1, whole=True)
 
 
+def _home(text: str):
+    """An argparse type: --home LAT,LON[,ALT] (``declination.parse_home``); a usage error otherwise."""
+    from .declination import parse_home
+
+    try:
+        return parse_home(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+_home.__name__ = "LAT,LON"
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line usage errors, as every other error here is."""
+    """argparse with one-line usage errors, as every other error here is; a value that starts
+    with a minus and a digit is a value, not an option (``--home -35.36,149.17``), as Python
+    3.13's argparse has it (before, only a plain negative number was)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"-\.?\d")
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
@@ -590,7 +612,14 @@ def _estimation_args(p, source: str, estimators: bool = True) -> None:
                    help="seconds at the start not scored while estimators converge (default 10)")
     p.add_argument("--declination", type=DEGREES, default=None, metavar="DEG",
                    help=f"magnetic declination in degrees, east positive, -180 to 180 (default: the "
-                        f"{source}'s COMPASS_DEC, else 0 with a warning)")
+                        f"{source}'s COMPASS_DEC where set by hand (COMPASS_AUTODEC=0; PX4: EKF2_MAG_DECL), "
+                        "else the World Magnetic Model at --home or the first good GPS fix on the "
+                        f"{source}'s date, as the autopilot computes it; else 0 with a warning)")
+    p.add_argument("--home", type=_home, default=None, metavar="LAT,LON",
+                   help="where the vehicle flew, degrees (LAT,LON,ALT: metres above sea level too): "
+                        "the declination from the World Magnetic Model there, for a "
+                        f"{source} without a GPS fix (it takes the place of the fix; a declination set by "
+                        "hand on the autopilot still wins)")
     p.add_argument("--no-mag", action="store_true",
                    help="ignore the magnetometer: yaw from the gyro only, compared after removing "
                         "its initial offset")

@@ -21,7 +21,8 @@ from .report import BUCKET_KEYS
 AXES = ("roll", "pitch", "yaw")
 METRIC_KEYS = ("n", "mae", "rmse", "mse", "r2", "max", "sigma1", "sigma3")
 FACT_KEYS = ("format", "vehicle", "firmware", "imu_source", "imu_rate_hz", "duration_s", "gps", "compass",
-             "baro", "clock_segments", "gaps", "reference_suspect", "accel_scale_error", "not_meaningful")
+             "baro", "clock_segments", "gaps", "reference_suspect", "accel_scale_error", "not_meaningful",
+             "declination_deg", "declination_source")
 PAPER_001_CHAIN = ("ncs-eskf", "eskf", "ekf", "mahony")  # paper 001's ranking, best first
 
 

@@ -139,6 +139,7 @@ def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: 
     facts["not_meaningful"] = metrics["scoring"]["why"]  # left out of the rankings when set
     facts["accel_scale_error"] = metrics["scoring"]["accel_g_reading"]["scale_error"]
     facts["reference_suspect"] = len(metrics["scoring"]["reference_suspect"])
+    facts["declination_deg"], facts["declination_source"] = metrics["declination_deg"], metrics["declination_source"]
     return {"status": "ok", "facts": facts, "metrics": metrics["estimators"], "reference": metrics["reference"],
             "suspects": metrics["scoring"]["reference_suspect"], "reference_notes": metrics["scoring"]["reference_notes"]}
 

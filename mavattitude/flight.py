@@ -106,6 +106,9 @@ class Flight:
     params: dict[str, float] = field(default_factory=dict)
     vehicle: str | None = None  # e.g. "ArduCopter"
     firmware: str | None = None  # e.g. "ArduCopter V4.4.4 (865cffa5)"
+    # UNIX time (s, UTC) of the log's first valid GPS or system time: when it was flown (the
+    # declination's date); None when the log has none. The readers convert it (``readers.collect.first_utc``).
+    utc_s: float | None = None
     message_counts: dict[str, int] = field(default_factory=dict)
     # Clock segments: (start, end) in seconds. More than one means the autopilot rebooted
     # (its clock went back); the record holds the segment ``segment_index`` only.

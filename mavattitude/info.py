@@ -1,11 +1,13 @@
 """What a log holds: ``mavattitude info``, as a dict (for --json) and as text."""
 from __future__ import annotations
 
+import datetime
 import os
 
 import numpy as np
 
 from . import estimators as est
+from .declination import NO_DECLINATION, for_flight
 from .flight import GRAVITY, Flight
 from .imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful, rate_warning
 from .readers import best_imu_source, imu_rate
@@ -55,11 +57,9 @@ def summarize(flight: Flight) -> dict:
     scale = accel_scale_warning(reading["ms2"], reading["at_rest"], [est.create(name) for name in est.ESTIMATORS])
     if scale is not None:
         warnings.append(scale)
-    from .pipeline import DECLINATION_PARAMS, resolve_declination
-    declination, source = resolve_declination(flight, None)
-    if flight.mag and source == "none (0)":
-        names = "/".join(name for name, _ in DECLINATION_PARAMS)
-        warnings.append(f"no declination parameter ({names}): pass --declination to compare yaw with a true heading")
+    declination = for_flight(flight)
+    if flight.mag and not declination.known:
+        warnings.append(NO_DECLINATION)
     return {
         "log": flight.path,
         "format": flight.format,
@@ -80,7 +80,10 @@ def summarize(flight: Flight) -> dict:
         "message_rates_hz": {k: round(v / duration, 3) if duration > 0 else None
                              for k, v in sorted(flight.message_counts.items())},
         "parameters": len(flight.params),
-        "compass_declination_deg": round(float(np.degrees(declination)), 3) if source != "none (0)" else None,
+        "date_utc": (datetime.datetime.fromtimestamp(flight.utc_s, datetime.timezone.utc).isoformat(timespec="seconds")
+                     if flight.utc_s is not None else None),
+        "declination_deg": round(declination.deg, 3) if declination.known else None,
+        "declination_source": declination.source,
         "notes": list(flight.notes),
         "warnings": warnings,
     }
@@ -97,8 +100,9 @@ def render(info: dict) -> str:
     lines.append("  sensors   " + ", ".join(f"{k}: {v if v else '-'}" for k, v in (
         ("magnetometer", ", ".join(s["magnetometer"])), ("gps", s["gps"]), ("baro", s["barometer"]),
         ("attitude", s["attitude"]), ("truth", s["ground_truth"]))))
-    dec = info["compass_declination_deg"]
-    lines.append(f"  declination {'%.2f°' % dec if dec is not None else 'not in log'}")
+    dec = info["declination_deg"]
+    lines.append(f"  date      {info['date_utc'] or 'unknown (no GPS or system time)'}")
+    lines.append(f"  declination {'%.2f°' % dec if dec is not None else 'unknown'} ({info['declination_source']})")
     lines.append("  IMU sources (* = used by default):")
     for key, imu in info["imu_sources"].items():
         a = imu["accel_norm_ms2"]

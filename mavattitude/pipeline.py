@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import aiding as aid
+from . import declination as decl
 from . import quaternion as quat
 from . import estimators as est
 from .errors import InputError, UsageError
@@ -31,8 +32,7 @@ class ReplayResult:
     estimates: dict[str, AttitudeSeries]  # estimator name -> its attitude at the IMU timestamps
     comparisons: dict[str, Comparison]  # estimator name (and "autopilot" when scoring against truth)
     events: list[Event] = field(default_factory=list)
-    declination: float = 0.0  # rad, as used
-    declination_source: str = ""  # "log parameter COMPASS_DEC", "--declination", "none (0)"
+    declination: decl.Declination = decl.Declination(0.0, "none (0)")  # as used, and its source
     mag_source: str | None = None
     alignment: est.Alignment | None = None
     phase: PhaseSeries | None = None  # ground/air, when the log has a height source
@@ -71,7 +71,8 @@ class ReplayResult:
         diagnostics and parameters; ``scoring``."""
         from .report import estimator_extras, to_json_dict
         return to_json_dict(self.flight.path, self.reference.source if self.reference else "none",
-                            self.comparisons, estimator_extras(self), scoring=self.scoring, events=self.events)
+                            self.comparisons, estimator_extras(self), scoring=self.scoring, events=self.events,
+                            declination=self.declination)
 
     def write_json(self, path) -> None:
         """The metrics as JSON (``replay --json``)."""
@@ -79,7 +80,8 @@ class ReplayResult:
         from .report import estimator_extras, write_json
         with Outputs(inputs=[self.flight.path]) as outputs, outputs.file(path, "write_json", "json").writing() as to:
             write_json(to, self.flight.path, self.reference.source if self.reference else "none",
-                       self.comparisons, estimator_extras(self), scoring=self.scoring, events=self.events)
+                       self.comparisons, estimator_extras(self), scoring=self.scoring, events=self.events,
+                       declination=self.declination)
 
     def write_csv(self, folder) -> None:
         """reference.csv and <estimator>.csv in ``folder`` (``replay --export``)."""
@@ -98,21 +100,6 @@ class ReplayResult:
             rec = open_sink(sink, "mavattitude", str(self.flight.path))
             view.log_replay(self, rec)
             close_sink(rec, sink)
-
-
-# The log parameters that hold the declination, in the unit each autopilot keeps it in (rad per unit)
-DECLINATION_PARAMS = (("COMPASS_DEC", 1.0),  # ArduPilot, rad
-                      ("EKF2_MAG_DECL", math.pi / 180),  # PX4 EKF2, deg (learned from GPS, saved)
-                      ("ATT_MAG_DECL", math.pi / 180))  # PX4 attitude estimator (before EKF2), deg
-
-
-def resolve_declination(flight: Flight, override_deg: float | None) -> tuple[float, str]:
-    if override_deg is not None:
-        return math.radians(override_deg), "--declination"
-    for name, to_rad in DECLINATION_PARAMS:
-        if name in flight.params and math.isfinite(flight.params[name]):
-            return float(flight.params[name]) * to_rad, f"log parameter {name}"
-    return 0.0, "none (0)"
 
 
 def board_trim(flight: Flight) -> tuple[float, float] | None:
@@ -148,18 +135,18 @@ def choose_imu(flight: Flight, imu_source: str | None = None, imu_family: str | 
 
 
 def run_estimators(flight: Flight, names: list[str], imu_source: str | None = None,
-                   declination_deg: float | None = None, params: dict | None = None,
-                   use_mag: bool = True, imu_family: str | None = None, progress=None) -> tuple[Runner, str]:
-    """Run each named estimator over the chosen IMU of a whole flight (``choose_imu``): (the
-    runner, which holds estimates, diagnostics and events; the declination's source).
-    ``progress(fraction)`` is called as it goes."""
+                   declination: decl.Declination | None = None, params: dict | None = None,
+                   use_mag: bool = True, imu_family: str | None = None, progress=None) -> Runner:
+    """Run each named estimator over the chosen IMU of a whole flight (``choose_imu``): the
+    runner, which holds estimates, diagnostics and events. ``declination``: default the log's
+    (``declination.for_flight``). ``progress(fraction)`` is called as it goes."""
     imu_source = choose_imu(flight, imu_source, imu_family)
     mag_source = mag_for_imu(flight, imu_source) if use_mag else None
-    declination, dec_source = resolve_declination(flight, declination_deg)
-    runner = Runner(names, params, declination, use_mag, imu_source, mag_source)
+    declination = declination or decl.for_flight(flight)
+    runner = Runner(names, params, declination.rad, use_mag, imu_source, mag_source)
     runner.add_flight(flight)
     runner.step(final=True, chunk=False, progress=progress)
-    return runner, dec_source
+    return runner
 
 
 def accel_state_events(t: np.ndarray, codes: np.ndarray, states: tuple) -> dict[str, dict]:
@@ -187,13 +174,14 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                imu_source: str | None = None, warmup_s: float = 10.0,
                declination_deg: float | None = None, params: dict | None = None,
                use_mag: bool = True, trim: bool = True, imu_family: str | None = None,
-               progress=None) -> ReplayResult:
+               progress=None, home: decl.Fix | None = None) -> ReplayResult:
     """Estimate with every named estimator and score each against the reference.
 
     ``reference``: "autopilot" (ATT / ATTITUDE) or "truth" (SIM / SIMSTATE); with truth the
     autopilot's own attitude is scored as an extra row named "autopilot". ``trim``: against
     the autopilot, turn the estimates by the log's board trim first, as the autopilot turns
-    its own (``board_trim``).
+    its own (``board_trim``). ``declination_deg`` (--declination) and ``home`` (--home): see
+    ``declination.choose``.
     """
     if reference == "truth":
         if flight.truth is None:
@@ -205,10 +193,10 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     else:
         raise UsageError(f"unknown reference {reference!r}: use 'autopilot' or 'truth'")
 
-    runner, dec_source = run_estimators(flight, names, imu_source, declination_deg, params, use_mag, imu_family,
-                                        progress)
+    declination = decl.for_flight(flight, declination_deg, home)
+    runner = run_estimators(flight, names, imu_source, declination, params, use_mag, imu_family, progress)
     estimates = {name: runner.estimate(name) for name in names}
-    events = _events(flight, runner, dec_source)
+    events = _events(flight, runner, declination)
     imu = flight.imu[runner.imu_source]
     rate = imu_rate(imu)
     not_meaningful = rate_not_meaningful(rate)
@@ -259,7 +247,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
             estimator_events.setdefault(name, {})["resets"] = reset_events(imu_t, diag["reset"])
     return ReplayResult(flight=flight, imu_source=runner.imu_source, reference=ref,
                         estimates=estimates, comparisons=comparisons, events=events,
-                        declination=runner.declination, declination_source=dec_source,
+                        declination=declination,
                         mag_source=runner.mag_source, alignment=runner.alignment, phase=runner.phase_series(),
                         diagnostics=diagnostics, estimator_events=estimator_events,
                         params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(),
@@ -277,6 +265,7 @@ class ReplaySettings:
     imu_family: str | None = None  # --imu-source
     warmup_s: float = 10.0
     declination_deg: float | None = None
+    home: decl.Fix | None = None  # --home
     use_mag: bool = True
     trim: bool = True
     segment: int | None = None
@@ -299,18 +288,18 @@ def replay_flight(flight: Flight, settings: ReplaySettings, progress=None) -> tu
     result = run_replay(flight, names, reference=settings.reference, imu_source=settings.imu,
                         imu_family=settings.imu_family, progress=progress,
                         warmup_s=settings.warmup_s, declination_deg=settings.declination_deg,
-                        params=params, use_mag=settings.use_mag, trim=settings.trim)
+                        home=settings.home, params=params, use_mag=settings.use_mag, trim=settings.trim)
     result.events += [Event(flight.time_span[0], "info", note) for note in notes]
     return result, notes
 
 
-def _events(flight: Flight, runner: Runner, dec_source: str) -> list[Event]:
+def _events(flight: Flight, runner: Runner, declination: decl.Declination) -> list[Event]:
     """The runner's events, what the reader noticed, and the replay's own."""
     t0 = float(flight.imu[runner.imu_source].t[0])
     events = list(runner.events)
-    if runner.mag_source and dec_source == "none (0)":
-        events.append(Event(t0, "warn", "no COMPASS_DEC in the log and no --declination: using 0°; "
-                                        "yaw compares magnetic with true heading"))
+    events.append(Event(t0, "info", f"declination {declination.text()}"))
+    if runner.mag_source and not declination.known:
+        events.append(Event(t0, "warn", decl.NO_DECLINATION))
     if runner.phase_series() is None:
         events.append(Event(t0, "info", "no baro or GPS height: ground/air phase unknown"))
     events += [Event(t0, "info", note) for note in flight.notes]

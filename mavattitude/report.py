@@ -26,13 +26,14 @@ CSV_DECIMALS = 6  # µs for time (ArduPilot stamps in µs), 1e-6° for angles
 # ---------------------------------------------------------------- terminal table
 
 
-def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str:
+def format_table(comparisons: dict[str, Comparison], reference_name: str, declination=None) -> str:
     """A fixed-width table: per estimator and axis, n and MAE, RMSE, max |error| (degrees), R².
 
     Yaw is shown as ``yaw*``, marked as drift (YAW_DRIFT, with a footnote) where the estimator
     had no heading reference and its initial yaw was aligned; an axis with no scored sample
     shows "n/a". Scores that are not meaningful (``Comparison.not_meaningful``: an IMU too slow
-    to follow the vehicle) are shown with one decimal, under a line that says why.
+    to follow the vehicle) are shown with one decimal, under a line that says why. ``declination``
+    (a ``declination.Declination``): said under the title, with where it came from.
     """
     name_w = max([len("estimator")] + [len(name) for name in comparisons])
     cols = ("n", "MAE", "RMSE", "max", "R²")
@@ -44,6 +45,8 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str
 
     header = row("estimator", "axis", cols)
     lines = [f"Attitude error against {reference_name} (degrees; R² unitless)"]
+    if declination is not None:
+        lines.append(f"declination {declination.text()}")
     for why in dict.fromkeys(c.not_meaningful for c in comparisons.values() if c.not_meaningful):
         lines.append(f"{NOT_MEANINGFUL}: {why}. The scores below are shown, not to be relied on or ranked.")
     lines += [header, "-" * len(header)]
@@ -72,7 +75,8 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str) -> str
 
 
 def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
-                 extras: dict[str, dict] | None = None, scoring: dict | None = None, events=None) -> dict:
+                 extras: dict[str, dict] | None = None, scoring: dict | None = None, events=None,
+                 declination=None) -> dict:
     """The JSON summary: ``{"log", "reference", "estimators": {name: {"roll": M, "pitch": M, "yaw": M}}}``.
 
     M holds ``n``, ``mae``, ``rmse``, ``mse`` (deg²), ``r2``, ``max``, ``sigma1``, ``sigma3``
@@ -86,7 +90,8 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
     accelerometer updates: {state: {samples, spans, seconds}}; a watchdog's resets:
     ``resets``: {count, times}), ``diagnostics`` (median and
     max of each diagnostic series) and ``params``. ``events``: every ``events.Event`` as
-    {t_s, level, kind, text}, each one (the terminal shows a line per kind).
+    {t_s, level, kind, text}, each one (the terminal shows a line per kind). ``declination`` (a ``declination.Declination``)
+    adds ``declination_deg`` (null where none was found and 0 used) and ``declination_source``.
     """
     estimators = {}
     for name, comp in comparisons.items():
@@ -104,6 +109,9 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
         axes.update(_clean((extras or {}).get(name, {})))
         estimators[str(name)] = axes
     out = {"log": str(log), "reference": str(reference), "estimators": estimators}
+    if declination is not None:
+        out["declination_deg"] = round(declination.deg, 4) if declination.known else None
+        out["declination_source"] = declination.source
     if scoring is not None:
         out["scoring"] = _clean(scoring)
     if events is not None:
@@ -175,12 +183,12 @@ def format_events(result) -> str:
 
 def write_json(path, log: str, reference: str, comparisons: dict[str, Comparison],
                extras: dict[str, dict] | None = None, scoring: dict | None = None, link: dict | None = None,
-               events=None) -> Path:
+               events=None, declination=None) -> Path:
     """Write ``to_json_dict`` to ``path`` (strict JSON: no NaN), creating its directory;
     ``link``: a live session's link figures, as "link"."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = to_json_dict(log, reference, comparisons, extras, scoring, events)
+    data = to_json_dict(log, reference, comparisons, extras, scoring, events, declination)
     if link is not None:
         data["link"] = link
     text = json.dumps(data, indent=2, allow_nan=False)

@@ -68,6 +68,7 @@ import rerun.blueprint as rrb
 
 from . import quaternion as quat
 from .aiding import ned_to_geodetic
+from .declination import NO_DECLINATION
 from .flight import AttitudeSeries, GpsSeries
 from .metrics import AXES
 from .events import Event
@@ -784,13 +785,10 @@ def summary_markdown(result: ReplayResult) -> str:
         f"- **span**: {a:.1f}–{b:.1f} s ({b - a:.1f} s) on the autopilot clock",
         f"- **IMU**: {result.imu_source} · **reference**: "
         f"{result.reference.source if result.reference is not None else 'none'}",
-        f"- **compass**: {result.mag_source or 'none'} · **declination**: "
-        f"{math.degrees(result.declination):.2f}° ({result.declination_source or 'none'})",
+        f"- **compass**: {result.mag_source or 'none'} · **declination**: {result.declination.text()}",
     ]
-    if result.mag_source and result.declination_source.startswith("none"):
-        lines.append("- **warning**: no declination in the log and none given (`--declination`): the "
-                     "estimators' heading is magnetic, the reference's true; their yaw differs by the local "
-                     "declination")
+    if result.mag_source and not result.declination.known:
+        lines.append(f"- **warning**: {NO_DECLINATION}")
     if fl.gps is not None and any("pos_n" in d for d in result.diagnostics.values()):
         lines.append("- **map**: GPS track in magenta, an estimator's own track in its colour")
     if len(fl.segments) > 1:

@@ -31,7 +31,8 @@ def rrd_verifies(path: Path) -> bool:
 
 def check_outputs(tmp_path: Path, estimators: list[str], reference: str) -> dict:
     metrics = json.loads((tmp_path / "m.json").read_text())
-    assert set(metrics) == {"log", "reference", "estimators", "scoring", "events"}
+    assert set(metrics) == {"log", "reference", "estimators", "scoring", "events", "declination_deg",
+                            "declination_source"}
     assert all(set(e) == {"t_s", "level", "kind", "text"} for e in metrics["events"]) and metrics["events"]
     assert metrics["reference"] == reference
     assert set(metrics["estimators"]) >= set(estimators)
@@ -62,6 +63,8 @@ def test_replay_sample_log_writes_every_output(tmp_path, capsys):
     assert "mahony" in out and "MAE" in out and "RMSE" in out and "R²" in out
     metrics = check_outputs(tmp_path, ["mahony"], "ATTITUDE")
     assert metrics["estimators"]["mahony"]["roll"]["mae"] < 3.0
+    assert metrics["declination_deg"] == pytest.approx(5.0)  # the simulator's COMPASS_DEC
+    assert "declination 5.00° (log parameter COMPASS_DEC" in out  # under the table's title
 
 
 def test_replay_against_truth_scores_the_autopilot_too(tmp_path, capsys):
@@ -93,7 +96,8 @@ def test_info_text_and_json(capsys):
     assert info["imu_sources"]["RAW_IMU"]["accel_norm_ms2"]["median"] == pytest.approx(9.8, abs=0.2)
     assert info["sensors"]["ground_truth"] == "SIMSTATE"
     assert info["message_counts"]["RAW_IMU"] > 4000
-    assert info["compass_declination_deg"] == pytest.approx(5.0, abs=1e-3)
+    assert info["declination_deg"] == pytest.approx(5.0, abs=1e-3)
+    assert info["declination_source"] == "log parameter COMPASS_DEC, no COMPASS_AUTODEC: set by hand"
     assert info["duration_s"] == pytest.approx(100.0, abs=1.0)
 
 

@@ -59,6 +59,8 @@ def test_outputs_are_complete_and_well_formed(logs, tmp_path, capsys):
     assert all(float(r["mae"]) >= 0 for r in rows if r["mae"])
     assert {r["format"] for r in rows} == {"bin", "tlog"}
     assert all(r["imu_source"] and float(r["imu_rate_hz"]) > 0 and float(r["duration_s"]) > 0 for r in rows)
+    assert all(float(r["declination_deg"]) == pytest.approx(5.0)  # the simulator's COMPASS_DEC
+               and r["declination_source"].startswith("log parameter COMPASS_DEC") for r in rows)
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary["estimators"]) == {"mahony", "ncs-eskf"}
     assert summary["estimators"]["mahony"]["ratio_to_baseline_geomean"] == 1.0

@@ -545,7 +545,7 @@ def test_imu_choice_still_waits_for_the_compass_declination():
                 ROOT / "sample_logs" / "figure8.tlog")
     start = next(e.text for e in est.events if e.text.startswith("IMU source"))
     assert "RAW_IMU at 50.0 Hz" in start
-    assert any(e.text.startswith("declination 5.00° (vehicle parameter COMPASS_DEC)") for e in est.events)
+    assert any(e.text.startswith("declination 5.00° (vehicle parameter COMPASS_DEC, no COMPASS_AUTODEC") for e in est.events)
     assert not any("low IMU rate" in e.text for e in est.events)
     missing = _feed(LiveEstimation(["mahony"], imu_source="SCALED_IMU3"), ROOT / "sample_logs" / "figure8.tlog")
     assert missing.samples == 0

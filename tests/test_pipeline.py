@@ -1,7 +1,6 @@
-"""Replay: magnetometer on the IMU clock, declination, restarts after gaps, scoring rows."""
+"""Replay: magnetometer on the IMU clock, restarts after gaps, scoring rows (the declination: test_declination)."""
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import numpy as np
@@ -10,7 +9,7 @@ import pytest
 from mavattitude import quaternion as quat
 from mavattitude.errors import InputError, UsageError
 from mavattitude.flight import ImuSeries, MagSeries
-from mavattitude.pipeline import resolve_declination, run_replay
+from mavattitude.pipeline import run_replay
 from mavattitude.readers import read_log
 from mavattitude.runner import held_magnetometer
 
@@ -27,18 +26,6 @@ def test_mag_is_held_until_stale():
     assert np.isnan(out[5]).all()  # 0.6 s old: stale
     np.testing.assert_array_equal(out[6], [9, 10, 11])
     assert held_magnetometer(imu_t, None) is None
-
-
-def test_declination_sources(sim_logs):
-    flight = read_log(str(sim_logs["static.bin"][1]))
-    assert resolve_declination(flight, None) == (pytest.approx(math.radians(5.0)), "log parameter COMPASS_DEC")
-    assert resolve_declination(flight, 10.0) == (pytest.approx(math.radians(10.0)), "--declination")
-    del flight.params["COMPASS_DEC"]
-    assert resolve_declination(flight, None) == (0.0, "none (0)")
-    result = run_replay(flight, ["mahony"])
-    assert any("COMPASS_DEC" in e.text and e.level == "warn" for e in result.events)
-    # Heading is magnetic now: 5° off the (true) autopilot yaw.
-    assert result.comparisons["mahony"].axes["yaw"].mae == pytest.approx(5.0, abs=0.6)
 
 
 def test_gap_restarts_the_estimators_from_a_fresh_alignment(sim_logs):

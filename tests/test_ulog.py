@@ -4,7 +4,6 @@ the real samples in ../shared/logs/ulog against pyulog's raw values, detection b
 damaged files as one-line errors."""
 from __future__ import annotations
 
-import math
 import shutil
 
 import numpy as np
@@ -13,7 +12,8 @@ from pyulog import ULog
 
 from conftest import shared_log
 from mavattitude.cli import main
-from mavattitude.pipeline import ReplaySettings, replay_flight, resolve_declination
+from mavattitude.declination import for_flight
+from mavattitude.pipeline import ReplaySettings, replay_flight
 from mavattitude.readers import read_log
 from mavattitude.sim import simulate, write_log
 
@@ -44,8 +44,9 @@ def test_the_simulators_ulog_reads_back_in_si_on_its_clock(sim_logs):
     every = sim.rates.att_every
     np.testing.assert_allclose(flight.truth.q, sim.truth.q[::every], **F32)
     np.testing.assert_allclose(flight.attitude.q, sim.autopilot_q[::every], **F32)
-    declination, source = resolve_declination(flight, None)
-    assert source == "log parameter EKF2_MAG_DECL" and declination == pytest.approx(sim.declination_rad, abs=1e-6)
+    declination = for_flight(flight)  # no EKF2_DECL_TYPE: set by hand
+    assert declination.source.startswith("log parameter EKF2_MAG_DECL")
+    assert declination.rad == pytest.approx(sim.declination_rad, abs=1e-6)
 
 
 def test_pyulog_reads_what_the_simulator_writes(sim_logs):
@@ -115,7 +116,9 @@ def test_gps_baro_compass_and_delta_imus_of_a_newer_log():
     imu = raw(path, "vehicle_imu", 1)
     rate = imu["delta_angle[0]"] / (imu["delta_angle_dt"] * 1e-6)
     np.testing.assert_allclose(flight.imu["vehicle_imu[1]"].gyro[:, 0], rate, rtol=1e-6)
-    assert math.degrees(resolve_declination(flight, None)[0]) == pytest.approx(3.9908, abs=1e-3)
+    assert flight.params["EKF2_MAG_DECL"] == pytest.approx(3.9908, abs=1e-3)  # saved by the last flight
+    # EKF2_DECL_TYPE 7: PX4 looks the declination up at its fix, Trondheim in April 2021
+    assert for_flight(flight).source.startswith("WMM-2020 at the first GPS fix 63.4171,10.4082 on 2021-04-21")
     assert "v1.11.2" in flight.firmware and "CUBEORANGE" in flight.firmware
     assert "vehicle_imu[0] is the IMU PX4 selected (sensor_selection); sensor_combined carries its samples" in flight.notes
 

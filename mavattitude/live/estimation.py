@@ -18,8 +18,12 @@ On the autopilot's clock, per clock segment:
   judged on its first ``MAG_SCALE_SAMPLES`` (a log: on the median of all);
 - the IMU and compass sources are chosen once ``ALIGN_S`` of IMU data is in (every source has
   shown up by then; ``imu_source`` chooses), and, when a compass is there and the session
-  asked for COMPASS_DEC, once it has arrived or ``DECLINATION_WAIT_S`` more have passed. A log
-  chooses on all of its data: pass the same ``imu_source`` to compare the two.
+  asked for COMPASS_DEC and COMPASS_AUTODEC, once they have arrived or ``DECLINATION_WAIT_S``
+  more have passed. A log chooses on all of its data: pass the same ``imu_source`` to compare
+  the two;
+- the declination is chosen then too, as a log's is (``declination.choose``: the vehicle's
+  parameters, its first good GPS fix so far, its date, else today's). It stays for the session: when the
+  vehicle has no fix yet, the first good one later gets an event with the model's value there.
 
 Memory stays flat however long a session runs: each estimate is scored as it comes
 (``running_metrics``: the final metrics are replay's of the same data, the quantiles within
@@ -28,11 +32,13 @@ rolling metrics and the view read them); the runner forgets the rest (``Runner.f
 """
 from __future__ import annotations
 
+import datetime
 import math
 import time
 
 import numpy as np
 
+from .. import declination as decl
 from .. import quaternion as quat
 from ..events import Event
 from ..flight import AttitudeSeries
@@ -47,7 +53,7 @@ from ..running_metrics import RunningComparison, joined
 from .loss import SampleLoss
 
 ALIGN_S = 3.0  # s of IMU data before the sources are chosen
-DECLINATION_WAIT_S = 2.0  # s more of IMU data to wait for a COMPASS_DEC that was asked for
+DECLINATION_WAIT_S = 2.0  # s more of IMU data to wait for the COMPASS_DEC and COMPASS_AUTODEC asked for
 MAG_SCALE_SAMPLES = 5  # compass samples that decide its unit
 HISTORY_S = 60.0  # s of samples, estimates and references kept (at least the rolling window)
 SCORE_EVERY_S = 0.5  # s of estimates between scorings (each one computes errors for every estimator)
@@ -83,8 +89,8 @@ class _Segment:
 class LiveEstimation:
     """Estimators ``names`` (with ``params``: name -> dataclass) on a live vehicle's data.
 
-    ``declination_deg``: None takes the vehicle's COMPASS_DEC when it has arrived by the
-    start, else 0 with a warning. ``reference``: "autopilot" or "truth" (SIMSTATE).
+    ``declination_deg`` (--declination) and ``home`` (--home, a ``declination.Fix``): see
+    ``declination.choose``. ``reference``: "autopilot" or "truth" (SIMSTATE).
     ``record_latency``: keep (time_usec, monotonic s when estimated) per IMU sample (a bench:
     it grows). ``history_s``: s of data kept. ``errors_for_view``: keep each estimator's errors
     as they are scored, for ``take_errors``."""
@@ -92,11 +98,14 @@ class LiveEstimation:
     def __init__(self, names: list[str], params: dict | None = None, declination_deg: float | None = None,
                  use_mag: bool = True, imu_source: str | None = None, reference: str = "autopilot",
                  warmup_s: float = 10.0, record_latency: bool = False, expect_declination: bool = False,
-                 history_s: float = HISTORY_S, errors_for_view: bool = False):
+                 history_s: float = HISTORY_S, errors_for_view: bool = False, home: decl.Fix | None = None):
         self.names = list(names)
         self.params = params or {}
         self.declination_deg = declination_deg
+        self.home = home
         self.declination: float | None = None  # rad, fixed when the estimators first start
+        self.declination_choice: decl.Declination | None = None  # the same, with its source
+        self.awaiting_fix = False  # chosen without the position a GPS fix would give
         self.use_mag = use_mag
         self.imu_choice = imu_source
         self.reference = reference
@@ -183,6 +192,8 @@ class LiveEstimation:
         elif kind == "gps":
             gps = (*row[:8], row[8], math.nan)  # GPS_RAW_INT has no vertical accuracy
             self._append_one(seg.gps, t, (*gps, arrival))
+            if self.awaiting_fix and decl.is_good_fix(row[0], row[1], row[6], row[7], row[8]):
+                self._fix_came(t, decl.Fix(row[0], row[1], row[2]))
         elif kind == "baro":
             self._append_one(seg.baro, t, (*row, arrival))
         elif kind in REFERENCE_KINDS:
@@ -271,8 +282,9 @@ class LiveEstimation:
         span = max(s.column(0)[-1] for s in seg.imu.values()) - first
         if span < ALIGN_S:
             return False  # let every source (and the compass, and COMPASS_DEC) show up first
+        asked = ("COMPASS_DEC", "COMPASS_AUTODEC")  # both: COMPASS_DEC alone is read as set by hand
         if (self.expect_declination and self.declination_deg is None and seg.mag and self.use_mag
-                and "COMPASS_DEC" not in self.decoder.params and span < ALIGN_S + DECLINATION_WAIT_S):
+                and not all(name in self.decoder.params for name in asked) and span < ALIGN_S + DECLINATION_WAIT_S):
             return False
         if self.imu_choice is not None:
             if self.imu_choice not in seg.imu:
@@ -292,17 +304,30 @@ class LiveEstimation:
         return True
 
     def _choose_declination(self, t: float, has_mag: bool) -> None:
-        if self.declination_deg is not None:
-            self.declination, source = math.radians(self.declination_deg), "--declination"
-        elif "COMPASS_DEC" in self.decoder.params:
-            self.declination, source = float(self.decoder.params["COMPASS_DEC"]), "vehicle parameter COMPASS_DEC"
-        else:
-            self.declination, source = 0.0, None
-        self.events.append(Event(t, "info", f"declination {math.degrees(self.declination):.2f}° "
-                                            f"({source or 'none'})"))
-        if has_mag and source is None:
-            self.events.append(Event(t, "warn", "no COMPASS_DEC from the vehicle and no --declination: using 0°; "
-                                                "yaw compares magnetic with true heading"))
+        """The session's declination (``declination.choose``) on what the vehicle sent so far."""
+        gps = self.seg.gps.view()  # t, lat, lon, alt, vn, ve, vd, fix, sats, h_acc, v_acc, arrival
+        good = np.flatnonzero(decl.is_good_fix(gps[:, 1], gps[:, 2], gps[:, 7], gps[:, 8], gps[:, 9]))
+        fix = decl.Fix(*map(float, gps[good[0], 1:4])) if len(good) else None
+        chosen = decl.choose(self.decoder.params, fix, self._date(), self.declination_deg, self.home, where="vehicle")
+        self.declination, self.declination_choice = chosen.rad, chosen
+        self.awaiting_fix = chosen.kind in ("held", "none")
+        self.events.append(Event(t, "info", f"declination {chosen.text()}"))
+        if has_mag and not chosen.known:
+            self.events.append(Event(t, "warn", decl.NO_DECLINATION))
+
+    def _date(self) -> datetime.datetime:
+        """The vehicle's date (SYSTEM_TIME, as the replay of the recording takes it), else today's."""
+        if self.decoder.utc_s is not None:
+            return datetime.datetime.fromtimestamp(self.decoder.utc_s, datetime.timezone.utc)
+        return datetime.datetime.now(datetime.timezone.utc)
+
+    def _fix_came(self, t: float, fix: decl.Fix) -> None:
+        """The first good fix after the start: what the declination is there (the session keeps its own)."""
+        self.awaiting_fix = False
+        there = decl.choose(self.decoder.params, fix, self._date(), where="vehicle")
+        self.events.append(Event(t, "info", f"GPS fix: the declination there is {there.text()}; this session "
+                                            f"keeps its {math.degrees(self.declination):.2f}° (--home or "
+                                            "--declination give it from the start)"))
 
     def _score(self, seg: _Segment) -> None:
         """Score the estimates (against truth, the autopilot too) at the reference samples they

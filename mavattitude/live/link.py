@@ -415,10 +415,16 @@ class RateRequester:
 
 
 def request_identity(conn, target: tuple[int, int]) -> None:
-    """Ask for AUTOPILOT_VERSION (firmware) and COMPASS_DEC (the declination)."""
+    """Ask for AUTOPILOT_VERSION (firmware) and the declination parameters with the ones that
+    say whether the autopilot computes it (``declination.DECLINATION_PARAMS``; a vehicle
+    answers those it has)."""
+    from ..declination import DECLINATION_PARAMS
+
     conn.mav.command_long_send(*target, mavlink2.MAV_CMD_REQUEST_MESSAGE, 0,
                                mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 0, 0, 0, 0, 0, 0)
-    conn.mav.param_request_read_send(*target, b"COMPASS_DEC", -1)
+    for name, _, auto_name, _ in DECLINATION_PARAMS:
+        conn.mav.param_request_read_send(*target, name.encode(), -1)
+        conn.mav.param_request_read_send(*target, auto_name.encode(), -1)
 
 
 def wait_readable(conn, timeout: float) -> None:

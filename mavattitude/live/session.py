@@ -20,6 +20,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 
+from ..declination import Fix
 from ..errors import InputError
 from ..events import Event
 from ..imucheck import COARSE_RATE_HZ
@@ -75,6 +76,7 @@ class LiveOptions:
     record: str | None = None  # .tlog path (None: no recording)
     warmup: float = 10.0
     declination: float | None = None  # degrees
+    home: Fix | None = None  # --home
     reference: str = "autopilot"
     use_mag: bool = True
     duration: float | None = None  # s of wall time, then stop
@@ -191,7 +193,7 @@ class _Session:
         self.est = LiveEstimation(opts.names, opts.params, opts.declination, opts.use_mag, opts.imu_source,
                                   opts.reference, opts.warmup, record_latency=opts.record_latency,
                                   expect_declination=opts.request, history_s=max(HISTORY_S, 2 * opts.window),
-                                  errors_for_view=bool(opts.sink))
+                                  errors_for_view=bool(opts.sink), home=opts.home)
         self.rec = self.live_view = None
         if opts.sink:
             from ..sink import open_sink

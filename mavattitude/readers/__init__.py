@@ -126,7 +126,7 @@ def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
         warnings.append(f"the autopilot clock went back (reboot): {len(segments)} segments ({spans}); "
                         f"using segment {segment} (--segment N for another)")
     flight = Flight(path=path, format=fmt, params=decoded.params, message_counts=decoded.counts,
-                    segments=segments, segment_index=segment, notes=notes, warnings=warnings)
+                    segments=segments, segment_index=segment, notes=notes, warnings=warnings, utc_s=decoded.utc_s)
     unusable = fill_series(flight, col, segment)
     flight.vehicle, flight.firmware = decoded.identity or identify_vehicle(decoded.texts)
     if not flight.imu and unusable:

@@ -251,6 +251,25 @@ class Columns(NamedTuple):
     duplicates: int  # samples dropped for repeating the time of the one before
 
 
+# The date a log was flown, from the vehicle's GPS or system time (UNIX seconds, UTC).
+GPS_EPOCH_UNIX = 315_964_800  # s, 1980-01-06 00:00:00 UTC
+GPS_LEAP_SECONDS = 18  # GPS time runs ahead of UTC by this much (since 2017; 16-17 before: nothing to a date)
+UTC_RANGE_S = (946_684_800, 4_102_444_800)  # 2000 to 2100: outside, a time not yet set (0, GPS week 0)
+
+
+def gps_to_unix(week, week_ms):
+    """UNIX time (s, UTC) of GPS week and milliseconds of the week (arrays or numbers)."""
+    return GPS_EPOCH_UNIX + np.asarray(week, np.float64) * 604_800 + np.asarray(week_ms, np.float64) * 1e-3 \
+        - GPS_LEAP_SECONDS
+
+
+def first_utc(unix_s) -> float | None:
+    """The first of these UNIX times (s) that is a set clock (``UTC_RANGE_S``); None if none is."""
+    unix_s = np.atleast_1d(np.asarray(unix_s, np.float64))
+    hits = np.flatnonzero((unix_s >= UTC_RANGE_S[0]) & (unix_s <= UTC_RANGE_S[1]))
+    return float(unix_s[hits[0]]) if len(hits) else None
+
+
 @dataclass
 class Decoded:
     """What a reader got out of a file, before it becomes a ``Flight``."""
@@ -261,3 +280,4 @@ class Decoded:
     notes: list[str] = field(default_factory=list)  # what was fixed or noticed
     warnings: list[str] = field(default_factory=list)  # data lost to damage: the user must hear of it
     identity: tuple[str, str] | None = None  # (vehicle, firmware) when the format says them (ULog)
+    utc_s: float | None = None  # UNIX time (s, UTC) of the first valid GPS or system time (``flight.Flight``)

@@ -13,7 +13,7 @@ degrees, 'L' 1e-7 degrees -> degrees, but not the FMTU multipliers):
 | GYR, ACC (sensor rate, INS_RAW_LOG_OPT / fast sampling) | SampleUS, GyrX..Z / AccX..Z | µs, rad/s / m/s² |
 | IMT, IMT2, IMT3 / IMT with I (delta angles and velocities) | DelaT, DelvT, DelAX..Z, DelVX..Z | s, rad, m/s |
 | MAG, MAG2, MAG3 / MAG with I | MagX..Z | milligauss (FMTU says 1e-3 G; not applied) |
-| GPS / GPS with I | Lat, Lng, Alt, Spd, GCrs, VZ, Status, NSats | deg, deg, m AMSL, m/s, deg, m/s down |
+| GPS / GPS with I | Lat, Lng, Alt, Spd, GCrs, VZ, Status, NSats; GWk, GMS (old: Week, TimeMS) | deg, deg, m AMSL, m/s, deg, m/s down; GPS week, ms of week (the log's date) |
 | BARO | Press, Alt | Pa, m |
 | ATT | Roll, Pitch, Yaw | degrees, yaw 0-360 |
 | SIM | Roll, Pitch, Yaw (+ Q1..Q4 when present) | degrees; quaternion |
@@ -38,7 +38,7 @@ import os
 import numpy as np
 
 from ..errors import InputError
-from .collect import Collector, Decoded
+from .collect import Collector, Decoded, first_utc, gps_to_unix
 from .dfrecords import decode, open_log, scan_log
 
 MILLIGAUSS_TO_TESLA = 1e-7  # 1 mG = 1e-3 G = 1e-7 T
@@ -84,10 +84,13 @@ def _decoded(records, order: dict, counts: dict, **notes) -> Decoded:
     the file (``order``) into the collector, parameters and texts."""
     col = Collector()
     texts = {}
+    utc_s = None
     for name, r in records:
         if name in TEXT_TYPES:
             texts[name] = r
             continue
+        if name == "GPS" and utc_s is None:
+            utc_s = _gps_utc(r)
         try:
             _collect(col, name, r, order[name])
         except (KeyError, TypeError, ValueError) as exc:  # a column missing or of another type: damage
@@ -97,7 +100,7 @@ def _decoded(records, order: dict, counts: dict, **notes) -> Decoded:
     parm, msg, ver = (texts.get(name, {}) for name in TEXT_TYPES)
     params = {name: float(value) for name, value in zip(parm.get("Name", []), parm.get("Value", []))}
     texts = list(msg.get("Message", [])) + list(ver.get("FWS", []))
-    return Decoded(col, params, texts, counts, **notes)
+    return Decoded(col, params, texts, counts, utc_s=utc_s, **notes)
 
 
 def damage_notes(scan, size: int) -> list[str]:
@@ -162,6 +165,14 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
         else:
             col.add_columns("truth_euler", "SIM", order, t,
                             np.column_stack([r["Roll"], r["Pitch"], r["Yaw"]]) * DEG)
+
+
+def _gps_utc(r: dict) -> float | None:
+    """The first GPS time the records carry (GWk/GMS; Week/TimeMS in old logs), as UNIX s."""
+    week, week_ms = ("GWk", "GMS") if "GWk" in r else ("Week", "TimeMS")
+    if week not in r or week_ms not in r:
+        return None
+    return first_utc(gps_to_unix(r[week], r[week_ms]))
 
 
 def _sensor_values(prefix: str, r: dict) -> np.ndarray:

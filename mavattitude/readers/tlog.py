@@ -12,6 +12,7 @@ Units as sent (MAVLink common/ardupilotmega definitions):
 | ATTITUDE | roll, pitch, yaw | rad |
 | ATTITUDE_QUATERNION | q1..q4 | - |
 | SIMSTATE (ArduPilot SITL truth) | roll, pitch, yaw | rad |
+| SYSTEM_TIME | time_unix_usec (else GPS_RAW_INT time_usec when a UNIX time) | µs: the log's date |
 | PARAM_VALUE | param_id, param_value | - |
 
 Time: the autopilot's ``time_boot_ms`` / ``time_usec`` (µs since boot), never the ground
@@ -29,7 +30,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import InputError
-from .collect import Collector, Decoded
+from .collect import Collector, Decoded, first_utc
 from .dfrecords import open_log
 from .tlogrecords import decode, dialect, msgid, packet_bytes, scan
 
@@ -73,7 +74,7 @@ def tlog_start(data: bytes) -> int | None:
 # The messages whose samples we keep, by kind, and those read for their text or numbers only.
 IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
 SAMPLE_MESSAGES = IMU_MESSAGES + ("GPS_RAW_INT", "SCALED_PRESSURE", "ATTITUDE", "ATTITUDE_QUATERNION", "SIMSTATE")
-OTHER_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "AUTOPILOT_VERSION", "HEARTBEAT")
+OTHER_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "AUTOPILOT_VERSION", "HEARTBEAT", "SYSTEM_TIME")
 VEHICLE_MESSAGES = IMU_MESSAGES + ("ATTITUDE",)  # what only a vehicle sends (``is_vehicle``)
 
 
@@ -164,22 +165,27 @@ class MessageDecoder:
 
     ``decode(msg, add)`` calls ``add(kind, key, t, row)`` for each sample a message carries
     (kinds: imu, mag, gps, baro, att_euler, att_quat, truth_euler; ``t`` seconds since boot),
-    and keeps parameters (``params``) and identity texts (``texts``: STATUSTEXT, version,
-    heartbeat type). A message without a boot time (SIMSTATE, or a GPS_RAW_INT with a zero or
-    UNIX-epoch time) takes the latest boot time of the vehicle's other sample messages: ArduPilot
-    sends it in the same burst as the message that carried that time.
+    and keeps parameters (``params``), identity texts (``texts``: STATUSTEXT, version,
+    heartbeat type) and the vehicle's first set UNIX time (``utc_s``, s: SYSTEM_TIME's). A
+    message without a boot time (SIMSTATE, or a GPS_RAW_INT with a zero or UNIX-epoch time)
+    takes the latest boot time of the vehicle's other sample messages: ArduPilot sends it in the
+    same burst as the message that carried that time.
     """
 
     def __init__(self):
         self.params: dict[str, float] = {}
         self.texts: list[str] = []
+        self.utc_s: float | None = None
         self.heard_heartbeat = False
         self.last_t = None  # the vehicle's latest boot time, for messages that carry none
 
     def note(self, msg) -> None:
-        """A parameter, a text or the vehicle's identity."""
+        """A parameter, a text, the vehicle's identity or its UNIX time."""
         name = msg.get_type()
-        if name == "PARAM_VALUE":
+        if name == "SYSTEM_TIME":
+            if self.utc_s is None:
+                self.utc_s = first_utc(msg.time_unix_usec * 1e-6)
+        elif name == "PARAM_VALUE":
             self.params[msg.param_id] = float(msg.param_value)
         elif name == "STATUSTEXT":
             self.texts.append(msg.text)
@@ -259,7 +265,10 @@ def read_tlog(path: str, progress=None) -> Decoded:
             order[name] = packets.offsets[rows]
     col = Collector()
     _collect(col, columns, order)
-    out = Decoded(col, decoder.params, decoder.texts, packets.counts, warnings=_damage(packets))
+    gps_utc = first_utc(np.asarray(columns["GPS_RAW_INT"].time_usec, np.float64) * 1e-6) \
+        if "GPS_RAW_INT" in columns else None  # older ArduPilot sends the fix's UNIX time there
+    out = Decoded(col, decoder.params, decoder.texts, packets.counts, warnings=_damage(packets),
+                  utc_s=decoder.utc_s if decoder.utc_s is not None else gps_utc)
     others = sorted(set(packets.sysids[~mine & after_first].tolist()) - {vehicle})
     if others:
         out.notes.append(f"ignored messages from other MAVLink systems {others} (vehicle is system {vehicle})")

@@ -11,7 +11,7 @@ taken at ``timestamp_sample`` where the topic has it set (when the sensor sample
 | sensor_combined (logs before ~2018) | magnetometer_ga[3], baro_alt_meter (+ their *_timestamp_relative) | gauss; m |
 | vehicle_imu (instances) | delta_angle[3], delta_velocity[3], delta_angle_dt, delta_velocity_dt | rad, m/s, µs |
 | vehicle_magnetometer (instances) | magnetometer_ga[3] (calibrated, body frame) | gauss |
-| vehicle_gps_position, sensor_gps | latitude_deg/longitude_deg/altitude_msl_m, or lat/lon (1e-7 °) and alt (mm); vel_n/e/d_m_s, fix_type, satellites_used, eph, epv | °, m, m/s, m |
+| vehicle_gps_position, sensor_gps | latitude_deg/longitude_deg/altitude_msl_m, or lat/lon (1e-7 °) and alt (mm); vel_n/e/d_m_s, fix_type, satellites_used, eph, epv; time_utc_usec | °, m, m/s, m; µs UNIX time (the log's date) |
 | vehicle_air_data | baro_pressure_pa, baro_alt_meter | Pa, m |
 | vehicle_attitude | q[4] (EKF2's estimate) | [w, x, y, z], body FRD -> NED |
 | vehicle_attitude_groundtruth (SITL) | q[4] | as vehicle_attitude |
@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..phase import height_pressure
-from .collect import Collector, Decoded
+from .collect import Collector, Decoded, first_utc
 
 GAUSS_TO_TESLA = 1e-4
 S_PER_US = 1e-6
@@ -74,7 +74,10 @@ def read_ulog(path: str, progress=None) -> Decoded:
     if selected:
         notes.append(f"{selected} is the IMU PX4 selected (sensor_selection); sensor_combined carries its samples")
     params = {k: float(v) for k, v in ulog.initial_parameters.items() if isinstance(v, (int, float))}
-    return Decoded(col, params, [], counts, notes=notes, warnings=warnings, identity=_identify(ulog, params))
+    utc = [first_utc(d.data["time_utc_usec"] * 1e-6) for d in ulog.data_list
+           if d.name in ("vehicle_gps_position", "sensor_gps") and "time_utc_usec" in d.data]
+    return Decoded(col, params, [], counts, notes=notes, warnings=warnings, identity=_identify(ulog, params),
+                   utc_s=min((u for u in utc if u is not None), default=None))
 
 
 def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]) -> None:
