@@ -65,7 +65,7 @@ def test_a_real_log_that_computed_its_declination_gets_igrf_s_at_its_first_fix(n
     assert flight.utc_s == pytest.approx(when.timestamp(), abs=30.0)  # the leap seconds apart
     chosen = decl.for_flight(flight)
     assert chosen.kind == "model"
-    assert chosen.source.startswith(f"WMM-20") and f"at the first GPS fix {lat:.4f},{lon:.4f} on {when:%Y-%m-%d}" \
+    assert chosen.source.startswith("WMM-20") and f"at the first GPS fix {lat:.4f},{lon:.4f} on {when:%Y-%m-%d}" \
         in chosen.source and chosen.source.endswith("COMPASS_AUTODEC=1")
     assert chosen.deg == pytest.approx(igrf_declination_deg(lat, lon, alt, when), abs=0.5)
 
