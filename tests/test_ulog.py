@@ -207,3 +207,75 @@ def test_a_topic_without_a_field_we_read_is_a_warning(tmp_path, monkeypatch):
     flight = read_log(str(path))
     assert flight.gps is None and flight.imu
     assert flight.warnings == ["vehicle_gps_position[0]: not read, it has no field 'eph' (a PX4 version not known here)"]
+
+
+# ---------------------------------------------------------------- damage cut out and said (issue 23)
+
+EVENTS_LOG = "ulog/px4-sitl-events-31s.ulg"
+
+
+def zeroed(source, folder, at, n, name="damaged.ulg"):
+    data = bytearray(source.read_bytes())
+    data[at:at + n] = bytes(len(data[at:at + n]))
+    (folder / name).write_bytes(bytes(data))
+    return folder / name
+
+
+def test_every_shared_ulog_frames_without_damage():
+    from conftest import SHARED_LOGS
+    from mavattitude.readers.ulogrecords import frame
+
+    paths = sorted((SHARED_LOGS / "ulog").glob("*.ulg")) if (SHARED_LOGS / "ulog").is_dir() else []
+    if not paths:
+        pytest.skip(f"PX4 logs not found in {SHARED_LOGS / 'ulog'}")
+    for path in paths:
+        framing = frame(path.read_bytes())
+        assert framing.damage == [] and framing.header == [] and framing.notes() == [], path.name
+
+
+def test_zeroed_bytes_in_a_real_ulog_cost_one_message_not_its_tail(tmp_path):
+    source = shared_log(EVENTS_LOG)
+    whole = read_log(str(source))
+    flight = read_log(str(zeroed(source, tmp_path, 862_488, 16)))  # pyulog alone stopped here, at 16.4 s
+    imu = flight.imu["sensor_combined"]
+    assert len(imu.t) >= len(whole.imu["sensor_combined"].t) - 1
+    assert imu.t[-1] == whole.imu["sensor_combined"].t[-1]
+    assert flight.warnings == ["skipped 54 bytes of corrupt data (0.0035 % of the file) in 1 stretch, the first "
+                               "at byte 862,502: messages resumed after each"]
+
+
+def test_zeroed_bytes_in_a_simulated_ulog_are_skipped_and_said(sim_logs, tmp_path):
+    sim, ulg, _ = sim_logs
+    size = ulg.stat().st_size
+    flight = read_log(str(zeroed(ulg, tmp_path, size // 2, 64)))  # longer than a message: a header is hit
+    assert abs(flight.imu["sensor_combined"].t[-1] - sim.t[-1]) < 0.01  # the tail is read
+    assert len(flight.warnings) == 1 and "skipped" in flight.warnings[0] and "resumed after each" in flight.warnings[0]
+    cut = read_log(str(zeroed(ulg, tmp_path, size // 2, size, "tail.ulg")))
+    assert cut.imu["sensor_combined"].t[-1] < sim.t[-1] * 0.6
+    assert "nothing readable follows the last, the file's data ends there" in cut.warnings[0]
+
+
+def test_a_damaged_ulog_header_is_read_and_said_or_one_line(tmp_path, capsys):
+    source = shared_log(EVENTS_LOG)
+    data = source.read_bytes()
+    for at, value, said in [(127, data[127] ^ 0xFF, "the firmware version (ver_sw_release) is not a number"),
+                            (0, ord("X"), "the ULog header is damaged (magic byte 0 is 0x58, not 0x55)"),
+                            (7, 9, "the ULog header is damaged (version byte is 9, not 1)")]:
+        damaged = bytearray(data)
+        damaged[at] = value
+        path = tmp_path / f"byte-{at}.ulg"
+        path.write_bytes(bytes(damaged))
+        assert main(["info", str(path)]) == 0
+        out, err = capsys.readouterr()
+        assert "Traceback" not in err and said in out and "pyulog" not in out, out
+    damaged = bytearray(data)
+    damaged[19 + 8] = 0xFF  # an incompatible flag pyulog does not know
+    path = tmp_path / "flags.ulg"
+    path.write_bytes(bytes(damaged))
+    assert main(["info", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not a readable ULog (header damaged" in err and str(path) in err
+    damaged[0:2] = b"XX"  # two magic bytes: no ULog
+    path.write_bytes(bytes(damaged))
+    assert main(["info", str(path)]) == 1
+    assert "not a PX4 ULog file" in capsys.readouterr().err

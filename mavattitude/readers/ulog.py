@@ -25,35 +25,42 @@ read. Parameters are kept as PX4 names them (the declination is ``EKF2_MAG_DECL`
 """
 from __future__ import annotations
 
+import io
+
 import numpy as np
 
 from ..errors import InputError
 from ..phase import height_pressure
 from .collect import Collector, Decoded
+from .ulogrecords import frame
 
 GAUSS_TO_TESLA = 1e-4
 S_PER_US = 1e-6
 RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: the *_timestamp_relative of a sensor not in this sample
 TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_magnetometer", "vehicle_gps_position", "sensor_gps",
           "vehicle_air_data", "vehicle_attitude", "vehicle_attitude_groundtruth", "sensor_selection"]
-ULOG_MAGIC = b"ULog\x01\x125"
 
 
 def read_ulog(path: str, progress=None) -> Decoded:
-    """Decode a .ulg (the topics of ``TOPICS``); InputError for a file pyulog cannot read."""
+    """Decode a .ulg (the topics of ``TOPICS``); InputError for a file pyulog cannot read.
+    Damage is cut out first (``ulogrecords``), and said in the warnings."""
     from pyulog import ULog
 
+    with open(path, "rb") as f:
+        data = f.read()
+    framing = frame(data)
+    warnings = framing.notes()
+    source = io.BytesIO(framing.repaired(data)) if warnings else path
     try:
-        ulog = ULog(path, message_name_filter_list=TOPICS, disable_str_exceptions=True)
+        ulog = ULog(source, message_name_filter_list=TOPICS, disable_str_exceptions=True)
     except Exception as exc:  # noqa: BLE001 - pyulog raises what it meets (struct.error, ValueError, ...)
-        raise InputError(path, f"not a readable ULog ({type(exc).__name__}: {exc})") from None
+        raise InputError(path, f"not a readable ULog (header damaged: {type(exc).__name__}: {exc})") from None
     if progress is not None:
         progress(0.5)
     col = Collector()
     counts: dict[str, int] = {}
     notes: list[str] = []
-    warnings = []
-    if ulog.file_corruption:
+    if ulog.file_corruption and not framing.damage:
         warnings.append("the file is damaged (pyulog found corrupt data and skipped to the next valid message)")
     if ulog.dropouts:
         lost_ms = sum(d.duration for d in ulog.dropouts)
@@ -74,6 +81,9 @@ def read_ulog(path: str, progress=None) -> Decoded:
     if selected:
         notes.append(f"{selected} is the IMU PX4 selected (sensor_selection); sensor_combined carries its samples")
     params = {k: float(v) for k, v in ulog.initial_parameters.items() if isinstance(v, (int, float))}
+    if not isinstance(ulog.msg_info_dict.get("ver_sw_release", 0), int):
+        warnings.append("the ULog header is damaged: the firmware version (ver_sw_release) is not a number; "
+                        "left out")
     return Decoded(col, params, [], counts, notes=notes, warnings=warnings, identity=_identify(ulog, params))
 
 
@@ -159,6 +169,8 @@ def _identify(ulog, params: dict) -> tuple[str, str]:
     info = ulog.msg_info_dict
     vehicle = enum_name("MAV_TYPE", int(params["MAV_TYPE"])) if "MAV_TYPE" in params else "PX4"
     release = info.get("ver_sw_release")
+    if not isinstance(release, int):  # a damaged header can give it another type
+        release = None
     version = f"v{release >> 24}.{(release >> 16) & 0xFF}.{(release >> 8) & 0xFF}" if release else None
     git = str(info.get("ver_sw", ""))[:8] or None
     parts = ["PX4", version, f"({git})" if git else None, info.get("ver_hw")]
