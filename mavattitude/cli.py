@@ -193,7 +193,10 @@ def _logs_to_run(args) -> list[str]:
 
     if args.scheduler:
         check_scheduler(args.scheduler)
-    logs = find_logs(args.paths)
+    passed: list[str] = []
+    logs = find_logs(args.paths, passed)
+    for path in passed:
+        print(f"note: passed by {path}: not a regular file", file=sys.stderr)
     if not logs:
         raise InputError(", ".join(args.paths), "holds no .bin, .tlog or .ulg log")
     return logs

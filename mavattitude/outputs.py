@@ -11,8 +11,11 @@ not a replay:
 - a missing folder is created; a path through a regular file, a folder where a file is asked
   for, or a place nothing can be created in (``/proc``) is refused;
 - a regular file is written under a temporary name beside it and renamed at the end
-  (``commit``), so a run that fails or is interrupted leaves the old file as it was; a device
-  (``/dev/null``) is written directly, and its errors (``/dev/full``) surface as one line.
+  (``commit``), so a run that fails or is interrupted leaves the old file as it was; a
+  character device (``/dev/null``) is written directly, and its errors (``/dev/full``) surface
+  as one line. A FIFO, a socket or a block device is refused (a FIFO nobody reads blocks the
+  command for ever, after all its work), except the command's own stdout or stderr
+  (``--json /dev/stdout | jq``).
 """
 from __future__ import annotations
 
@@ -24,7 +27,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import InputError
+from .errors import InputError, special_file
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -68,6 +71,24 @@ def is_kind(path: Path, kind: str) -> bool:
     if kind == "sim":  # a user's flight log is never "of the simulator's kind"
         return SIM_MARK in head
     raise ValueError(f"unknown output kind {kind!r}")
+
+
+def _refuse_special(path: Path, option: str, allowed: tuple[str, ...]) -> None:
+    """InputError for a FIFO, socket or device output, but for the ``allowed`` kinds and the
+    command's own stdout and stderr."""
+    kind = special_file(path)
+    if kind is None or kind in allowed or _our_stream(path):
+        return
+    raise InputError(path, f"{option}: not a regular file ({kind}); name a file, or /dev/stdout")
+
+
+def _our_stream(path: Path) -> bool:
+    """Whether ``path`` is this process's stdout or stderr (a pipe to ``jq``, say)."""
+    try:
+        st = os.stat(path)
+        return any(os.path.samestat(st, os.fstat(fd)) for fd in (1, 2))
+    except OSError:
+        return False
 
 
 def same_file(a: Path, b: Path) -> bool:
@@ -140,7 +161,8 @@ class Outputs:
             if path.is_dir():
                 raise InputError(path, f"{option} names a folder; give a file name, "
                                        f"e.g. {path / ('out.' + kind)}")
-            if not path.is_file():  # a device or a pipe: written as it is
+            if not path.is_file():  # a device, or our own stdout: written as it is
+                _refuse_special(path, option, allowed=("a character device",))
                 if not os.access(path, os.W_OK):
                     raise InputError(path, f"{option}: not writable")
                 out = Output(path, option, path)
@@ -179,6 +201,7 @@ class Outputs:
         path = self._unclaimed(path, option)
         if path.is_dir():
             raise InputError(path, f"{option} names a folder; give a file name, e.g. {path / 'study.db'}")
+        _refuse_special(path, option, allowed=())
         if path.is_file() and path.stat().st_size and not is_kind(path, "study"):
             raise InputError(path, f"exists and is not an SQLite database: {option} will not write into it "
                                    "(choose another name)")
@@ -195,6 +218,7 @@ class Outputs:
             target = self._unclaimed(folder / name, option)
             if target.is_dir():
                 raise InputError(target, f"{option}: is a folder where a {KIND_NAMES[kind]} goes")
+            _refuse_special(target, option, allowed=())
             if (target.is_file() and target.stat().st_size and not self.force
                     and not is_kind(target, kind)):
                 raise InputError(target, f"exists and is not a {KIND_NAMES[kind]}: {option} will not "

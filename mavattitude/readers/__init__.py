@@ -13,7 +13,7 @@ import os
 import sys
 import tempfile
 
-from ..errors import InputError
+from ..errors import InputError, check_not_special
 from ..flight import Flight
 from .dataflash import read_dataflash
 from .series import IMU_LIMITS, MAG_LIMITS, earth_field_power, fill_series
@@ -35,6 +35,7 @@ def sniff_format(path: str) -> str:
         raise InputError(path, "no such file")
     if os.path.isdir(path):
         raise InputError(path, "is a folder, not a log file")
+    check_not_special(path)
     with open(path, "rb") as f:
         head = f.read(TLOG_SEARCH_BYTES)
     if not head:
