@@ -25,7 +25,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import InputError, UsageError
-from .outputs import Outputs
+from .outputs import Outputs, json_text
 
 DESCRIPTION = """\
 Replay flight logs (ArduPilot .bin DataFlash, MAVLink .tlog telemetry, PX4 .ulg ULog) through
@@ -140,8 +140,9 @@ def cmd_replay(args) -> int:
     settings = _replay_settings(args, names)
     with Outputs(inputs=[args.log, args.params], force=args.force) as outputs:
         json_out = outputs.file(args.json, "--json", "json")
-        export = outputs.folder(args.export, "--export",
-                                [csv_file_name(n) for n in ("reference", *names)], "csv")
+        export = outputs.folder(args.export, "--export", only="csv")
+        csv_outs = {n: outputs.file(export / csv_file_name(n), "--export", "csv")
+                    for n in ("reference", *names)} if export else {}
         sink = None if args.no_view else _plan_sink(args, outputs, default_rrd=Path(args.log).stem + ".rrd")
         rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
         compiling = _compile(names)  # in other processes, while the log is read
@@ -177,8 +178,11 @@ def cmd_replay(args) -> int:
             if result.reference is None:
                 raise InputError(args.log, "--export needs a reference attitude (ATT / ATTITUDE), "
                                            "and the log has none")
-            written = write_csv(export, result.reference, result.estimates)
-            print(f"CSV written to {export}/ ({', '.join(p.name for p in written.values())})")
+            for name in set(csv_outs) - {"reference", *result.estimates}:  # no estimate: no file
+                csv_outs.pop(name).discard()
+            write_csv(export, result.reference, result.estimates,
+                      paths={name: out.write_path for name, out in csv_outs.items()})
+            print(f"CSV written to {export}/ ({', '.join(out.path.name for out in csv_outs.values())})")
         if rec is not None:
             _view(result, rec, sink)
     return 0
@@ -216,7 +220,7 @@ def cmd_evaluate(args) -> int:
     settings = _replay_settings(args, names)
     logs = _logs_to_run(args)
     with Outputs(inputs=[*logs, args.params], force=args.force) as outputs:
-        out = outputs.folder(args.out, "--out", [], "csv")  # its files are claimed one by one below
+        out = outputs.folder(args.out, "--out")  # its files are claimed one by one below
         files = {name: outputs.file(out / name, "--out", kind) for name, kind in (
             ("results.csv", "csv"), ("summary.json", "json"), ("report.md", "md"), ("tilt_error.svg", "svg"),
             ("results.parquet", "parquet"))}
@@ -260,7 +264,7 @@ def cmd_evaluate(args) -> int:
 
 def cmd_tune(args) -> int:
     from .evaluate import Workers
-    from .tune import TrialProgress, TuneSettings, report_text, space_for, tune, tuned_toml
+    from .tune import TrialProgress, TuneSettings, open_study, report_text, space_for, tune, tuned_toml
 
     try:
         import optuna  # noqa: F401 - only to say now that it is missing
@@ -280,6 +284,7 @@ def cmd_tune(args) -> int:
         toml_out = outputs.file(args.output or f"tuned-{name}.toml", "-o", "toml")
         json_out = outputs.file(args.json, "--json", "json")
         study = outputs.database(args.study, "--study")
+        storage = open_study(study) if study else None
         if not args.scheduler:
             _compile([name]).wait()  # once here, not in every worker
         jobs = min(args.jobs, len(logs))
@@ -293,7 +298,7 @@ def cmd_tune(args) -> int:
         progress = TrialProgress(name, quiet=args.quiet)
         try:
             with Workers(jobs, args.scheduler, args.ship_logs, keep=True) as workers:
-                result = tune(logs, settings, workers, f"sqlite:///{study}" if study else None, progress)
+                result = tune(logs, settings, workers, storage, progress)
         finally:
             progress.close()
         command = "mavattitude " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["tune"] else "mavattitude tune"
@@ -301,7 +306,7 @@ def cmd_tune(args) -> int:
             Path(path).write_text(tuned_toml(result, settings, command))
         if json_out:
             with json_out.writing() as path:
-                Path(path).write_text(json.dumps(result.as_dict(), indent=1) + "\n")
+                Path(path).write_text(json_text(result.as_dict(), indent=1))
     print(report_text(result))
     print(f"parameters written to {toml_out.path}: use them with --params {toml_out.path}"
           + (f"; the full results in {json_out.path}" if json_out else ""))
@@ -321,8 +326,7 @@ def _view(result, rec, sink) -> None:
         except KeyboardInterrupt:
             pass
     close_sink(rec, sink)
-    if sink.kind == "rrd":
-        sink.file.commit()
+    if sink.kind == "rrd":  # put in place with the other outputs, when the command ends
         print(f"Rerun recording written to {sink.file.path}; open it with: rerun {sink.file.path}")
 
 
@@ -473,7 +477,6 @@ def cmd_live(args) -> int:
                 write_json(path, args.url, result.reference or "none", result.comparisons, link=result.link())
             print(f"metrics written to {json_out.path}")
         if sink is not None and sink.kind == "rrd":
-            sink.file.commit()
             print(f"Rerun recording written to {sink.file.path}; open it with: rerun {sink.file.path}")
     return 0
 
@@ -509,7 +512,7 @@ def _bench_read(args, json_out) -> int:
     print(format_read(result), end="")
     if json_out:
         with json_out.writing() as path:
-            Path(path).write_text(json.dumps(result, indent=2) + "\n")
+            Path(path).write_text(json_text(result))
         print(f"results written to {json_out.path}")
     return 0 if all(result["met"][k] for k in ("bin_x_pymavlink", "end_to_end_s")) else 1
 

@@ -109,7 +109,7 @@ def test_simulate_never_writes_over_a_flight_log(capsys, tmp_path):
     real = tmp_path / "flight.bin"
     real.write_bytes(b"\xa3\x95\x80" + bytes(200))  # a log not made by the simulator
     code, _, err = run(capsys, "simulate", "--duration", "5", "-o", real)
-    assert code == 1 and "not a log written by the simulator" in one_line(err)
+    assert code == 1 and "a flight log the simulator did not write" in one_line(err)
     sim = tmp_path / "sim.bin"
     for _ in range(2):  # its own output it replaces
         code, _, err = run(capsys, "simulate", "--duration", "5", "-o", sim)

@@ -31,7 +31,7 @@ def rrd_verifies(path: Path) -> bool:
 
 def check_outputs(tmp_path: Path, estimators: list[str], reference: str) -> dict:
     metrics = json.loads((tmp_path / "m.json").read_text())
-    assert set(metrics) == {"log", "reference", "estimators", "scoring"}
+    assert set(metrics) == {"written_by", "log", "reference", "estimators", "scoring"}
     assert metrics["reference"] == reference
     assert set(metrics["estimators"]) >= set(estimators)
     for name, per_axis in metrics["estimators"].items():

@@ -97,6 +97,8 @@ def test_a_fifo_as_an_output_is_refused_before_the_replay(capsys, monkeypatch, t
         os.mkfifo(target / "mahony.csv")
     with deadline(20):
         code, _, err = run(capsys, "replay", LOG, option, target, *([] if option == "--rrd" else ["--no-view"]))
+        assert code == 1 and "a FIFO" in one_line(err)
+        code, _, err = run(capsys, "replay", LOG, option, target, "--force", *([] if option == "--rrd" else ["--no-view"]))
     assert code == 1 and "not a regular file (a FIFO)" in one_line(err)
 
 
@@ -130,3 +132,173 @@ def test_a_fifo_never_hangs_the_command_and_stdout_stays_writable(tmp_path):
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert '"reference"' in proc.stdout and "metrics written to /dev/stdout" in proc.stdout
+
+
+# ---------------------------------------------------------------- files of others
+
+
+@pytest.mark.parametrize("force", [[], ["--force"]])
+def test_simulate_never_replaces_a_real_log_even_with_force(capsys, tmp_path, force):
+    from conftest import shared_log
+
+    for name in ("ulog/px4-real-cubeorange-ground-6s.ulg", "copter-4.1-flight.tlog"):
+        real = tmp_path / os.path.basename(name)
+        real.write_bytes(shared_log(name).read_bytes())
+        before = real.read_bytes()
+        code, _, err = run(capsys, "simulate", "--duration", "5", "-o", real, *force)
+        assert code == 1 and "a flight log the simulator did not write" in one_line(err)
+        assert "even with --force" in err and real.read_bytes() == before
+    assert not list(tmp_path.glob(".*partial"))
+
+
+def test_simulate_replaces_its_own_log_and_with_force_a_file_that_is_no_log(capsys, tmp_path):
+    notes = tmp_path / "notes.ulg"
+    notes.write_text("my notes\n")
+    code, _, err = run(capsys, "simulate", "--duration", "5", "-o", notes)
+    assert code == 1 and "--force" in one_line(err) and notes.read_text() == "my notes\n"
+    for _ in range(2):  # the second replaces the simulator's own log
+        code, _, err = run(capsys, "simulate", "--duration", "5", "-o", notes, "--force")
+        assert code == 0, err
+    assert notes.read_bytes().startswith(b"ULog")
+
+
+def someones(folder, name: str) -> bytes:
+    """A file of a user's that only looks like ours by its name and kind."""
+    text = {".json": b'{"mine": true}\n', ".svg": b'<svg xmlns="http://www.w3.org/2000/svg"></svg>\n',
+            ".csv": b"log,speed\nflight.bin,3\n", ".md": b"# My notes\n", ".parquet": b"PAR1" + bytes(20) + b"PAR1",
+            ".toml": b"[mahony]\nkp = 0.3\n"}[os.path.splitext(name)[1]]
+    (folder / name).write_bytes(text)
+    return text
+
+
+@pytest.mark.parametrize("name", ["summary.json", "tilt_error.svg", "results.csv", "report.md", "results.parquet"])
+def test_evaluate_replaces_only_its_own_files(capsys, tmp_path, name):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    os.symlink(LOG, logs / "static.bin")
+    out = tmp_path / "ev"
+    out.mkdir()
+    text = someones(out, name)
+    code, _, err = run(capsys, "evaluate", logs, "--out", out, "-q", "-j", "1")
+    assert code == 1 and f"{out / name}: exists and is not a" in one_line(err) and "--force" in err
+    assert (out / name).read_bytes() == text and not list(out.glob(".*partial"))
+    (out / name).unlink()
+    for _ in range(2):  # its own it replaces, with and without a record to resume from
+        code, _, err = run(capsys, "evaluate", logs, "--out", out, "-q", "-j", "1")
+        assert code == 0, err
+    code, _, err = run(capsys, "evaluate", logs, "--out", out, "-q", "-j", "1", "--force")
+    assert code == 0, err
+
+
+def test_our_json_toml_and_figure_say_who_wrote_them(capsys, tmp_path):
+    from mavattitude.outputs import is_kind
+
+    js, own_toml, other = tmp_path / "m.json", tmp_path / "t.toml", tmp_path / "package.json"
+    code, _, err = run(capsys, "replay", LOG, "--json", js, "--no-view")
+    assert code == 0, err
+    assert is_kind(js, "json") and js.read_text().startswith('{\n  "written_by": "mavattitude ')
+    someones(tmp_path, "package.json")
+    other.write_text('{"written_by": "someone else", "mavattitude": 1}')
+    code, _, err = run(capsys, "replay", LOG, "--json", other, "--no-view")
+    assert code == 1 and "is not a JSON file written by mavattitude" in one_line(err)
+    someones(tmp_path, "t.toml")
+    assert not is_kind(own_toml, "toml")  # a parameter file of the user's own is not tune's
+    own_toml.write_text("# written by: mavattitude tune flights/ --estimator mahony\n[mahony]\nkp = 0.3\n")
+    assert is_kind(own_toml, "toml")
+
+
+def test_export_writes_only_into_an_empty_folder_or_one_of_its_csv_files(capsys, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    text = someones(out, "data.csv")
+    code, _, err = run(capsys, "replay", LOG, "--export", out, "--no-view")
+    assert code == 1 and "holds files mavattitude did not write (data.csv)" in one_line(err)
+    assert sorted(p.name for p in out.iterdir()) == ["data.csv"]
+    code, _, err = run(capsys, "replay", LOG, "--export", out, "--no-view", "--force")
+    assert code == 0, err
+    assert (out / "data.csv").read_bytes() == text
+    (out / "data.csv").unlink()
+    code, _, err = run(capsys, "replay", LOG, "--export", out, "--no-view", "--estimators", "mahony,eskf")
+    assert code == 0, err  # a folder of its own CSV files (mahony.csv from before) it writes into
+    assert sorted(p.name for p in out.iterdir()) == ["eskf.csv", "mahony.csv", "reference.csv"]
+
+
+def sqlite_of_another_program(path):
+    import sqlite3
+
+    with sqlite3.connect(path) as db:
+        db.execute("CREATE TABLE contacts (name TEXT, phone TEXT)")
+        db.execute("INSERT INTO contacts VALUES ('Ada', '123')")
+    db.close()
+    return path.read_bytes()
+
+
+def test_a_study_is_only_ever_optunas(capsys, tmp_path):
+    pytest.importorskip("optuna")
+    other = tmp_path / "contacts.db"
+    before = sqlite_of_another_program(other)
+    args = ["tune", LOG, "--estimator", "mahony", "--trials", "2", "--folds", "0", "-o", tmp_path / "t.toml", "-q"]
+    code, _, err = run(capsys, *args, "--study", other)
+    assert code == 1 and "a database of another program (its tables contacts are not Optuna's)" in one_line(err)
+    assert other.read_bytes() == before
+    corrupt = tmp_path / "corrupt.db"
+    corrupt.write_bytes(before[:100] + b"\xff" * (len(before) - 100))  # SQLite's header, pages of garbage
+    code, _, err = run(capsys, *args, "--study", corrupt)
+    assert code == 1 and f"{corrupt}: --study: " in one_line(err) and "SQLAlchemy" not in err
+    study = tmp_path / "study.db"
+    for _ in range(2):  # a new study, then the same one resumed
+        code, _, err = run(capsys, *args, "--study", study)
+        assert code == 0, err
+
+
+def test_a_study_that_cannot_be_written_is_one_line(capsys, tmp_path):
+    pytest.importorskip("optuna")
+    if not os.path.isdir("/proc"):
+        pytest.skip("no /proc on this system")
+    args = ["tune", LOG, "--estimator", "mahony", "--trials", "2", "--folds", "0", "-o", tmp_path / "t.toml", "-q"]
+    code, _, err = run(capsys, *args, "--study", "/proc/study.db")  # no file can be made there, even by root
+    assert code == 1 and "/proc" in one_line(err) and "Traceback" not in err
+    if os.geteuid() != 0:  # root writes read-only files
+        study = tmp_path / "study.db"
+        assert run(capsys, *args, "--study", study)[0] == 0
+        study.chmod(0o444)
+        code, _, err = run(capsys, *args, "--study", study)
+        assert code == 1 and f"{study}: --study: not writable" in one_line(err)
+
+
+def test_the_optuna_tables_are_optunas_own():
+    """OPTUNA_TABLES, against the tables this Optuna makes."""
+    pytest.importorskip("optuna")
+    from optuna.storages._rdb import models
+
+    from mavattitude.outputs import OPTUNA_TABLES
+    assert set(models.BaseModel.metadata.tables) <= OPTUNA_TABLES
+
+
+# ---------------------------------------------------------------- an interrupted command
+
+
+@pytest.mark.parametrize("interrupt", [KeyboardInterrupt, SystemExit])  # Ctrl-C; SIGTERM, made an exception
+def test_an_interrupted_replay_replaces_nothing_and_leaves_nothing(capsys, monkeypatch, tmp_path, interrupt):
+    import mavattitude.view as view
+
+    js, rrd, export = tmp_path / "m.json", tmp_path / "a.rrd", tmp_path / "out"
+    code, _, err = run(capsys, "replay", LOG, "--json", js, "--rrd", rrd, "--export", export)
+    assert code == 0, err
+    before = {p: p.read_bytes() for p in (js, rrd, *export.iterdir())}
+    log_replay = view.log_replay
+
+    def stopped_while_viewing(result, rec):  # after --json and --export were written
+        log_replay(result, rec)
+        raise interrupt(143) if interrupt is SystemExit else interrupt()
+    monkeypatch.setattr(view, "log_replay", stopped_while_viewing)
+    # an earlier test's Ctrl-C during a compile would make main end this process (os._exit)
+    monkeypatch.setattr("mavattitude.estimators.compile_interrupted", lambda: False)
+    try:
+        code, _, err = run(capsys, "replay", LOG, "--json", js, "--rrd", rrd, "--export", export,
+                           "--estimators", "mahony,eskf")
+    except SystemExit as exc:
+        code = exc.code
+    assert code in (130, 143)
+    assert {p: p.read_bytes() for p in (js, rrd, *export.iterdir())} == before  # no eskf.csv either
+    assert not [p.name for p in tmp_path.rglob("*") if p.name.endswith(".partial")]
