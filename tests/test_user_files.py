@@ -71,18 +71,21 @@ def test_a_fifo_as_the_parameter_file_is_one_line_at_once(capsys, fifo):
     assert code == 1 and f"{fifo}: not a regular file (a FIFO)" in one_line(err)
 
 
-def test_evaluate_passes_by_a_fifo_in_its_folder(capsys, tmp_path):
-    if not hasattr(os, "mkfifo"):
-        pytest.skip("no FIFOs on this system")
+@needs_fifo
+def test_evaluate_and_tune_pass_by_a_fifo_in_a_folder_or_pattern(capsys, tmp_path):
+    from argparse import Namespace
+
+    from mavattitude.cli import _logs_to_run
+
     logs = tmp_path / "logs"
     logs.mkdir()
     os.symlink(LOG, logs / "static.bin")
     os.mkfifo(logs / "flight.bin")
-    with deadline(120):
-        code, out, err = run(capsys, "evaluate", logs, "--out", tmp_path / "ev", "-q", "-j", "1")
-    assert code == 0, err
-    assert f"note: passed by {logs / 'flight.bin'} (a FIFO): not a regular file" in err
-    assert "1 logs: 1 scored" in out
+    for paths in ([logs], [logs / "*.bin"]):
+        with deadline(20):
+            found = _logs_to_run(Namespace(scheduler=None, paths=[str(p) for p in paths]))
+        assert [os.path.basename(p) for p in found] == ["static.bin"]
+        assert capsys.readouterr().err == f"note: passed by {logs / 'flight.bin'} (a FIFO): not a regular file\n"
 
 
 @pytest.mark.parametrize("option", ["--json", "--rrd", "--export"])
@@ -171,23 +174,24 @@ def someones(folder, name: str) -> bytes:
     return text
 
 
-@pytest.mark.parametrize("name", ["summary.json", "tilt_error.svg", "results.csv", "report.md", "results.parquet"])
-def test_evaluate_replaces_only_its_own_files(capsys, tmp_path, name):
+def test_evaluate_replaces_only_its_own_files(capsys, tmp_path):
     logs = tmp_path / "logs"
     logs.mkdir()
     os.symlink(LOG, logs / "static.bin")
     out = tmp_path / "ev"
     out.mkdir()
-    text = someones(out, name)
-    code, _, err = run(capsys, "evaluate", logs, "--out", out, "-q", "-j", "1")
-    assert code == 1 and f"{out / name}: exists and is not a" in one_line(err) and "--force" in err
-    assert (out / name).read_bytes() == text and not list(out.glob(".*partial"))
-    (out / name).unlink()
-    for _ in range(2):  # its own it replaces, with and without a record to resume from
+    names = ["results.csv", "summary.json", "report.md", "tilt_error.svg", "results.parquet"]  # claimed in this order
+    texts = {name: someones(out, name) for name in names}
+    for name in names:  # each refused in turn, before any log is replayed
+        code, _, err = run(capsys, "evaluate", logs, "--out", out, "-q", "-j", "1")
+        assert code == 1 and f"{out / name}: exists and is not a" in one_line(err) and "--force" in err
+        assert (out / name).read_bytes() == texts[name] and not list(out.glob(".*partial"))
+        (out / name).unlink()
+    for _ in range(2):  # its own it replaces, the second time from the record it resumes from
         code, _, err = run(capsys, "evaluate", logs, "--out", out, "-q", "-j", "1")
         assert code == 0, err
-    code, _, err = run(capsys, "evaluate", logs, "--out", out, "-q", "-j", "1", "--force")
-    assert code == 0, err
+    from mavattitude.evalreport import has_parquet
+    assert sorted(p.name for p in out.iterdir() if p.is_file()) == sorted(names[:None if has_parquet() else -1])
 
 
 def test_our_json_toml_and_figure_say_who_wrote_them(capsys, tmp_path):
@@ -245,10 +249,12 @@ def test_a_study_is_only_ever_optunas(capsys, tmp_path):
     corrupt.write_bytes(before[:100] + b"\xff" * (len(before) - 100))  # SQLite's header, pages of garbage
     code, _, err = run(capsys, *args, "--study", corrupt)
     assert code == 1 and f"{corrupt}: --study: " in one_line(err) and "SQLAlchemy" not in err
+    from mavattitude.outputs import Outputs
+    from mavattitude.tune import open_study
+
     study = tmp_path / "study.db"
-    for _ in range(2):  # a new study, then the same one resumed
-        code, _, err = run(capsys, *args, "--study", study)
-        assert code == 0, err
+    for _ in range(2):  # a new study, then Optuna's own (test_tune runs and resumes one)
+        assert open_study(Outputs().database(study, "--study")) is not None
 
 
 def test_a_study_that_cannot_be_written_is_one_line(capsys, tmp_path):
