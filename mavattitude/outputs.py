@@ -230,7 +230,7 @@ class Outputs:
             if path.is_dir():
                 raise InputError(path, f"{option} names a folder; give a file name, "
                                        f"e.g. {path / ('out.' + kind)}")
-            if not path.is_file():  # a device, or our own stdout: written as it is
+            if not path.is_file() or _our_stream(path):  # a device, or /dev/stdout: written as it is
                 _refuse_special(path, option, allowed=("a character device",))
                 if not os.access(path, os.W_OK):
                     raise InputError(path, f"{option}: not writable")

@@ -308,3 +308,14 @@ def test_an_interrupted_replay_replaces_nothing_and_leaves_nothing(capsys, monke
     assert code in (130, 143)
     assert {p: p.read_bytes() for p in (js, rrd, *export.iterdir())} == before  # no eskf.csv either
     assert not [p.name for p in tmp_path.rglob("*") if p.name.endswith(".partial")]
+
+
+def test_our_own_stdout_is_written_directly_not_replaced(capfd):
+    """--json /dev/stdout with stdout a file (pytest's capture here): written through, never a
+    temporary file renamed over /dev/stdout."""
+    from mavattitude.outputs import Outputs
+
+    if not os.path.exists("/dev/stdout"):
+        pytest.skip("no /dev/stdout on this system")
+    out = Outputs().file("/dev/stdout", "--json", "json")
+    assert str(out.write_path) == "/dev/stdout"

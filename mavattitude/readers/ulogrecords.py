@@ -12,6 +12,7 @@ accepts. Past damage, reading resumes where ``RESYNC_CHAIN`` valid messages foll
 """
 from __future__ import annotations
 
+import re
 import struct
 from dataclasses import dataclass, field
 
@@ -19,6 +20,7 @@ MAGIC = b"ULog\x01\x12\x35"
 VERSION = 1
 HEADER_SIZE = 16
 TYPES = frozenset(b"BFIMPQARDLCOS")  # every message type of the ULog format
+TYPE_BYTE = re.compile(b"[" + re.escape(bytes(sorted(TYPES))) + b"]")
 RESYNC_CHAIN = 4  # valid messages in a row that mark the end of a damaged stretch
 FIELD_SIZES = {"int8_t": 1, "uint8_t": 1, "int16_t": 2, "uint16_t": 2, "int32_t": 4, "uint32_t": 4,
                "int64_t": 8, "uint64_t": 8, "float": 4, "double": 8, "bool": 1, "char": 1}
@@ -27,12 +29,12 @@ FLAG_BITS_OFFSETS = 3 + 16  # in the flag-bits message: after its header, compat
 APPENDED_DATA = 1  # incompat flag bit: the file has data appended at the offsets given
 
 
-def header_damage(head: bytes) -> list[str]:
-    """What is wrong with a ULog header: [] for a sound one. A header with more than one magic
-    byte wrong is no ULog: InputError's business, not this function's (it returns ["not a ULog"])."""
+def header_damage(head: bytes) -> list[str] | None:
+    """What is wrong with a ULog header: [] for a sound one, None for no ULog header at all
+    (more than one magic byte wrong, or too short)."""
     wrong = [i for i in range(len(MAGIC)) if i >= len(head) or head[i] != MAGIC[i]]
     if len(head) < HEADER_SIZE or len(wrong) > 1:
-        return ["not a ULog"]
+        return None
     problems = [f"magic byte {i} is 0x{head[i]:02x}, not 0x{MAGIC[i]:02x}" for i in wrong]
     if head[len(MAGIC)] > VERSION:  # version 0 is an older PX4's, and pyulog reads it
         problems.append(f"version byte is {head[len(MAGIC)]}, not {VERSION}")
@@ -41,7 +43,7 @@ def header_damage(head: bytes) -> list[str]:
 
 def looks_like_ulog(head: bytes) -> bool:
     """A ULog header, sound or with one magic byte or the version byte damaged."""
-    return header_damage(head) != ["not a ULog"]
+    return header_damage(head) is not None
 
 
 @dataclass
@@ -62,13 +64,13 @@ class Framing:
         if self.header:
             notes.append(f"the ULog header is damaged ({'; '.join(self.header)}); read as a ULog all the same")
         if self.damage:
-            first, last_end = self.damage[0][0], self.damage[-1][1]
-            lost_tail = last_end == self.size
+            last_start, last_end = self.damage[-1]
+            lost_tail = (f"nothing readable follows byte {last_start:,}: the last "
+                         f"{100.0 * (self.size - last_start) / self.size:.2g} % of the file is lost")
             notes.append(
                 f"skipped {self.skipped:,} bytes of corrupt data ({100.0 * self.skipped / max(self.size, 1):.2g} % "
                 f"of the file) in {len(self.damage)} stretch{'es' if len(self.damage) != 1 else ''}, the first at "
-                f"byte {first:,}: " + ("nothing readable follows the last, the file's data ends there"
-                                       if lost_tail else "messages resumed after each"))
+                f"byte {self.damage[0][0]:,}: " + (lost_tail if last_end == self.size else "messages resumed after each"))
         return notes
 
     def repaired(self, data: bytes) -> bytes:
@@ -94,7 +96,7 @@ class Framing:
 
 def frame(data: bytes) -> Framing:
     """Walk the messages of a ULog (``data``: the whole file, whose header ``looks_like_ulog``)."""
-    framing = Framing(len(data), header_damage(data[:HEADER_SIZE]))
+    framing = Framing(len(data), header_damage(data[:HEADER_SIZE]) or [])
     walk = _Walk(data)
     pos = run_start = HEADER_SIZE
     while pos < len(data):
@@ -154,10 +156,12 @@ class _Walk:
         """The first offset from ``start`` where RESYNC_CHAIN valid messages (or the rest of the
         file) follow each other; the file's end if there is none."""
         data, n = self.data, len(self.data)
-        for pos in range(start, n - 2):
-            if data[pos + 2] not in TYPES:
-                continue
-            at = pos
+        pos = start
+        while True:
+            found = TYPE_BYTE.search(data, pos + 2)  # the next byte that can be a type (C speed over zeros)
+            if found is None:
+                return n
+            pos = at = found.start() - 2
             for _ in range(RESYNC_CHAIN):
                 end = self.message(at, learn=False)
                 if end < 0:
@@ -167,7 +171,7 @@ class _Walk:
                     return pos
             else:
                 return pos
-        return n
+            pos += 1
 
     def _learn_format(self, payload: bytes) -> None:
         name, _, body = payload.decode("latin-1").partition(":")
