@@ -279,3 +279,24 @@ def test_a_damaged_ulog_header_is_read_and_said_or_one_line(tmp_path, capsys):
     path.write_bytes(bytes(damaged))
     assert main(["info", str(path)]) == 1
     assert "not a PX4 ULog file" in capsys.readouterr().err
+
+
+def test_cutting_damage_out_keeps_the_offsets_of_appended_data(sim_logs):
+    """A ULog's flag bits may point at data appended later (file offsets): after the damage
+    before it is cut out, the offset points at the same bytes."""
+    import struct
+
+    from mavattitude.readers.ulogrecords import frame
+
+    _, ulg, _ = sim_logs
+    data = bytearray(ulg.read_bytes())
+    assert data[16 + 2] == ord("B")  # the flag-bits message comes first
+    target = frame(bytes(data)).runs[0][1] * 3 // 4  # a place in the data, said to start appended data
+    data[16 + 3 + 8] |= 1
+    struct.pack_into("<Q", data, 16 + 3 + 16, target)
+    data[target // 2:target // 2 + 64] = bytes(64)
+    framing = frame(bytes(data))
+    assert framing.damage and framing.damage[-1][1] < target
+    repaired = framing.repaired(bytes(data))
+    moved, = struct.unpack_from("<Q", repaired, 16 + 3 + 16)
+    assert moved == target - framing.skipped and repaired[moved:moved + 100] == data[target:target + 100]
