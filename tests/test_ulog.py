@@ -300,3 +300,32 @@ def test_cutting_damage_out_keeps_the_offsets_of_appended_data(sim_logs):
     repaired = framing.repaired(bytes(data))
     moved, = struct.unpack_from("<Q", repaired, 16 + 3 + 16)
     assert moved == target - framing.skipped and repaired[moved:moved + 100] == data[target:target + 100]
+
+
+def test_a_damaged_array_size_in_a_format_is_damage_not_a_traceback(sim_logs, tmp_path, capsys):
+    _, ulg, _ = sim_logs
+    data = ulg.read_bytes()
+    at = data.index(b"gyro_rad") - 3  # "float[3] gyro_rad": the 3
+    assert data[at:at + 1] == b"3"
+    path = tmp_path / "format.ulg"
+    path.write_bytes(data[:at] + b"\xb3" + data[at + 1:])  # '³' in latin-1, a digit to str.isdigit
+    assert main(["info", str(path)]) == 1  # the simulator's only IMU topic has lost its format
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no IMU data" in err and "the file is damaged" in err
+
+
+def test_a_corrupt_height_in_an_old_ulog_is_no_numpy_warning():
+    """Old logs give the baro as a height; one above the standard atmosphere's top (a flipped
+    bit, found by fuzzing the real flight) has no pressure: NaN, without numpy's warning."""
+    import warnings
+
+    from mavattitude.readers.collect import Collector
+    from mavattitude.readers.ulog import _add_topic
+
+    n = 3
+    data = {"timestamp": np.array([1000, 2000, 3000], np.uint64), "baro_alt_meter": np.array([10.0, 9e4, 12.0]),
+            "baro_timestamp_relative": np.zeros(n, np.int32), "accelerometer_timestamp_relative": np.zeros(n, np.int32),
+            **{f"{field}[{k}]": np.zeros(n, np.float32) for field in ("gyro_rad", "accelerometer_m_s2") for k in range(3)}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _add_topic(Collector(), "sensor_combined", "sensor_combined", data, [])

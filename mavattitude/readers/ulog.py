@@ -105,7 +105,8 @@ def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]
             # old logs give only the height PX4 computed from pressure in the standard atmosphere
             # (QNH 1013.25 hPa): that pressure back, for the phase that differences it
             height = data["baro_alt_meter"].astype(np.float64)
-            pressure = height_pressure(height)
+            with np.errstate(invalid="ignore"):  # a corrupt height above the model's top: NaN, dropped later
+                pressure = height_pressure(height)
             if _add_relative(col, "baro", key, data, "baro", order, np.column_stack([pressure, height])):
                 notes.append("baro pressure from sensor_combined.baro_alt_meter (standard atmosphere)")
     elif name == "vehicle_imu":

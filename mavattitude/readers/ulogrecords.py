@@ -183,7 +183,7 @@ class _Walk:
             count = 0
             if "[" in kind:
                 kind, _, n = kind.partition("[")
-                count = int(n.rstrip("]")) if n.rstrip("]").isdigit() else -1
+                count = int(n[:-1]) if re.fullmatch(r"[0-9]+\]", n) else -1  # -1: damaged
             fields.append((kind, count, field_name))
         self.formats[name] = fields
 
