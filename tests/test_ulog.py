@@ -325,7 +325,28 @@ def test_a_corrupt_height_in_an_old_ulog_is_no_numpy_warning():
     n = 3
     data = {"timestamp": np.array([1000, 2000, 3000], np.uint64), "baro_alt_meter": np.array([10.0, 9e4, 12.0]),
             "baro_timestamp_relative": np.zeros(n, np.int32), "accelerometer_timestamp_relative": np.zeros(n, np.int32),
-            **{f"{field}[{k}]": np.zeros(n, np.float32) for field in ("gyro_rad", "accelerometer_m_s2") for k in range(3)}}
+            **{f"{field}[{k}]": np.zeros(n, np.float32)
+               for field in ("gyro_rad", "accelerometer_m_s2") for k in range(3)}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _add_topic(Collector(), "sensor_combined", "sensor_combined", data, [])
+
+
+def test_a_signalling_nan_in_a_ulog_is_no_numpy_warning(tmp_path):
+    """A flipped bit can make a float a signalling NaN, whose conversion numpy warns of (found
+    fuzzing the shared ULogs): the sample is dropped, silently as any non-finite one."""
+    import warnings
+
+    from mavattitude.readers.collect import Collector
+    from mavattitude.readers.ulog import _add_topic
+
+    n = 3
+    signalling = np.array([0x7FA00000], np.uint32).view(np.float32)[0]
+    data = {"timestamp": np.array([1000, 2000, 3000], np.uint64),
+            "accelerometer_timestamp_relative": np.zeros(n, np.int32),
+            **{f"{field}[{k}]": np.ones(n, np.float32)
+               for field in ("gyro_rad", "accelerometer_m_s2") for k in range(3)}}
+    data["gyro_rad[0]"][1] = signalling
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         _add_topic(Collector(), "sensor_combined", "sensor_combined", data, [])

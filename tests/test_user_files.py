@@ -101,7 +101,8 @@ def test_a_fifo_as_an_output_is_refused_before_the_replay(capsys, monkeypatch, t
     with deadline(20):
         code, _, err = run(capsys, "replay", LOG, option, target, *([] if option == "--rrd" else ["--no-view"]))
         assert code == 1 and "a FIFO" in one_line(err)
-        code, _, err = run(capsys, "replay", LOG, option, target, "--force", *([] if option == "--rrd" else ["--no-view"]))
+        code, _, err = run(capsys, "replay", LOG, option, target, "--force",
+                           *([] if option == "--rrd" else ["--no-view"]))
     assert code == 1 and "not a regular file (a FIFO)" in one_line(err)
 
 

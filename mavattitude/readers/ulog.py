@@ -88,43 +88,47 @@ def read_ulog(path: str, progress=None) -> Decoded:
 
 
 def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]) -> None:
-    order = data["timestamp"].astype(np.int64)
-    sampled = data.get("timestamp_sample", order)  # 0 where a driver left it unset (GPS)
-    t = np.where(sampled > 0, sampled, order).astype(np.float64) * S_PER_US
+    # Damaged data decodes as anything: a flipped bit can make a signalling NaN (numpy warns as
+    # it converts one) or a height above the standard atmosphere; such rows are NaN, then dropped
+    # as not finite (series.fill_series).
+    with np.errstate(invalid="ignore"):
+        order = data["timestamp"].astype(np.int64)
+        sampled = data.get("timestamp_sample", order)  # 0 where a driver left it unset (GPS)
+        t = np.where(sampled > 0, sampled, order).astype(np.float64) * S_PER_US
 
-    def vector(field, n=3):
-        return np.column_stack([data[f"{field}[{k}]"].astype(np.float64) for k in range(n)])
+        def vector(field, n=3):
+            return np.column_stack([data[f"{field}[{k}]"].astype(np.float64) for k in range(n)])
 
-    if name == "sensor_combined":
-        accel_ok = data.get("accelerometer_timestamp_relative", order * 0) != RELATIVE_TIMESTAMP_INVALID
-        rows = np.hstack([vector("gyro_rad"), vector("accelerometer_m_s2")])
-        col.add_columns("imu", key, order[accel_ok], t[accel_ok], rows[accel_ok])
-        if "magnetometer_ga[0]" in data:  # old logs: the compass in the same topic, repeated
-            _add_relative(col, "mag", key, data, "magnetometer", order, vector("magnetometer_ga") * GAUSS_TO_TESLA)
-        if "baro_alt_meter" in data:
-            # old logs give only the height PX4 computed from pressure in the standard atmosphere
-            # (QNH 1013.25 hPa): that pressure back, for the phase that differences it
-            height = data["baro_alt_meter"].astype(np.float64)
-            with np.errstate(invalid="ignore"):  # a corrupt height above the model's top: NaN, dropped later
-                pressure = height_pressure(height)
-            if _add_relative(col, "baro", key, data, "baro", order, np.column_stack([pressure, height])):
-                notes.append("baro pressure from sensor_combined.baro_alt_meter (standard atmosphere)")
-    elif name == "vehicle_imu":
-        angle_dt = data["delta_angle_dt"].astype(np.float64) * S_PER_US
-        velocity_dt = data["delta_velocity_dt"].astype(np.float64) * S_PER_US
-        ok = (angle_dt > 0) & (velocity_dt > 0)
-        with np.errstate(divide="ignore", invalid="ignore"):  # as rates over their intervals, as IMT
-            rows = np.hstack([vector("delta_angle") / angle_dt[:, None], vector("delta_velocity") / velocity_dt[:, None]])
-        col.add_columns("imu", key, order[ok], t[ok], rows[ok])
-    elif name == "vehicle_magnetometer":
-        col.add_columns("mag", key, order, t, vector("magnetometer_ga") * GAUSS_TO_TESLA)
-    elif name in ("vehicle_gps_position", "sensor_gps"):
-        col.add_columns("gps", key, order, t, _gps_rows(data))
-    elif name == "vehicle_air_data":
-        col.add_columns("baro", key, order, t, np.column_stack([data["baro_pressure_pa"], data["baro_alt_meter"]]))
-    elif name in ("vehicle_attitude", "vehicle_attitude_groundtruth"):
-        kind = "att_quat" if name == "vehicle_attitude" else "truth_quat"
-        col.add_columns(kind, key, order, t, vector("q", 4))
+        if name == "sensor_combined":
+            accel_ok = data.get("accelerometer_timestamp_relative", order * 0) != RELATIVE_TIMESTAMP_INVALID
+            rows = np.hstack([vector("gyro_rad"), vector("accelerometer_m_s2")])
+            col.add_columns("imu", key, order[accel_ok], t[accel_ok], rows[accel_ok])
+            if "magnetometer_ga[0]" in data:  # old logs: the compass in the same topic, repeated
+                _add_relative(col, "mag", key, data, "magnetometer", order, vector("magnetometer_ga") * GAUSS_TO_TESLA)
+            if "baro_alt_meter" in data:
+                # old logs give only the height PX4 computed from pressure in the standard atmosphere
+                # (QNH 1013.25 hPa): that pressure back, for the phase that differences it
+                height = data["baro_alt_meter"].astype(np.float64)
+                pressure = height_pressure(height)  # NaN above the model's top (a corrupt height)
+                if _add_relative(col, "baro", key, data, "baro", order, np.column_stack([pressure, height])):
+                    notes.append("baro pressure from sensor_combined.baro_alt_meter (standard atmosphere)")
+        elif name == "vehicle_imu":
+            angle_dt = data["delta_angle_dt"].astype(np.float64) * S_PER_US
+            velocity_dt = data["delta_velocity_dt"].astype(np.float64) * S_PER_US
+            ok = (angle_dt > 0) & (velocity_dt > 0)
+            with np.errstate(divide="ignore"):  # as rates over their intervals, as IMT
+                rows = np.hstack([vector("delta_angle") / angle_dt[:, None],
+                                  vector("delta_velocity") / velocity_dt[:, None]])
+            col.add_columns("imu", key, order[ok], t[ok], rows[ok])
+        elif name == "vehicle_magnetometer":
+            col.add_columns("mag", key, order, t, vector("magnetometer_ga") * GAUSS_TO_TESLA)
+        elif name in ("vehicle_gps_position", "sensor_gps"):
+            col.add_columns("gps", key, order, t, _gps_rows(data))
+        elif name == "vehicle_air_data":
+            col.add_columns("baro", key, order, t, np.column_stack([data["baro_pressure_pa"], data["baro_alt_meter"]]))
+        elif name in ("vehicle_attitude", "vehicle_attitude_groundtruth"):
+            kind = "att_quat" if name == "vehicle_attitude" else "truth_quat"
+            col.add_columns(kind, key, order, t, vector("q", 4))
 
 
 def _add_relative(col: Collector, kind: str, key: str, data: dict, sensor: str, order, rows) -> int:

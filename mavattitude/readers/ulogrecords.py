@@ -67,10 +67,11 @@ class Framing:
             last_start, last_end = self.damage[-1]
             lost_tail = (f"nothing readable follows byte {last_start:,}: the last "
                          f"{100.0 * (self.size - last_start) / self.size:.2g} % of the file is lost")
+            after = lost_tail if last_end == self.size else "messages resumed after each"
             notes.append(
                 f"skipped {self.skipped:,} bytes of corrupt data ({100.0 * self.skipped / max(self.size, 1):.2g} % "
                 f"of the file) in {len(self.damage)} stretch{'es' if len(self.damage) != 1 else ''}, the first at "
-                f"byte {self.damage[0][0]:,}: " + (lost_tail if last_end == self.size else "messages resumed after each"))
+                f"byte {self.damage[0][0]:,}: {after}")
         return notes
 
     def repaired(self, data: bytes) -> bytes:
