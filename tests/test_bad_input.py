@@ -393,9 +393,9 @@ FUZZ_CASES = 2 * len(KINDS) + 2  # per log, each kind of damage twice; scripts/f
 def fuzz_logs():
     logs = [pytest.param(SAMPLE_LOGS / "figure8.bin", id="figure8.bin"),
             pytest.param(SAMPLE_LOGS / "hover.tlog", id="hover.tlog")]
-    for name in ("copter-3.3-loiter-rtl.bin", "copter-4.1-flight.tlog"):
+    for name in ("copter-3.3-loiter-rtl.bin", "copter-4.1-flight.tlog", "ulog/px4-sitl-events-31s.ulg"):
         if (SHARED_LOGS / name).exists():
-            logs.append(pytest.param(SHARED_LOGS / name, id=name, marks=pytest.mark.slow))
+            logs.append(pytest.param(SHARED_LOGS / name, id=name.split("/")[-1], marks=pytest.mark.slow))
     return logs
 
 
