@@ -180,7 +180,7 @@ def cmd_replay(args) -> int:
                                            "and the log has none")
             for name in set(csv_outs) - {"reference", *result.estimates}:  # no estimate: no file
                 csv_outs.pop(name).discard()
-            write_csv(export, result.reference, result.estimates,
+            write_csv(export, result.reference, {n: s for n, s in result.estimates.items() if n in csv_outs},
                       paths={name: out.write_path for name, out in csv_outs.items()})
             print(f"CSV written to {export}/ ({', '.join(out.path.name for out in csv_outs.values())})")
         if rec is not None:
