@@ -53,6 +53,9 @@ class Framing:
     header: list[str]  # what is wrong with the header (``header_damage``)
     runs: list[tuple[int, int]] = field(default_factory=list)  # (start, end) of valid messages
     damage: list[tuple[int, int]] = field(default_factory=list)  # (start, end) of skipped bytes
+    # the log's clock (s) at the last data before each damaged stretch and the first after it
+    # (None where not known, or nothing follows)
+    times: list[tuple[float | None, float | None]] = field(default_factory=list)
 
     @property
     def skipped(self) -> int:
@@ -67,7 +70,14 @@ class Framing:
             last_start, last_end = self.damage[-1]
             lost_tail = (f"nothing readable follows byte {last_start:,}: the last "
                          f"{100.0 * (self.size - last_start) / self.size:.2g} % of the file is lost")
-            after = lost_tail if last_end == self.size else "messages resumed after each"
+            ends = self.times[-1][0]
+            if ends is not None:
+                lost_tail += f" (the data ends at {ends:.1f} s on the log's clock)"
+            gaps = [max(b - a, 0.0) for a, b in self.times if a is not None and b is not None]
+            lost_s = "less than 0.01" if sum(gaps) < 0.01 else f"{sum(gaps):.2g}"
+            resumed = "messages resumed after each" + (
+                f" ({lost_s} s of data lost)" if gaps and len(gaps) == len(self.times) else "")
+            after = lost_tail if last_end == self.size else resumed
             notes.append(
                 f"skipped {self.skipped:,} bytes of corrupt data ({100.0 * self.skipped / max(self.size, 1):.2g} % "
                 f"of the file) in {len(self.damage)} stretch{'es' if len(self.damage) != 1 else ''}, the first at "
@@ -110,6 +120,7 @@ def frame(data: bytes) -> Framing:
         framing.runs.append((run_start, pos))
         resume = walk.resync(pos + 1)
         framing.damage.append((pos, resume))
+        framing.times.append((walk.time_of(walk.last_data), walk.first_time(resume)))
         pos = run_start = resume
     framing.runs.append((run_start, min(pos, len(data))))
     return framing
@@ -125,6 +136,8 @@ class _Walk:
         self.data = data
         self.formats: dict[str, list[tuple[str, int, str]]] = {}
         self.data_sizes: dict[int, int | None] = {}  # subscribed id -> its data payload size (None: unknown)
+        self.time_offsets: dict[int, int | None] = {}  # subscribed id -> where its timestamp is in the data
+        self.last_data = -1  # where the last valid data message seen starts
 
     def message(self, pos: int, learn: bool) -> int:
         """The end of the valid message at ``pos``, _INVALID, or _CUT (it runs past the end)."""
@@ -146,12 +159,37 @@ class _Walk:
             expected = self.data_sizes[msg_id]
             if expected is not None and size - 2 != expected:
                 return _INVALID
+            if learn:
+                self.last_data = pos
         elif learn and kind == ord("F"):
             self._learn_format(data[pos + 3:end])
         elif learn and kind == ord("A") and size > 3:
             msg_id, = struct.unpack_from("<H", data, pos + 4)
-            self.data_sizes[msg_id] = self._format_size(data[pos + 6:end].decode("latin-1"))
+            name = data[pos + 6:end].decode("latin-1")
+            self.data_sizes[msg_id] = self._format_size(name)
+            self.time_offsets[msg_id] = self._timestamp_offset(name)
         return end
+
+    def time_of(self, pos: int) -> float | None:
+        """The timestamp (s) of the valid data message at ``pos``, if its topic has one."""
+        if pos < 0:
+            return None
+        msg_id, = struct.unpack_from("<H", self.data, pos + 3)
+        offset = self.time_offsets.get(msg_id)
+        if offset is None:
+            return None
+        return struct.unpack_from("<Q", self.data, pos + 5 + offset)[0] * 1e-6
+
+    def first_time(self, pos: int, look: int = 64) -> float | None:
+        """The timestamp (s) of the first data message among the ``look`` from ``pos``."""
+        for _ in range(look):
+            end = self.message(pos, learn=False)
+            if end < 0:
+                return None
+            if self.data[pos + 2] == ord("D"):
+                return self.time_of(pos)
+            pos = end
+        return None
 
     def resync(self, start: int) -> int:
         """The first offset from ``start`` where RESYNC_CHAIN valid messages (or the rest of the
@@ -187,6 +225,18 @@ class _Walk:
                 count = int(n[:-1]) if re.fullmatch(r"[0-9]+\]", n) else -1  # -1: damaged
             fields.append((kind, count, field_name))
         self.formats[name] = fields
+
+    def _timestamp_offset(self, name: str) -> int | None:
+        """Where a topic's ``timestamp`` (uint64, µs) lies in its data, None if it has none."""
+        offset = 0
+        for kind, count, field_name in self.formats.get(name, []):
+            if field_name == "timestamp":
+                return offset if kind == "uint64_t" and count == 0 else None
+            one = FIELD_SIZES.get(kind) or self._format_size(kind, 1)
+            if one is None or count < 0:
+                return None
+            offset += one * max(count, 1)
+        return None
 
     def _format_size(self, name: str, depth: int = 0) -> int | None:
         """Bytes of a topic's data as pyulog takes them (the trailing padding left out), None
