@@ -20,6 +20,8 @@ MAGIC = b"ULog\x01\x12\x35"
 VERSION = 1
 HEADER_SIZE = 16
 TYPES = frozenset(b"BFIMPQARDLCOS")  # every message type of the ULog format
+DATA = ord("D")
+DATA_HEADER = struct.Struct("<HBH")  # a data message's size, type and topic id
 TYPE_BYTE = re.compile(b"[" + re.escape(bytes(sorted(TYPES))) + b"]")
 RESYNC_CHAIN = 4  # valid messages in a row that mark the end of a damaged stretch
 FIELD_SIZES = {"int8_t": 1, "uint8_t": 1, "int16_t": 2, "uint16_t": 2, "int32_t": 4, "uint32_t": 4,
@@ -110,7 +112,14 @@ def frame(data: bytes) -> Framing:
     framing = Framing(len(data), header_damage(data[:HEADER_SIZE]) or [])
     walk = _Walk(data)
     pos = run_start = HEADER_SIZE
+    data_header, sizes, n = DATA_HEADER.unpack_from, walk.data_sizes, len(data) - DATA_HEADER.size
     while pos < len(data):
+        if pos <= n:  # most messages are data of a known size: passed here, the rest by ``message``
+            size, kind, msg_id = data_header(data, pos)
+            if kind == DATA and sizes.get(msg_id, -1) == size - 2 and pos + 3 + size <= len(data):
+                walk.last_data = pos
+                pos += 3 + size
+                continue
         end = walk.message(pos, learn=True)
         if end > 0:
             pos = end
