@@ -25,7 +25,6 @@ and mahony at least ``MAHONY_MIN_RATE`` samples/s.
 """
 from __future__ import annotations
 
-import json
 import os
 import platform
 import sys
@@ -38,6 +37,7 @@ import numpy as np
 from . import __version__
 from .errors import UsageError
 from .flight import GRAVITY, MagSeries
+from .outputs import json_text
 
 MIN_X_IMUFUSION = 5.0  # every estimator: at least this many times imufusion's samples/s
 # ... except these, whose work per sample is of another order: cpf-ekf propagates a 20×20
@@ -345,6 +345,6 @@ def run(names: list[str], scenario: str, duration: float, imu_rate: float, seed:
         print(format_live(result["live"]), end="")
     if json_out is not None:  # an outputs.Output
         with json_out.writing() as path:
-            Path(path).write_text(json.dumps(result, indent=2) + "\n")
+            Path(path).write_text(json_text(result))
     # 1 when an estimator could not be timed; a missed speed target is a finding, printed and in the JSON
     return 1 if any("error" in row for row in result["results"]) else 0

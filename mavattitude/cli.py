@@ -26,7 +26,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import InputError, UsageError
-from .outputs import Outputs
+from .outputs import Outputs, json_text
 
 DESCRIPTION = """\
 Replay flight logs (ArduPilot .bin DataFlash, MAVLink .tlog telemetry, PX4 .ulg ULog) through
@@ -149,8 +149,9 @@ def cmd_replay(args) -> int:
     settings = _replay_settings(args, names)
     with Outputs(inputs=[args.log, args.params], force=args.force) as outputs:
         json_out = outputs.file(args.json, "--json", "json")
-        export = outputs.folder(args.export, "--export",
-                                [csv_file_name(n) for n in ("reference", *names)], "csv")
+        export = outputs.folder(args.export, "--export", only="csv")
+        csv_outs = {n: outputs.file(export / csv_file_name(n), "--export", "csv")
+                    for n in ("reference", *names)} if export else {}
         sink = None if args.no_view else _plan_sink(args, outputs, default_rrd=Path(args.log).stem + ".rrd")
         rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
         compiling = _compile(names, args.quiet, args.log)  # in other processes, while the log is read
@@ -189,8 +190,11 @@ def cmd_replay(args) -> int:
             if result.reference is None:
                 raise InputError(args.log, "--export needs a reference attitude (ATT / ATTITUDE), "
                                            "and the log has none")
-            written = write_csv(export, result.reference, result.estimates)
-            print(f"CSV written to {export}/ ({', '.join(p.name for p in written.values())})")
+            for name in set(csv_outs) - {"reference", *result.estimates}:  # no estimate: no file
+                csv_outs.pop(name).discard()
+            write_csv(export, result.reference, {n: s for n, s in result.estimates.items() if n in csv_outs},
+                      paths={name: out.write_path for name, out in csv_outs.items()})
+            print(f"CSV written to {export}/ ({', '.join(out.path.name for out in csv_outs.values())})")
         if rec is not None:
             _view(result, rec, sink)
     return 0
@@ -205,7 +209,10 @@ def _logs_to_run(args) -> list[str]:
 
     if args.scheduler:
         check_scheduler(args.scheduler)
-    logs = find_logs(args.paths)
+    passed: list[str] = []
+    logs = find_logs(args.paths, passed)
+    for path in passed:
+        print(f"note: passed by {path}: not a regular file", file=sys.stderr)
     if not logs:
         raise InputError(", ".join(args.paths), "holds no .bin, .tlog or .ulg log")
     return logs
@@ -225,7 +232,7 @@ def cmd_evaluate(args) -> int:
     settings = _replay_settings(args, names)
     logs = _logs_to_run(args)
     with Outputs(inputs=[*logs, args.params], force=args.force) as outputs:
-        out = outputs.folder(args.out, "--out", [], "csv")  # its files are claimed one by one below
+        out = outputs.folder(args.out, "--out")  # its files are claimed one by one below
         files = {name: outputs.file(out / name, "--out", kind) for name, kind in (
             ("results.csv", "csv"), ("summary.json", "json"), ("report.md", "md"), ("tilt_error.svg", "svg"),
             ("results.parquet", "parquet"))}
@@ -270,7 +277,7 @@ def cmd_evaluate(args) -> int:
 
 def cmd_tune(args) -> int:
     from .evaluate import Workers
-    from .tune import TrialProgress, TuneSettings, report_text, space_for, tune, tuned_toml
+    from .tune import TrialProgress, TuneSettings, open_study, report_text, space_for, tune, tuned_toml
 
     try:
         import optuna  # noqa: F401 - only to say now that it is missing
@@ -290,6 +297,7 @@ def cmd_tune(args) -> int:
         toml_out = outputs.file(args.output or f"tuned-{name}.toml", "-o", "toml")
         json_out = outputs.file(args.json, "--json", "json")
         study = outputs.database(args.study, "--study")
+        storage = open_study(study) if study else None
         if not args.scheduler:
             _compile([name], args.quiet).wait()  # once here, not in every worker
         jobs = min(args.jobs, len(logs))
@@ -303,7 +311,7 @@ def cmd_tune(args) -> int:
         progress = TrialProgress(name, quiet=args.quiet)
         try:
             with Workers(jobs, args.scheduler, args.ship_logs, keep=True) as workers:
-                result = tune(logs, settings, workers, f"sqlite:///{study}" if study else None, progress)
+                result = tune(logs, settings, workers, storage, progress)
         finally:
             progress.close()
         command = "mavattitude " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["tune"] else "mavattitude tune"
@@ -311,7 +319,7 @@ def cmd_tune(args) -> int:
             Path(path).write_text(tuned_toml(result, settings, command))
         if json_out:
             with json_out.writing() as path:
-                Path(path).write_text(json.dumps(result.as_dict(), indent=1) + "\n")
+                Path(path).write_text(json_text(result.as_dict(), indent=1))
     print(report_text(result))
     print(f"parameters written to {toml_out.path}: use them with --params {toml_out.path}"
           + (f"; the full results in {json_out.path}" if json_out else ""))
@@ -331,8 +339,7 @@ def _view(result, rec, sink) -> None:
         except KeyboardInterrupt:
             pass
     close_sink(rec, sink)
-    if sink.kind == "rrd":
-        sink.file.commit()
+    if sink.kind == "rrd":  # put in place with the other outputs, when the command ends
         print(f"Rerun recording written to {sink.file.path}; open it with: rerun {sink.file.path}")
 
 
@@ -484,7 +491,6 @@ def cmd_live(args) -> int:
                            declination=result.estimation.declination_choice)
             print(f"metrics written to {json_out.path}")
         if sink is not None and sink.kind == "rrd":
-            sink.file.commit()
             print(f"Rerun recording written to {sink.file.path}; open it with: rerun {sink.file.path}")
     return 0
 
@@ -520,7 +526,7 @@ def _bench_read(args, json_out) -> int:
     print(format_read(result), end="")
     if json_out:
         with json_out.writing() as path:
-            Path(path).write_text(json.dumps(result, indent=2) + "\n")
+            Path(path).write_text(json_text(result))
         print(f"results written to {json_out.path}")
     return 0  # a missed target is the benchmark's finding (its "targets:" line, "met" in the JSON), not a failure
 

@@ -1,4 +1,11 @@
 """Errors the CLI turns into one line on stderr and a non-zero exit."""
+from __future__ import annotations
+
+import os
+import stat
+
+SPECIAL_FILES = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+                 (stat.S_ISBLK, "a block device"))
 
 
 class InputError(Exception):
@@ -12,3 +19,21 @@ class InputError(Exception):
 
 class UsageError(Exception):
     """The command line asks for something that cannot be done (exit 2)."""
+
+
+def special_file(path) -> str | None:
+    """'a FIFO', 'a socket', 'a character device' or 'a block device' for such a file (the link
+    followed), None for a regular file, a folder or nothing."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None
+    return next((name for test, name in SPECIAL_FILES if test(mode)), None)
+
+
+def check_not_special(path) -> None:
+    """InputError for an input that is no regular file: opening a FIFO waits for a writer, and
+    reading a device may never end."""
+    kind = special_file(path)
+    if kind:
+        raise InputError(path, f"not a regular file ({kind})")

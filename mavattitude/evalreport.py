@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 
 import numpy as np
 
+from .outputs import SVG_MARK, WRITTEN_BY, json_text
 from .report import BUCKET_KEYS
 
 AXES = ("roll", "pitch", "yaw")
@@ -99,7 +99,8 @@ def write_parquet(rows: list[dict], path) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    pq.write_table(pa.Table.from_pylist([{k: row.get(k) for k in columns()} for row in rows]), str(path))
+    table = pa.Table.from_pylist([{k: row.get(k) for k in columns()} for row in rows])
+    pq.write_table(table.replace_schema_metadata({"written_by": WRITTEN_BY}), str(path))  # ours (outputs.is_kind)
 
 
 # ---------------------------------------------------------------- summary
@@ -277,7 +278,7 @@ def _short(path: str) -> str:
 
 
 def summary_json(summary: dict) -> str:
-    return json.dumps(summary, indent=2) + "\n"
+    return json_text(summary)
 
 
 # ---------------------------------------------------------------- figure
@@ -302,7 +303,8 @@ def strip_plot_svg(records: list[dict], names: list[str]) -> str:
         return left + (math.log10(v) - math.log10(lo)) / (math.log10(hi) - math.log10(lo)) * (width - left - right)
 
     rng = np.random.default_rng(0)
-    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
+    parts = [f"{SVG_MARK.decode()} evaluate -->",  # ours (outputs.is_kind)
+             f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
              f'font-family="sans-serif" font-size="12">',
              f'<rect width="{width}" height="{height}" fill="white"/>']
     decade = lo

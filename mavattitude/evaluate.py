@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, UsageError
+from .errors import InputError, UsageError, check_not_special, special_file
 from .pipeline import ReplaySettings
 from .progress import clock
 
@@ -33,10 +33,11 @@ RECORD_VERSION = 1
 # ---------------------------------------------------------------- which logs
 
 
-def find_logs(paths: list[str]) -> list[str]:
+def find_logs(paths: list[str], passed: list[str] | None = None) -> list[str]:
     """The logs named by ``paths``: files as given, folders searched recursively for .bin,
     .tlog and .ulg files (any case) that are logs by their content, and glob patterns. In order,
-    each once; InputError for a path that names nothing."""
+    each once; InputError for a path that names nothing, or a file named that is no regular file.
+    A FIFO or device a folder or pattern holds is passed by, and its path added to ``passed``."""
     from .readers import sniff_format
 
     found: list[str] = []
@@ -47,18 +48,25 @@ def find_logs(paths: list[str]) -> list[str]:
                 for name in sorted(files):
                     if name.lower().endswith(LOG_SUFFIXES):
                         candidate = os.path.join(root, name)
+                        if special_file(candidate):  # opening a FIFO would wait for a writer forever
+                            if passed is not None:
+                                passed.append(f"{candidate} ({special_file(candidate)})")
+                            continue
                         try:
                             sniff_format(candidate)
                         except InputError:
                             continue  # a .bin that is no log (firmware, say) is not ours to replay
                         found.append(candidate)
         elif os.path.exists(path):
+            check_not_special(path)
             found.append(path)  # named on purpose: replayed, and failing with its reason if it must
         elif glob.has_magic(path):
             matches = sorted(glob.glob(path, recursive=True))
             if not matches:
                 raise InputError(path, "the pattern matches no file")
-            found += find_logs(matches)
+            if passed is not None:
+                passed += [f"{m} ({special_file(m)})" for m in matches if special_file(m)]
+            found += find_logs([m for m in matches if not special_file(m)], passed)
         else:
             raise InputError(path, "no such file or folder")
     unique = list(dict.fromkeys(os.path.abspath(p) for p in found))

@@ -7,38 +7,72 @@ not a replay:
 - an output is never the same file as an input (a log, a parameter file), not even with
   ``--force``;
 - an existing file of another kind (a log where a ``.rrd`` is asked for) is not written over
-  unless ``--force``; an empty file, or one of the output's own kind, is;
+  unless ``--force``; an empty file, or one of the output's own kind, is. A JSON, SVG, TOML,
+  CSV, Markdown or Parquet file is of our kind only when mavattitude wrote it (``is_kind``
+  knows ours by content: a first key ``written_by`` in our JSON, a first comment in our SVG,
+  our CSV headers): a user's ``summary.json`` is someone else's file;
+- a flight log the simulator did not write is never replaced by ``simulate -o``, not even with
+  ``--force``: a log is a flight that cannot be flown again;
+- ``--export`` writes into a folder only when it is empty or holds nothing but our CSV files
+  (unless ``--force``), and ``--study`` into an SQLite database only when it is Optuna's alone;
 - a missing folder is created; a path through a regular file, a folder where a file is asked
   for, or a place nothing can be created in (``/proc``) is refused;
 - a regular file is written under a temporary name beside it and renamed at the end
-  (``commit``), so a run that fails or is interrupted leaves the old file as it was; a device
-  (``/dev/null``) is written directly, and its errors (``/dev/full``) surface as one line.
+  (``commit``), so a run that fails or is interrupted leaves the old file as it was; a
+  character device (``/dev/null``) is written directly, and its errors (``/dev/full``) surface
+  as one line. A FIFO, a socket or a block device is refused (a FIFO nobody reads blocks the
+  command for ever, after all its work), except the command's own stdout or stderr
+  (``--json /dev/stdout | jq``).
 """
 from __future__ import annotations
 
+import contextlib
+import json
 import os
+import re
 import secrets
+import sqlite3
 import sys
 import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import InputError
+from .errors import InputError, special_file
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-KIND_NAMES = {"rrd": "Rerun recording", "json": "JSON file", "csv": "CSV file",
-              "sim": "log written by the simulator", "md": "report of mavattitude evaluate",
-              "svg": "SVG image", "parquet": "Parquet file", "toml": "TOML parameter file",
+KIND_NAMES = {"rrd": "Rerun recording", "json": "JSON file written by mavattitude",
+              "csv": "CSV file written by mavattitude", "sim": "log written by the simulator",
+              "md": "report of mavattitude evaluate", "svg": "figure of mavattitude evaluate",
+              "parquet": "Parquet file written by mavattitude", "toml": "TOML file written by mavattitude tune",
               "study": "study of mavattitude tune (SQLite)"}
-CSV_HEADER_STARTS = (b"time_s,", b"log,status,")  # replay --export's, evaluate's results
+CSV_HEADER_STARTS = (b"time_s,roll_deg,pitch_deg,yaw_deg\n", b"log,status,error,")  # replay --export's, evaluate's
 REPORT_START = b"# Attitude estimators across logs"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 SIM_MARK = b"mavattitude-sim"  # in the firmware text of every simulated log, near its start
+PARTIAL_TOKEN_BYTES = 4
+PARTIAL_NAME = re.compile(r"\..+\.[0-9a-f]{8}\.partial")  # an output being written: ".name.<token>.partial"
+WRITTEN_BY = "mavattitude"  # what our JSON, SVG and Parquet files say they were written by
+JSON_MARK = re.compile(rb'\s*\{\s*"written_by"\s*:\s*"mavattitude[ "]')
+SVG_MARK = b"<!-- written by mavattitude"
+TOML_MARK = b"# written by: mavattitude"  # tune's comment above its table
+# The tables of an Optuna study (optuna.storages._rdb.models, and its schema migrations'); a
+# database with others belongs to another program.
+OPTUNA_TABLES = {"studies", "version_info", "study_directions", "study_user_attributes", "study_system_attributes",
+                 "trials", "trial_user_attributes", "trial_system_attributes", "trial_params", "trial_values",
+                 "trial_intermediate_values", "trial_heartbeats", "alembic_version"}
+
+
+def json_text(data: dict, indent: int = 2, **options) -> str:
+    """``data`` as our JSON files hold it: after a first key saying who wrote it (how
+    ``is_kind`` tells our files from a user's)."""
+    from . import __version__
+
+    return json.dumps({"written_by": f"{WRITTEN_BY} {__version__}", **data}, indent=indent, **options) + "\n"
 
 
 def is_kind(path: Path, kind: str) -> bool:
@@ -48,26 +82,78 @@ def is_kind(path: Path, kind: str) -> bool:
     if kind == "rrd":
         return head.startswith(b"RRF")  # Rerun's file magic (RRF2 today)
     if kind == "json":
-        return head.lstrip()[:1] in (b"{", b"[")
+        return JSON_MARK.match(head) is not None
     if kind == "csv":
         return head.startswith(CSV_HEADER_STARTS)
     if kind == "md":
         return head.startswith(REPORT_START)
     if kind == "svg":
-        return head.lstrip().startswith((b"<svg", b"<?xml"))
-    if kind == "parquet":
-        return head.startswith(b"PAR1")
+        return head.startswith(SVG_MARK)
+    if kind == "parquet":  # the schema's metadata is in the footer, at the end
+        with open(path, "rb") as f:
+            f.seek(max(os.path.getsize(path) - (1 << 16), 0))
+            tail = f.read()
+        return head.startswith(b"PAR1") and b"written_by" in tail and WRITTEN_BY.encode() in tail
     if kind == "toml":
         try:
             tomllib.loads(head.decode())
         except (UnicodeDecodeError, tomllib.TOMLDecodeError):
             return False
-        return True
+        return TOML_MARK in head
     if kind == "study":
         return head.startswith(SQLITE_MAGIC)
     if kind == "sim":  # a user's flight log is never "of the simulator's kind"
         return SIM_MARK in head
     raise ValueError(f"unknown output kind {kind!r}")
+
+
+def _ours(entry: Path, kind: str) -> bool:
+    """Whether a file in an output folder is one we wrote: of ``kind``, or the temporary file
+    of a run that was killed."""
+    if PARTIAL_NAME.fullmatch(entry.name):
+        return True
+    return entry.is_file() and not entry.is_symlink() and special_file(entry) is None and is_kind(entry, kind)
+
+
+def _is_flight_log(path: Path) -> bool:
+    """Whether ``path`` is a .bin, .tlog or .ulg by its content (``readers.sniff_format``)."""
+    from .readers import sniff_format
+
+    try:
+        sniff_format(str(path))
+    except InputError:
+        return False
+    return True
+
+
+def _refuse_special(path: Path, option: str, allowed: tuple[str, ...]) -> None:
+    """InputError for a FIFO, socket or device output, but for the ``allowed`` kinds and the
+    command's own stdout and stderr."""
+    kind = special_file(path)
+    if kind is None or kind in allowed or _our_stream(path):
+        return
+    raise InputError(path, f"{option}: not a regular file ({kind}); name a file, or /dev/stdout")
+
+
+def _our_stream(path: Path) -> bool:
+    """Whether ``path`` is this process's stdout or stderr (a pipe to ``jq``, say)."""
+    try:
+        st = os.stat(path)
+        return any(os.path.samestat(st, os.fstat(fd)) for fd in (1, 2))
+    except OSError:
+        return False
+
+
+def _foreign_tables(path: Path, option: str) -> list[str]:
+    """The tables of an SQLite database that are not an Optuna study's (read only, as SQLite
+    says; its own sqlite_* tables left out); InputError for a database SQLite cannot read."""
+    try:
+        uri = path.resolve().as_uri() + "?mode=ro"
+        with contextlib.closing(sqlite3.connect(uri, uri=True)) as db:
+            names = [row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
+    except sqlite3.DatabaseError as exc:
+        raise InputError(path, f"{option}: not a readable SQLite database ({exc})") from None
+    return sorted(n for n in names if n not in OPTUNA_TABLES and not n.startswith("sqlite_"))
 
 
 def same_file(a: Path, b: Path) -> bool:
@@ -87,13 +173,13 @@ class Output:
 
     @contextmanager
     def writing(self):
-        """``with out.writing() as path: ...`` writes the file at ``path`` and commits it; a
-        failed write (a full disk) is an InputError naming the output."""
+        """``with out.writing() as path: ...`` writes the file at ``path``; a failed write (a
+        full disk) is an InputError naming the output. It is put in place (``commit``) with
+        the command's other outputs once the whole command has succeeded."""
         try:
             yield self.write_path
         except OSError as exc:
             raise InputError(self.path, f"{self.option}: cannot write ({exc.strerror or exc})") from None
-        self.commit()
 
     def commit(self) -> None:
         if self.committed:
@@ -113,7 +199,9 @@ class Output:
 
 class Outputs:
     """The outputs of one command. As a context manager: on success every file is committed,
-    on an error or Ctrl-C every temporary file is removed."""
+    together at the end (an interrupted replay has replaced no --json while its --rrd was being
+    written); on an error, Ctrl-C or any exception that ends the command (SIGTERM made one),
+    every temporary file is removed."""
 
     def __init__(self, inputs=(), force: bool = False):
         self.inputs = [Path(p) for p in inputs if p]
@@ -125,10 +213,12 @@ class Outputs:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        for out in self.files:
+        try:
             if exc_type is None:
-                out.commit()
-            else:
+                for out in self.files:
+                    out.commit()
+        finally:  # what is not in place (an error, or Ctrl-C during the renames) is removed
+            for out in self.files:
                 out.discard()
 
     def file(self, path, option: str, kind: str) -> Output | None:
@@ -140,17 +230,21 @@ class Outputs:
             if path.is_dir():
                 raise InputError(path, f"{option} names a folder; give a file name, "
                                        f"e.g. {path / ('out.' + kind)}")
-            if not path.is_file():  # a device or a pipe: written as it is
+            if not path.is_file() or _our_stream(path):  # a device, or /dev/stdout: written as it is
+                _refuse_special(path, option, allowed=("a character device",))
                 if not os.access(path, os.W_OK):
                     raise InputError(path, f"{option}: not writable")
                 out = Output(path, option, path)
                 self.files.append(out)
                 return out
+            if kind == "sim" and path.stat().st_size and not is_kind(path, "sim") and _is_flight_log(path):
+                raise InputError(path, f"is a flight log the simulator did not write: {option} never writes "
+                                       "over one, even with --force (choose another name)")
             if path.stat().st_size and not self.force and not is_kind(path, kind):
                 raise InputError(path, f"exists and is not a {KIND_NAMES[kind]}: {option} will not write "
                                        "over it (choose another name, or --force)")
         folder = self._make_folder(path.parent, option)
-        temp = folder / f".{path.name}.{secrets.token_hex(4)}.partial"
+        temp = folder / f".{path.name}.{secrets.token_hex(PARTIAL_TOKEN_BYTES)}.partial"
         try:  # created as any new file is (the umask applies), and only if it is new
             os.close(os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         except OSError as exc:
@@ -173,32 +267,45 @@ class Outputs:
 
     def database(self, path, option: str) -> Path | None:
         """Check ``path`` as an SQLite database the command opens and updates in place (a
-        study that a later run resumes): new, empty, or a database already; its folder is made."""
+        study that a later run resumes): new, empty, or an Optuna study already, which we may
+        write; its folder is made."""
         if not path:
             return None
         path = self._unclaimed(path, option)
         if path.is_dir():
             raise InputError(path, f"{option} names a folder; give a file name, e.g. {path / 'study.db'}")
-        if path.is_file() and path.stat().st_size and not is_kind(path, "study"):
-            raise InputError(path, f"exists and is not an SQLite database: {option} will not write into it "
-                                   "(choose another name)")
-        self._make_folder(path.parent, option)
+        _refuse_special(path, option, allowed=())
+        if path.is_file() and path.stat().st_size:
+            if not is_kind(path, "study"):
+                raise InputError(path, f"exists and is not an SQLite database: {option} will not write into it "
+                                       "(choose another name)")
+            others = _foreign_tables(path, option)
+            if others:
+                raise InputError(path, f"{option}: a database of another program (its tables "
+                                       f"{', '.join(others[:3])}{', ...' if len(others) > 3 else ''} are not "
+                                       "Optuna's): tune will not write into it (choose another name)")
+            if not os.access(path, os.W_OK):
+                raise InputError(path, f"{option}: not writable")
+        folder = self._make_folder(path.parent, option)
+        if not os.access(folder, os.W_OK):  # SQLite writes its journal beside the database
+            raise InputError(folder, f"{option}: cannot create files here (permission denied)")
         self.taken.append((path, option))
         return path
 
-    def folder(self, path, option: str, names: list[str], kind: str) -> Path | None:
-        """Check ``path`` as a folder the command writes ``names`` (files of ``kind``) into."""
+    def folder(self, path, option: str, only: str | None = None) -> Path | None:
+        """Check ``path`` as a folder the command writes files into (each then claimed with
+        ``file``). ``only``: the kind of file it writes there, the only kind an existing folder
+        may hold (unless ``--force``): no folder of someone's files is written into."""
         if not path:
             return None
         folder = self._make_folder(self._unclaimed(path, option), option)
-        for name in names:
-            target = self._unclaimed(folder / name, option)
-            if target.is_dir():
-                raise InputError(target, f"{option}: is a folder where a {KIND_NAMES[kind]} goes")
-            if (target.is_file() and target.stat().st_size and not self.force
-                    and not is_kind(target, kind)):
-                raise InputError(target, f"exists and is not a {KIND_NAMES[kind]}: {option} will not "
-                                         "write over it (choose another folder, or --force)")
+        if only and not self.force:
+            foreign = next((entry for entry in sorted(folder.iterdir()) if not _ours(entry, only)), None)
+            if foreign is not None:
+                kind = special_file(foreign)
+                raise InputError(folder, f"{option}: the folder holds files mavattitude did not write "
+                                         f"({foreign.name}{', ' + kind if kind else ''}); choose an empty or "
+                                         "new folder, or --force")
         try:
             with tempfile.TemporaryFile(dir=folder):
                 pass

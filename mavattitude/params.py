@@ -27,7 +27,7 @@ import re
 import sys
 from dataclasses import dataclass
 
-from .errors import InputError, UsageError
+from .errors import InputError, UsageError, check_not_special
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -120,6 +120,7 @@ def search_space(params_class) -> dict[str, Search]:
 
 def load_file(path: str) -> dict[str, dict[str, object]]:
     """{estimator: {field: value}} from a TOML file."""
+    check_not_special(path)
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)

@@ -4,7 +4,6 @@ All angles are in degrees; times in seconds on the autopilot's clock, as the fli
 """
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import numpy as np
 
 from .flight import AttitudeSeries
 from .metrics import AXES, AxisMetrics, Comparison
+from .outputs import json_text
 from .quaternion import to_euler, wrap_deg
 
 BUCKET_KEYS = ("lt_0.5", "0.5_1", "1_2", "gt_2")  # [0,0.5), [0.5,1), [1,2), [2,inf) degrees
@@ -191,8 +191,7 @@ def write_json(path, log: str, reference: str, comparisons: dict[str, Comparison
     data = to_json_dict(log, reference, comparisons, extras, scoring, events, declination)
     if link is not None:
         data["link"] = link
-    text = json.dumps(data, indent=2, allow_nan=False)
-    path.write_text(text + "\n", encoding="utf-8")
+    path.write_text(json_text(data, allow_nan=False), encoding="utf-8")
     return path
 
 
@@ -218,9 +217,11 @@ def _number(x) -> float | None:
 # ---------------------------------------------------------------- CSV export
 
 
-def write_csv(directory, reference: AttitudeSeries,
-              estimates: dict[str, AttitudeSeries]) -> dict[str, Path]:
+def write_csv(directory, reference: AttitudeSeries, estimates: dict[str, AttitudeSeries],
+              paths: dict[str, Path] | None = None) -> dict[str, Path]:
     """Write ``DIR/reference.csv`` and ``DIR/<estimator>.csv``; returns {"reference"|name: path}.
+    ``paths``: where to write each instead ({"reference"|name: path}, temporary files that
+    ``outputs`` puts in place).
 
     Columns ``time_s,roll_deg,pitch_deg,yaw_deg``: time as stored (s, autopilot clock), ZYX
     Euler angles in degrees with yaw in [-180, 180), six decimals; NaN rows are written as
@@ -236,8 +237,8 @@ def write_csv(directory, reference: AttitudeSeries,
         if any(path == p for p, _ in targets.values()):
             raise ValueError(f"estimator {name!r} would overwrite {path.name}")
         targets[name] = (path, series)
-    for path, series in targets.values():
-        _write_attitude_csv(path, series)
+    for name, (path, series) in targets.items():
+        _write_attitude_csv((paths or {}).get(name, path), series)
     return {name: path for name, (path, _) in targets.items()}
 
 

@@ -211,6 +211,26 @@ def study_name(settings: TuneSettings, train: list[str], space: dict[str, Search
     return f"{settings.estimator}-{hashlib.sha1(what.encode()).hexdigest()[:12]}"
 
 
+def open_study(path, option: str = "--study"):
+    """The Optuna storage in the SQLite file ``path`` (``outputs.Outputs.database`` checked it
+    is new or Optuna's), opened and written to once now: a database SQLite cannot read, or
+    cannot write (a read-only file or folder), is one line naming it, not SQLAlchemy's
+    traceback minutes later."""
+    import optuna
+    from sqlalchemy.exc import SQLAlchemyError
+
+    try:
+        storage = optuna.storages.RDBStorage(f"sqlite:///{path}")
+        with storage.engine.begin() as db:  # a write that changes nothing: SQLite says now if it cannot
+            db.exec_driver_sql("UPDATE version_info SET schema_version = schema_version")
+    except SQLAlchemyError as exc:
+        reason = str(getattr(exc, "orig", None) or exc).splitlines()[0]
+        raise InputError(path, f"{option}: cannot open the study ({reason})") from None
+    except RuntimeError as exc:  # Optuna: a study of another Optuna version's schema
+        raise InputError(path, f"{option}: cannot open the study ({exc})") from None
+    return storage
+
+
 def fit(scorer: Scorer, settings: TuneSettings, train: list[str], space: dict[str, Search],
         start: dict[str, object], storage, seed: int, progress) -> Fit:
     """Search ``space`` for the values with the lowest objective over ``train``: ``trials``
@@ -254,7 +274,7 @@ def _suggest(trial, name: str, search: Search):
 
 def tune(logs: list[str], settings: TuneSettings, workers, storage=None, progress=None) -> TuneResult:
     """Cross-validate (``settings.folds`` folds; fewer than 2 logs or folds: none), then fit on
-    every log. ``storage``: an Optuna storage (an SQLite URL) or None (in memory)."""
+    every log. ``storage``: an Optuna storage (``open_study``, or an SQLite URL) or None (in memory)."""
     began = time.monotonic()
     space = space_for(settings)
     start = start_values(settings, space)

@@ -118,7 +118,7 @@ def default_logs() -> list[Path]:
     logs = sorted((ROOT / "sample_logs").glob("*.bin")) + sorted((ROOT / "sample_logs").glob("*.tlog"))
     shared = ROOT.parent / "shared" / "logs"
     if shared.is_dir():
-        logs += sorted(p for p in shared.rglob("*") if p.suffix in (".bin", ".tlog"))
+        logs += sorted(p for p in shared.rglob("*") if p.suffix in (".bin", ".tlog", ".ulg"))
     return logs
 
 

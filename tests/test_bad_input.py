@@ -109,7 +109,7 @@ def test_simulate_never_writes_over_a_flight_log(capsys, tmp_path):
     real = tmp_path / "flight.bin"
     real.write_bytes(b"\xa3\x95\x80" + bytes(200))  # a log not made by the simulator
     code, _, err = run(capsys, "simulate", "--duration", "5", "-o", real)
-    assert code == 1 and "not a log written by the simulator" in one_line(err)
+    assert code == 1 and "a flight log the simulator did not write" in one_line(err)
     sim = tmp_path / "sim.bin"
     for _ in range(2):  # its own output it replaces
         code, _, err = run(capsys, "simulate", "--duration", "5", "-o", sim)
@@ -393,9 +393,9 @@ FUZZ_CASES = 2 * len(KINDS) + 2  # per log, each kind of damage twice; scripts/f
 def fuzz_logs():
     logs = [pytest.param(SAMPLE_LOGS / "figure8.bin", id="figure8.bin"),
             pytest.param(SAMPLE_LOGS / "hover.tlog", id="hover.tlog")]
-    for name in ("copter-3.3-loiter-rtl.bin", "copter-4.1-flight.tlog"):
+    for name in ("copter-3.3-loiter-rtl.bin", "copter-4.1-flight.tlog", "ulog/px4-sitl-events-31s.ulg"):
         if (SHARED_LOGS / name).exists():
-            logs.append(pytest.param(SHARED_LOGS / name, id=name, marks=pytest.mark.slow))
+            logs.append(pytest.param(SHARED_LOGS / name, id=name.split("/")[-1], marks=pytest.mark.slow))
     return logs
 
 

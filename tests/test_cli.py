@@ -31,7 +31,7 @@ def rrd_verifies(path: Path) -> bool:
 
 def check_outputs(tmp_path: Path, estimators: list[str], reference: str) -> dict:
     metrics = json.loads((tmp_path / "m.json").read_text())
-    assert set(metrics) == {"log", "reference", "estimators", "scoring", "events", "declination_deg",
+    assert set(metrics) == {"written_by", "log", "reference", "estimators", "scoring", "events", "declination_deg",
                             "declination_source"}
     assert all(set(e) == {"t_s", "level", "kind", "text"} for e in metrics["events"]) and metrics["events"]
     assert metrics["reference"] == reference

@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+import mavattitude
 from mavattitude.flight import AttitudeSeries
 from mavattitude.metrics import AXES, AxisMetrics, Comparison, compare
 from mavattitude.quaternion import from_euler, to_euler
@@ -126,6 +127,7 @@ def test_json_is_valid_and_written(tmp_path, comparisons):
     text = path.read_text(encoding="utf-8")
     assert "NaN" not in text
     loaded = json.loads(text)
+    assert loaded.pop("written_by") == f"mavattitude {mavattitude.__version__}"  # first: outputs.is_kind knows ours
     assert loaded == to_json_dict("flight.bin", "ATT", comparisons)
 
 

@@ -210,3 +210,148 @@ def test_a_topic_without_a_field_we_read_is_a_warning(tmp_path, monkeypatch):
     flight = read_log(str(path))
     assert flight.gps is None and flight.imu
     assert flight.warnings == ["vehicle_gps_position[0]: not read, it has no field 'eph' (a PX4 version not known here)"]
+
+
+# ---------------------------------------------------------------- damage cut out and said (issue 23)
+
+EVENTS_LOG = "ulog/px4-sitl-events-31s.ulg"
+
+
+def zeroed(source, folder, at, n, name="damaged.ulg"):
+    data = bytearray(source.read_bytes())
+    data[at:at + n] = bytes(len(data[at:at + n]))
+    (folder / name).write_bytes(bytes(data))
+    return folder / name
+
+
+def test_every_shared_ulog_frames_without_damage():
+    from conftest import SHARED_LOGS
+    from mavattitude.readers.ulogrecords import frame
+
+    paths = sorted((SHARED_LOGS / "ulog").glob("*.ulg")) if (SHARED_LOGS / "ulog").is_dir() else []
+    if not paths:
+        pytest.skip(f"PX4 logs not found in {SHARED_LOGS / 'ulog'}")
+    for path in paths:
+        framing = frame(path.read_bytes())
+        assert framing.damage == [] and framing.header == [] and framing.notes() == [], path.name
+
+
+def test_zeroed_bytes_in_a_real_ulog_cost_one_message_not_its_tail(tmp_path):
+    source = shared_log(EVENTS_LOG)
+    whole = read_log(str(source))
+    flight = read_log(str(zeroed(source, tmp_path, 862_488, 16)))  # pyulog alone stopped here, at 16.4 s
+    imu = flight.imu["sensor_combined"]
+    assert len(imu.t) >= len(whole.imu["sensor_combined"].t) - 1
+    assert imu.t[-1] == whole.imu["sensor_combined"].t[-1]
+    assert flight.warnings == ["skipped 54 bytes of corrupt data (0.0035 % of the file) in 1 stretch, the first "
+                               "at byte 862,502: messages resumed after each (less than 0.01 s of data lost)"]
+
+
+def test_zeroed_bytes_in_a_simulated_ulog_are_skipped_and_said(sim_logs, tmp_path):
+    sim, ulg, _ = sim_logs
+    size = ulg.stat().st_size
+    flight = read_log(str(zeroed(ulg, tmp_path, size // 2, 64)))  # longer than a message: a header is hit
+    assert abs(flight.imu["sensor_combined"].t[-1] - sim.t[-1]) < 0.01  # the tail is read
+    assert len(flight.warnings) == 1 and "skipped" in flight.warnings[0]
+    assert flight.warnings[0].endswith("messages resumed after each (less than 0.01 s of data lost)")
+    cut = read_log(str(zeroed(ulg, tmp_path, size // 2, size, "tail.ulg")))
+    assert cut.imu["sensor_combined"].t[-1] < sim.t[-1] * 0.6
+    assert f"(the data ends at {cut.imu['sensor_combined'].t[-1]:.1f} s on the log's clock)" in cut.warnings[0]
+    assert "the first at byte" in cut.warnings[0] and "% of the file is lost" in cut.warnings[0]
+
+
+def test_a_damaged_ulog_header_is_read_and_said_or_one_line(tmp_path, capsys):
+    source = shared_log(EVENTS_LOG)
+    data = source.read_bytes()
+    for at, value, said in [(127, data[127] ^ 0xFF, "the firmware version (ver_sw_release) is not a number"),
+                            (0, ord("X"), "the ULog header is damaged (magic byte 0 is 0x58, not 0x55)"),
+                            (7, 9, "the ULog header is damaged (version byte is 9, not 1)")]:
+        damaged = bytearray(data)
+        damaged[at] = value
+        path = tmp_path / f"byte-{at}.ulg"
+        path.write_bytes(bytes(damaged))
+        assert main(["info", str(path)]) == 0
+        out, err = capsys.readouterr()
+        assert "Traceback" not in err and said in out and "pyulog" not in out, out
+    damaged = bytearray(data)
+    damaged[19 + 8] = 0xFF  # an incompatible flag pyulog does not know
+    path = tmp_path / "flags.ulg"
+    path.write_bytes(bytes(damaged))
+    assert main(["info", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not a readable ULog (header damaged" in err and str(path) in err
+    damaged[0:2] = b"XX"  # two magic bytes: no ULog
+    path.write_bytes(bytes(damaged))
+    assert main(["info", str(path)]) == 1
+    assert "not a PX4 ULog file" in capsys.readouterr().err
+
+
+def test_cutting_damage_out_keeps_the_offsets_of_appended_data(sim_logs):
+    """A ULog's flag bits may point at data appended later (file offsets): after the damage
+    before it is cut out, the offset points at the same bytes."""
+    import struct
+
+    from mavattitude.readers.ulogrecords import frame
+
+    _, ulg, _ = sim_logs
+    data = bytearray(ulg.read_bytes())
+    assert data[16 + 2] == ord("B")  # the flag-bits message comes first
+    target = frame(bytes(data)).runs[0][1] * 3 // 4  # a place in the data, said to start appended data
+    data[16 + 3 + 8] |= 1
+    struct.pack_into("<Q", data, 16 + 3 + 16, target)
+    data[target // 2:target // 2 + 64] = bytes(64)
+    framing = frame(bytes(data))
+    assert framing.damage and framing.damage[-1][1] < target
+    repaired = framing.repaired(bytes(data))
+    moved, = struct.unpack_from("<Q", repaired, 16 + 3 + 16)
+    assert moved == target - framing.skipped and repaired[moved:moved + 100] == data[target:target + 100]
+
+
+def test_a_damaged_array_size_in_a_format_is_damage_not_a_traceback(sim_logs, tmp_path, capsys):
+    _, ulg, _ = sim_logs
+    data = ulg.read_bytes()
+    at = data.index(b"gyro_rad") - 3  # "float[3] gyro_rad": the 3
+    assert data[at:at + 1] == b"3"
+    path = tmp_path / "format.ulg"
+    path.write_bytes(data[:at] + b"\xb3" + data[at + 1:])  # '³' in latin-1, a digit to str.isdigit
+    assert main(["info", str(path)]) == 1  # the simulator's only IMU topic has lost its format
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no IMU data" in err and "the file is damaged" in err
+
+
+def test_a_corrupt_height_in_an_old_ulog_is_no_numpy_warning():
+    """Old logs give the baro as a height; one above the standard atmosphere's top (a flipped
+    bit, found by fuzzing the real flight) has no pressure: NaN, without numpy's warning."""
+    import warnings
+
+    from mavattitude.readers.collect import Collector
+    from mavattitude.readers.ulog import _add_topic
+
+    n = 3
+    data = {"timestamp": np.array([1000, 2000, 3000], np.uint64), "baro_alt_meter": np.array([10.0, 9e4, 12.0]),
+            "baro_timestamp_relative": np.zeros(n, np.int32), "accelerometer_timestamp_relative": np.zeros(n, np.int32),
+            **{f"{field}[{k}]": np.zeros(n, np.float32)
+               for field in ("gyro_rad", "accelerometer_m_s2") for k in range(3)}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _add_topic(Collector(), "sensor_combined", "sensor_combined", data, [])
+
+
+def test_a_signalling_nan_in_a_ulog_is_no_numpy_warning(tmp_path):
+    """A flipped bit can make a float a signalling NaN, whose conversion numpy warns of (found
+    fuzzing the shared ULogs): the sample is dropped, silently as any non-finite one."""
+    import warnings
+
+    from mavattitude.readers.collect import Collector
+    from mavattitude.readers.ulog import _add_topic
+
+    n = 3
+    signalling = np.array([0x7FA00000], np.uint32).view(np.float32)[0]
+    data = {"timestamp": np.array([1000, 2000, 3000], np.uint64),
+            "accelerometer_timestamp_relative": np.zeros(n, np.int32),
+            **{f"{field}[{k}]": np.ones(n, np.float32)
+               for field in ("gyro_rad", "accelerometer_m_s2") for k in range(3)}}
+    data["gyro_rad[0]"][1] = signalling
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _add_topic(Collector(), "sensor_combined", "sensor_combined", data, [])

@@ -13,7 +13,7 @@ import os
 import sys
 import tempfile
 
-from ..errors import InputError
+from ..errors import InputError, check_not_special
 from ..flight import Flight
 from ..kernel_cache import cached
 from .dataflash import read_dataflash
@@ -21,7 +21,8 @@ from .series import IMU_LIMITS, MAG_LIMITS, earth_field_power, fill_series
 from .sources import (IMU_PREFERENCE, best_imu_source, enum_name, identify_vehicle, imu_rate, mag_for_imu,
                       pick_imu, pick_mag)
 from .tlog import TLOG_SEARCH_BYTES, read_tlog, tlog_start
-from .ulog import ULOG_MAGIC, read_ulog
+from .ulog import read_ulog
+from .ulogrecords import looks_like_ulog
 
 __all__ = ["IMU_LIMITS", "IMU_PREFERENCE", "MAG_LIMITS", "best_imu_source", "earth_field_power", "enum_name",
            "identify_vehicle", "imu_rate", "mag_for_imu", "pick_imu", "pick_mag", "read_log", "reader_needs_compile",
@@ -36,13 +37,14 @@ def sniff_format(path: str) -> str:
         raise InputError(path, "no such file")
     if os.path.isdir(path):
         raise InputError(path, "is a folder, not a log file")
+    check_not_special(path)
     with open(path, "rb") as f:
         head = f.read(TLOG_SEARCH_BYTES)
     if not head:
         raise InputError(path, "empty file")
     if head[:2] == DATAFLASH_MAGIC:
         return "bin"
-    if head.startswith(ULOG_MAGIC):
+    if looks_like_ulog(head):  # a damaged magic byte is said by the reader
         return "ulg"
     if tlog_start(head) is not None:
         return "tlog"

@@ -25,35 +25,42 @@ read. Parameters are kept as PX4 names them (the declination is ``EKF2_MAG_DECL`
 """
 from __future__ import annotations
 
+import io
+
 import numpy as np
 
 from ..errors import InputError
 from ..phase import height_pressure
 from .collect import Collector, Decoded, first_utc
+from .ulogrecords import frame
 
 GAUSS_TO_TESLA = 1e-4
 S_PER_US = 1e-6
 RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: the *_timestamp_relative of a sensor not in this sample
 TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_magnetometer", "vehicle_gps_position", "sensor_gps",
           "vehicle_air_data", "vehicle_attitude", "vehicle_attitude_groundtruth", "sensor_selection"]
-ULOG_MAGIC = b"ULog\x01\x125"
 
 
 def read_ulog(path: str, progress=None) -> Decoded:
-    """Decode a .ulg (the topics of ``TOPICS``); InputError for a file pyulog cannot read."""
+    """Decode a .ulg (the topics of ``TOPICS``); InputError for a file pyulog cannot read.
+    Damage is cut out first (``ulogrecords``), and said in the warnings."""
     from pyulog import ULog
 
+    with open(path, "rb") as f:
+        data = f.read()
+    framing = frame(data)
+    warnings = framing.notes()
+    source = io.BytesIO(framing.repaired(data)) if warnings else path
     try:
-        ulog = ULog(path, message_name_filter_list=TOPICS, disable_str_exceptions=True)
+        ulog = ULog(source, message_name_filter_list=TOPICS, disable_str_exceptions=True)
     except Exception as exc:  # noqa: BLE001 - pyulog raises what it meets (struct.error, ValueError, ...)
-        raise InputError(path, f"not a readable ULog ({type(exc).__name__}: {exc})") from None
+        raise InputError(path, f"not a readable ULog (header damaged: {type(exc).__name__}: {exc})") from None
     if progress is not None:
         progress(0.5)
     col = Collector()
     counts: dict[str, int] = {}
     notes: list[str] = []
-    warnings = []
-    if ulog.file_corruption:
+    if ulog.file_corruption and not framing.damage:
         warnings.append("the file is damaged (pyulog found corrupt data and skipped to the next valid message)")
     if ulog.dropouts:
         lost_ms = sum(d.duration for d in ulog.dropouts)
@@ -74,6 +81,9 @@ def read_ulog(path: str, progress=None) -> Decoded:
     if selected:
         notes.append(f"{selected} is the IMU PX4 selected (sensor_selection); sensor_combined carries its samples")
     params = {k: float(v) for k, v in ulog.initial_parameters.items() if isinstance(v, (int, float))}
+    if not isinstance(ulog.msg_info_dict.get("ver_sw_release", 0), int):
+        warnings.append("the ULog header is damaged: the firmware version (ver_sw_release) is not a number; "
+                        "left out")
     utc = [first_utc(d.data["time_utc_usec"] * 1e-6) for d in ulog.data_list
            if d.name in ("vehicle_gps_position", "sensor_gps") and "time_utc_usec" in d.data]
     return Decoded(col, params, [], counts, notes=notes, warnings=warnings, identity=_identify(ulog, params),
@@ -81,42 +91,47 @@ def read_ulog(path: str, progress=None) -> Decoded:
 
 
 def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]) -> None:
-    order = data["timestamp"].astype(np.int64)
-    sampled = data.get("timestamp_sample", order)  # 0 where a driver left it unset (GPS)
-    t = np.where(sampled > 0, sampled, order).astype(np.float64) * S_PER_US
+    # Damaged data decodes as anything: a flipped bit can make a signalling NaN (numpy warns as
+    # it converts one) or a height above the standard atmosphere; such rows are NaN, then dropped
+    # as not finite (series.fill_series).
+    with np.errstate(invalid="ignore"):
+        order = data["timestamp"].astype(np.int64)
+        sampled = data.get("timestamp_sample", order)  # 0 where a driver left it unset (GPS)
+        t = np.where(sampled > 0, sampled, order).astype(np.float64) * S_PER_US
 
-    def vector(field, n=3):
-        return np.column_stack([data[f"{field}[{k}]"].astype(np.float64) for k in range(n)])
+        def vector(field, n=3):
+            return np.column_stack([data[f"{field}[{k}]"].astype(np.float64) for k in range(n)])
 
-    if name == "sensor_combined":
-        accel_ok = data.get("accelerometer_timestamp_relative", order * 0) != RELATIVE_TIMESTAMP_INVALID
-        rows = np.hstack([vector("gyro_rad"), vector("accelerometer_m_s2")])
-        col.add_columns("imu", key, order[accel_ok], t[accel_ok], rows[accel_ok])
-        if "magnetometer_ga[0]" in data:  # old logs: the compass in the same topic, repeated
-            _add_relative(col, "mag", key, data, "magnetometer", order, vector("magnetometer_ga") * GAUSS_TO_TESLA)
-        if "baro_alt_meter" in data:
-            # old logs give only the height PX4 computed from pressure in the standard atmosphere
-            # (QNH 1013.25 hPa): that pressure back, for the phase that differences it
-            height = data["baro_alt_meter"].astype(np.float64)
-            pressure = height_pressure(height)
-            if _add_relative(col, "baro", key, data, "baro", order, np.column_stack([pressure, height])):
-                notes.append("baro pressure from sensor_combined.baro_alt_meter (standard atmosphere)")
-    elif name == "vehicle_imu":
-        angle_dt = data["delta_angle_dt"].astype(np.float64) * S_PER_US
-        velocity_dt = data["delta_velocity_dt"].astype(np.float64) * S_PER_US
-        ok = (angle_dt > 0) & (velocity_dt > 0)
-        with np.errstate(divide="ignore", invalid="ignore"):  # as rates over their intervals, as IMT
-            rows = np.hstack([vector("delta_angle") / angle_dt[:, None], vector("delta_velocity") / velocity_dt[:, None]])
-        col.add_columns("imu", key, order[ok], t[ok], rows[ok])
-    elif name == "vehicle_magnetometer":
-        col.add_columns("mag", key, order, t, vector("magnetometer_ga") * GAUSS_TO_TESLA)
-    elif name in ("vehicle_gps_position", "sensor_gps"):
-        col.add_columns("gps", key, order, t, _gps_rows(data))
-    elif name == "vehicle_air_data":
-        col.add_columns("baro", key, order, t, np.column_stack([data["baro_pressure_pa"], data["baro_alt_meter"]]))
-    elif name in ("vehicle_attitude", "vehicle_attitude_groundtruth"):
-        kind = "att_quat" if name == "vehicle_attitude" else "truth_quat"
-        col.add_columns(kind, key, order, t, vector("q", 4))
+        if name == "sensor_combined":
+            accel_ok = data.get("accelerometer_timestamp_relative", order * 0) != RELATIVE_TIMESTAMP_INVALID
+            rows = np.hstack([vector("gyro_rad"), vector("accelerometer_m_s2")])
+            col.add_columns("imu", key, order[accel_ok], t[accel_ok], rows[accel_ok])
+            if "magnetometer_ga[0]" in data:  # old logs: the compass in the same topic, repeated
+                _add_relative(col, "mag", key, data, "magnetometer", order, vector("magnetometer_ga") * GAUSS_TO_TESLA)
+            if "baro_alt_meter" in data:
+                # old logs give only the height PX4 computed from pressure in the standard atmosphere
+                # (QNH 1013.25 hPa): that pressure back, for the phase that differences it
+                height = data["baro_alt_meter"].astype(np.float64)
+                pressure = height_pressure(height)  # NaN above the model's top (a corrupt height)
+                if _add_relative(col, "baro", key, data, "baro", order, np.column_stack([pressure, height])):
+                    notes.append("baro pressure from sensor_combined.baro_alt_meter (standard atmosphere)")
+        elif name == "vehicle_imu":
+            angle_dt = data["delta_angle_dt"].astype(np.float64) * S_PER_US
+            velocity_dt = data["delta_velocity_dt"].astype(np.float64) * S_PER_US
+            ok = (angle_dt > 0) & (velocity_dt > 0)
+            with np.errstate(divide="ignore"):  # as rates over their intervals, as IMT
+                rows = np.hstack([vector("delta_angle") / angle_dt[:, None],
+                                  vector("delta_velocity") / velocity_dt[:, None]])
+            col.add_columns("imu", key, order[ok], t[ok], rows[ok])
+        elif name == "vehicle_magnetometer":
+            col.add_columns("mag", key, order, t, vector("magnetometer_ga") * GAUSS_TO_TESLA)
+        elif name in ("vehicle_gps_position", "sensor_gps"):
+            col.add_columns("gps", key, order, t, _gps_rows(data))
+        elif name == "vehicle_air_data":
+            col.add_columns("baro", key, order, t, np.column_stack([data["baro_pressure_pa"], data["baro_alt_meter"]]))
+        elif name in ("vehicle_attitude", "vehicle_attitude_groundtruth"):
+            kind = "att_quat" if name == "vehicle_attitude" else "truth_quat"
+            col.add_columns(kind, key, order, t, vector("q", 4))
 
 
 def _add_relative(col: Collector, kind: str, key: str, data: dict, sensor: str, order, rows) -> int:
@@ -162,6 +177,8 @@ def _identify(ulog, params: dict) -> tuple[str, str]:
     info = ulog.msg_info_dict
     vehicle = enum_name("MAV_TYPE", int(params["MAV_TYPE"])) if "MAV_TYPE" in params else "PX4"
     release = info.get("ver_sw_release")
+    if not isinstance(release, int):  # a damaged header can give it another type
+        release = None
     version = f"v{release >> 24}.{(release >> 16) & 0xFF}.{(release >> 8) & 0xFF}" if release else None
     git = str(info.get("ver_sw", ""))[:8] or None
     parts = ["PX4", version, f"({git})" if git else None, info.get("ver_hw")]
