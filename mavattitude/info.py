@@ -8,6 +8,7 @@ import numpy as np
 from .flight import GRAVITY, Flight
 from .runner import LOW_IMU_RATE_HZ
 from .readers import best_imu_source, imu_rate
+from .readers.attitudes import name_attitudes
 
 
 def _rate(t: np.ndarray) -> float:
@@ -66,6 +67,10 @@ def summarize(flight: Flight) -> dict:
         "imu_sources": imus,
         "best_imu": best,
         "sample_rates_hz": rates,
+        "attitude_streams": [{"stream": n.key, "algorithm": n.algorithm, "primary": n.primary,
+                              "samples": len(flight.attitudes[n.key].t), "rate_hz": round(_rate(flight.attitudes[n.key].t), 2),
+                              "named_by": n.evidence, "equals": {k: round(v, 3) for k, v in n.equals.items()}}
+                             for n in name_attitudes(flight)],
         "message_counts": dict(sorted(flight.message_counts.items())),
         "message_rates_hz": {k: round(v / duration, 3) if duration > 0 else None
                              for k, v in sorted(flight.message_counts.items())},
@@ -94,6 +99,12 @@ def render(info: dict) -> str:
         a = imu["accel_norm_ms2"]
         lines.append(f"   {'*' if imu['best'] else ' '} {key:16s} {imu['samples']:8d} samples  {imu['rate_hz']:7.1f} Hz"
                      f"   |accel| mean {a['mean']:.3f} ± {a['std']:.3f} m/s² (g = {GRAVITY})")
+    if info["attitude_streams"]:
+        lines.append("  autopilot attitudes (* = primary, the 'autopilot' reference):")
+    for a in info["attitude_streams"]:
+        same = [f"{k} {100 * v:.0f} %" for k, v in a["equals"].items() if v >= 0.05]
+        lines.append(f"   {'*' if a['primary'] else ' '} {a['stream']:22s} {a['algorithm']:16s} {a['samples']:8d} samples"
+                     f"  {a['rate_hz']:7.1f} Hz   ({a['named_by']}{'; equals ' + ', '.join(same) if same else ''})")
     for note in info["notes"]:
         lines.append(f"  note: {note}")
     for warning in info["warnings"]:
