@@ -146,11 +146,18 @@ def _secondary(key: str, series: AttitudeSeries, first: NamedAttitude | None, ek
                              shares)
     if first.algorithm != "DCM":
         return NamedAttitude(key, "DCM", False, f"the estimator not in use ({first.key} is {first.algorithm})", shares)
-    ekf = next((n.algorithm.split(" core")[0] for n in ekfs), None)
-    if ekf is None and "AHRS_EKF_TYPE" in params:
-        ekf = ACTIVE_TYPES.get(int(params["AHRS_EKF_TYPE"]))
-    return NamedAttitude(key, ekf if ekf and ekf != "DCM" else "EKF", False,
-                         f"the estimator not in use ({first.key} is DCM)", shares)
+    ekf = next((n.algorithm.split(" core")[0] for n in ekfs), None) or _enabled_ekf(params)
+    return NamedAttitude(key, ekf or "EKF", False, f"the estimator not in use ({first.key} is DCM)", shares)
+
+
+def _enabled_ekf(params: dict) -> str | None:
+    """The EKF the parameters run beside DCM: EKF1 where AHRS_EKF_USE exists (3.2-3.3), else
+    the AHRS_EKF_TYPE, else the one enabled (EK3_ENABLE, EK2_ENABLE)."""
+    if "AHRS_EKF_USE" in params:
+        return "EKF1"
+    if int(params.get("AHRS_EKF_TYPE", 0)) in (2, 3):
+        return f"EKF{int(params['AHRS_EKF_TYPE'])}"
+    return "EKF3" if params.get("EK3_ENABLE") == 1 else "EKF2" if params.get("EK2_ENABLE") == 1 else None
 
 
 def _px4(key: str, params: dict, primary: bool) -> NamedAttitude:
