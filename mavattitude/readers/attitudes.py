@@ -7,11 +7,11 @@ is in use, else the EKF), EKF1 / NKF1 / XKF1[i] each EKF core, DCM (4.5+) DCM, A
 telemetry) EKF2. Which one ATT is, the evidence in this order:
 
 1. ATT.AEKF (4.1+): the estimator in use at each sample (0 DCM, 2 EKF2, 3 EKF3, 10 SITL, 11 external);
-2. ATT equals an EKF stream (to the log's 0.01°) on most samples: that EKF;
+2. ATT equals the simulator's truth (SITL) or an EKF stream (to the log's 0.01°) on most samples;
 3. the parameters: AHRS_EKF_USE (3.2-3.3: 0 DCM, 1 EKF1), AHRS_EKF_TYPE (3.4+: 0 DCM, 2 EKF2,
    3 EKF3, 10 SITL, 11 external; ArduCopter always uses an EKF, 0 meaning EKF2 there: the
    constructor flag FLAG_ALWAYS_USE_EKF); parameters without either: a firmware before the EKF, DCM;
-4. the firmware's default (4.1+: EKF3);
+4. the firmware's default (4.1+: EKF3); a copter's EKF (the one whose EKn_ parameters the log has);
 else "unknown". The parameters lose to the comparison: with AHRS_EKF_USE=1 an EKF that never became
 healthy left ATT to DCM, and ATT then equals no EKF stream.
 
@@ -31,6 +31,8 @@ from ..flight import AttitudeSeries, Flight
 
 ACTIVE_TYPES = {0: "DCM", 1: "EKF1", 2: "EKF2", 3: "EKF3", 10: "SITL", 11: "external AHRS"}
 AHRS_EKF_USE = {0: "DCM", 1: "EKF1", 2: "EKF2"}
+COPTER_TYPES = ("ARDUCOPTER", "QUADROTOR", "HEXAROTOR", "OCTOROTOR", "TRICOPTER", "COAXIAL", "HELICOPTER",
+                "DECAROTOR", "DODECAROTOR")  # MAV_TYPE names (a .tlog's vehicle) ArduCopter flies
 PRIMARY_KEYS = ("ATT", "ATTITUDE", "ATTITUDE_QUATERNION", "vehicle_attitude")
 SECONDARY_KEYS = ("AHR2", "AHRS2")
 MATCH_S = 0.005  # samples of two streams this close in time were written in the same loop
@@ -101,6 +103,10 @@ def _ardupilot_primary(flight: Flight, att: AttitudeSeries, ekfs: list[NamedAtti
         rest = [f"{name} {100.0 * c / len(att.active):.0f} %" for i, (name, c) in enumerate(zip(names, counts))
                 if i != main]
         return NamedAttitude(key, names[main], True, f"ATT.AEKF{' (also ' + ', '.join(rest) + ')' if rest else ''}")
+    if flight.truth is not None:  # AHRS_EKF_TYPE=10: the simulator's truth is the attitude
+        truth = _equal_shares(att, {flight.truth.source: flight.truth})
+        if truth.get(flight.truth.source, 0.0) > MOST:
+            return NamedAttitude(key, "SITL", True, f"equals the simulator's truth ({flight.truth.source})", truth)
     shares = _equal_shares(att, {n.key: flight.attitudes[n.key] for n in ekfs})
     if shares:
         best = max(shares, key=shares.get)
@@ -119,7 +125,7 @@ def configured_estimator(flight: Flight) -> tuple[str | None, str]:
     params = flight.params
     if "AHRS_EKF_TYPE" in params:
         value = int(params["AHRS_EKF_TYPE"])
-        if value == 0 and "Copter" in (flight.firmware or ""):
+        if value == 0 and _is_copter(flight):
             return "EKF2", "AHRS_EKF_TYPE=0, which ArduCopter reads as EKF2 (it always uses an EKF)"
         return ACTIVE_TYPES.get(value), f"AHRS_EKF_TYPE={value}"
     if "AHRS_EKF_USE" in params:
@@ -130,7 +136,17 @@ def configured_estimator(flight: Flight) -> tuple[str | None, str]:
     version = re.search(r"V(\d+)\.(\d+)", flight.firmware or "")
     if version and (int(version[1]), int(version[2])) >= (4, 1):
         return "EKF3", f"AHRS_EKF_TYPE not in the log: EKF3, the default of ArduPilot 4.1+ ({flight.firmware})"
+    if _is_copter(flight):  # which EKF: the one whose parameters the log holds
+        ekf = "EKF3" if any(k.startswith("EK3_") for k in params) else \
+            "EKF2" if any(k.startswith("EK2_") for k in params) else "EKF"
+        return ekf, f"a copter ({flight.vehicle}) always uses an EKF{'; ' + ekf + ' parameters in the log' if ekf != 'EKF' else ''}"
     return None, "nothing in the log says (no AHRS_EKF_TYPE/AHRS_EKF_USE, no firmware version)"
+
+
+def _is_copter(flight: Flight) -> bool:
+    """ArduCopter (its firmware string, or a .tlog's MAV_TYPE): it always uses an EKF once one
+    has started (the AHRS flag FLAG_ALWAYS_USE_EKF; ATT.AEKF shows DCM only before that)."""
+    return "Copter" in (flight.firmware or "") or (flight.vehicle or "").upper() in COPTER_TYPES
 
 
 def _secondary(key: str, series: AttitudeSeries, first: NamedAttitude | None, ekfs: list[NamedAttitude],
