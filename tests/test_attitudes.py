@@ -121,15 +121,17 @@ def test_a_primary_that_equals_an_ekf_core_says_so():
     assert mixed.algorithm == "EKF3" and "DCM 37 %" in mixed.evidence  # a plane falls back to DCM
 
 
-@pytest.mark.parametrize("suffix, ekf_key", [(".bin", "EKF1"), (".tlog", "AHRS2")])
-def test_simulated_dcm_primary_read_back_with_its_names_and_bias(tmp_path, suffix, ekf_key):
+@pytest.mark.parametrize("suffix, names", [
+    (".bin", {"ATT": "DCM", "AHR2": "EKF1", "EKF1": "EKF1"}),
+    (".tlog", {"ATTITUDE": "DCM", "AHRS2": "EKF1"}),
+    (".ulg", {"vehicle_attitude": "PX4 Q", "estimator_attitude[0]": "PX4 EKF2 instance 0"}),  # PX4's DCM: Q
+])
+def test_simulated_dcm_primary_read_back_with_its_names_and_bias(tmp_path, suffix, names):
     bias = np.radians([2.0, -1.0, 3.0])
     sim = simulate("figure8", 40.0, seed=3, imu_rate=50.0, params=SensorParams(dcm_bias=tuple(bias)))
     flight = read_log(write_log(sim, tmp_path / f"dcm{suffix}"))
-    names = {n.key: n.algorithm for n in name_attitudes(flight)}
-    primary = "ATT" if suffix == ".bin" else "ATTITUDE"
-    assert names == ({"ATT": "DCM", "AHR2": "EKF1", "EKF1": "EKF1"} if suffix == ".bin"
-                     else {"ATTITUDE": "DCM", "AHRS2": "EKF1"})
+    assert {n.key: n.algorithm for n in name_attitudes(flight)} == names
+    primary, ekf_key = list(names)[0], list(names)[-1]
     assert flight.attitude.source == primary
     dcm, ekf = flight.attitude, flight.attitudes[ekf_key]
     apart = np.degrees(quat.wrap_pi(dcm.euler - quat.to_euler(quat.interpolate(ekf.t, ekf.q, dcm.t))))

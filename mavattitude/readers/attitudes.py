@@ -15,9 +15,9 @@ telemetry) EKF2. Which one ATT is, the evidence in this order:
 else "unknown". The parameters lose to the comparison: with AHRS_EKF_USE=1 an EKF that never became
 healthy left ATT to DCM, and ATT then equals no EKF stream.
 
-PX4 (.ulg): ``vehicle_attitude`` comes from the estimator SYS_MC_EST_GROUP selects (2: EKF2;
-0, 1, 3: the Q complementary filter) or, 1.14+, EKF2_EN / ATT_EN; ``estimator_attitude[i]`` is
-EKF2 instance i of a multi-EKF PX4.
+PX4 (.ulg): ``vehicle_attitude`` is EKF2's where it equals an ``estimator_attitude[i]`` (EKF2
+instance i of a multi-EKF PX4), else the estimator SYS_MC_EST_GROUP selects (2: EKF2; 0, 1, 3:
+the Q complementary filter) or, 1.14+, ATT_EN (Q) / EKF2_EN.
 """
 from __future__ import annotations
 
@@ -55,7 +55,7 @@ def name_attitudes(flight: Flight) -> list[NamedAttitude]:
     streams = flight.attitudes
     primary = flight.attitude.source if flight.attitude is not None else None
     if flight.format == "ulg":
-        named = [_px4(key, flight.params, key == primary) for key in streams]
+        named = [_px4(key, streams, flight.params, key == primary) for key in streams]
     else:
         own = {key: _own_name(key) for key in streams}  # the streams their message names
         named = []
@@ -176,18 +176,24 @@ def _enabled_ekf(params: dict) -> str | None:
     return "EKF3" if params.get("EK3_ENABLE") == 1 else "EKF2" if params.get("EK2_ENABLE") == 1 else None
 
 
-def _px4(key: str, params: dict, primary: bool) -> NamedAttitude:
-    """PX4's streams (see the module docstring)."""
+def _px4(key: str, streams: dict, params: dict, primary: bool) -> NamedAttitude:
+    """PX4's streams (see the module docstring): vehicle_attitude is EKF2 where it equals an EKF2
+    instance, else what the parameters enable."""
     instance = re.fullmatch(r"estimator_attitude\[(\d+)\]", key)
     if instance:
         return NamedAttitude(key, f"PX4 EKF2 instance {instance[1]}", primary, "its topic")
+    ekfs = {k: s for k, s in streams.items() if k.startswith("estimator_attitude[")}
+    shares = _equal_shares(streams[key], ekfs)
+    if shares and max(shares.values()) > MOST:
+        return NamedAttitude(key, "PX4 EKF2", primary, "the EKF2 instance it equals", shares)
     if "SYS_MC_EST_GROUP" in params:
         group = int(params["SYS_MC_EST_GROUP"])
-        return NamedAttitude(key, "PX4 EKF2" if group == 2 else "PX4 Q", primary, f"SYS_MC_EST_GROUP={group}")
-    if params.get("ATT_EN") == 1 and params.get("EKF2_EN", 1) == 0:
-        return NamedAttitude(key, "PX4 Q", primary, "ATT_EN=1, EKF2_EN=0")
+        return NamedAttitude(key, "PX4 EKF2" if group == 2 else "PX4 Q", primary, f"SYS_MC_EST_GROUP={group}", shares)
+    if params.get("ATT_EN") == 1 and (params.get("EKF2_EN") == 0 or shares):  # Q on; EKF2 off, or not this
+        return NamedAttitude(key, "PX4 Q", primary, "ATT_EN=1" + (", and it equals no EKF2 instance" if shares else ""),
+                             shares)
     return NamedAttitude(key, "PX4 EKF2", primary, "EKF2_EN=1" if params.get("EKF2_EN") == 1
-                         else "PX4's default estimator (SYS_MC_EST_GROUP/EKF2_EN not in the log)")
+                         else "PX4's default estimator (SYS_MC_EST_GROUP/EKF2_EN not in the log)", shares)
 
 
 def _equal_shares(series: AttitudeSeries, others: dict[str, AttitudeSeries]) -> dict[str, float]:
