@@ -57,26 +57,29 @@ def name_attitudes(flight: Flight) -> list[NamedAttitude]:
     if flight.format == "ulg":
         named = [_px4(key, streams, flight.params, key == primary) for key in streams]
     else:
-        own = {key: _own_name(key) for key in streams}  # the streams their message names
-        named = []
-        for key in streams:
-            if own[key] is not None:
-                named.append(NamedAttitude(key, own[key], key == primary, "its message"))
-        ekfs = [n for n in named if n.algorithm.startswith("EKF")]
-        first = _ardupilot_primary(flight, streams[primary], ekfs) if primary else None
-        for key in streams:
-            if key in PRIMARY_KEYS and key != primary:  # ATTITUDE_QUATERNION beside ATTITUDE
-                named.append(NamedAttitude(key, first.algorithm, False, f"{primary} as a quaternion",
-                                           _equal_shares(streams[key], {primary: streams[primary]})))
-            elif key in SECONDARY_KEYS:
-                named.append(_secondary(key, streams[key], first, ekfs, streams, flight.params))
-        if first is not None:
-            named.append(first)
+        named = _ardupilot(flight, primary)
     for n in named:  # which other streams each one equals (a lane switch: two cores, in turns)
         others = {m.key: streams[m.key] for m in named if m.key != n.key and m.key not in n.equals}
         n.equals.update(_equal_shares(streams[n.key], others))
     order = list(streams)
     return sorted(named, key=lambda n: (not n.primary, order.index(n.key)))
+
+
+def _ardupilot(flight: Flight, primary: str | None) -> list[NamedAttitude]:
+    """ArduPilot's streams: those their message names, then ATT, then the secondary."""
+    streams = flight.attitudes
+    named = [NamedAttitude(key, _own_name(key), False, "its message") for key in streams if _own_name(key)]
+    ekfs = [n for n in named if n.algorithm.startswith("EKF")]
+    if primary is None:
+        return named + [_secondary(key, streams[key], None, ekfs, streams, flight.params)
+                        for key in streams if key in SECONDARY_KEYS]
+    first = _ardupilot_primary(flight, streams[primary], ekfs)
+    for key in streams:
+        if key in PRIMARY_KEYS and key != primary:  # ATTITUDE_QUATERNION beside ATTITUDE
+            named.append(NamedAttitude(key, first.algorithm, False, f"the same attitude as {primary}"))
+        elif key in SECONDARY_KEYS:
+            named.append(_secondary(key, streams[key], first, ekfs, streams, flight.params))
+    return named + [first]
 
 
 def _own_name(key: str) -> str | None:
