@@ -68,8 +68,9 @@ def summarize(flight: Flight) -> dict:
         "best_imu": best,
         "sample_rates_hz": rates,
         "attitude_streams": [{"stream": n.key, "algorithm": n.algorithm, "primary": n.primary,
-                              "samples": len(flight.attitudes[n.key].t), "rate_hz": round(_rate(flight.attitudes[n.key].t), 2),
-                              "named_by": n.evidence, "equals": {k: round(v, 3) for k, v in n.equals.items()}}
+                              "samples": len(flight.attitudes[n.key].t),
+                              "rate_hz": round(_rate(flight.attitudes[n.key].t), 2), "named_by": n.evidence,
+                              "equals": {k: round(v, 3) for k, v in n.equals.items()}}
                              for n in name_attitudes(flight)],
         "message_counts": dict(sorted(flight.message_counts.items())),
         "message_rates_hz": {k: round(v / duration, 3) if duration > 0 else None
@@ -103,8 +104,9 @@ def render(info: dict) -> str:
         lines.append("  autopilot attitudes (* = primary, the 'autopilot' reference):")
     for a in info["attitude_streams"]:
         same = [f"{k} {100 * v:.0f} %" for k, v in a["equals"].items() if v >= 0.05]
-        lines.append(f"   {'*' if a['primary'] else ' '} {a['stream']:22s} {a['algorithm']:16s} {a['samples']:8d} samples"
-                     f"  {a['rate_hz']:7.1f} Hz   ({a['named_by']}{'; equals ' + ', '.join(same) if same else ''})")
+        why = a["named_by"] + ("; equals " + ", ".join(same) if same else "")
+        lines.append(f"   {'*' if a['primary'] else ' '} {a['stream']:22s} {a['algorithm']:16s} {a['samples']:8d} "
+                     f"samples  {a['rate_hz']:7.1f} Hz   ({why})")
     for note in info["notes"]:
         lines.append(f"  note: {note}")
     for warning in info["warnings"]:

@@ -114,7 +114,8 @@ def test_every_shared_log_is_in_the_table():
 
 def test_a_primary_that_equals_an_ekf_core_says_so():
     """ATT of a modern log equals XKF1 core 0 to the bit; where the EKF switched lanes, each core in turn."""
-    named = {n.key: n for n in name_attitudes(read_shared("corpus/real-copter-4.5.7-pixhawk6x-ekf-lane-switch-quiver083.bin"))}
+    lane_switch = read_shared("corpus/real-copter-4.5.7-pixhawk6x-ekf-lane-switch-quiver083.bin")
+    named = {n.key: n for n in name_attitudes(lane_switch)}
     assert named["ATT"].equals["XKF1[0]"] == pytest.approx(0.90, abs=0.02)
     assert named["ATT"].equals["XKF1[1]"] == pytest.approx(0.10, abs=0.02)
     mixed = name_attitudes(read_shared("corpus/real-plane-4.3.1-kakutef7-crash-bixler-scottyob.bin"))[0]
@@ -179,7 +180,8 @@ def test_info_lists_the_streams(tmp_path):
     summary = info.summarize(flight)
     streams = {s["stream"]: s for s in summary["attitude_streams"]}
     assert list(streams) == ["ATT", "AHR2", "EKF1"]
-    assert streams["ATT"]["primary"] and streams["ATT"]["algorithm"] == "DCM" and streams["ATT"]["named_by"] == "ATT.AEKF"
+    assert streams["ATT"]["primary"] and streams["ATT"]["algorithm"] == "DCM"
+    assert streams["ATT"]["named_by"] == "ATT.AEKF"
     assert streams["EKF1"]["rate_hz"] == pytest.approx(25.0, rel=0.01) and streams["EKF1"]["equals"]["AHR2"] == 1.0
     text = info.render(summary)
     assert "* ATT" in text and "EKF1" in text and "autopilot attitudes" in text

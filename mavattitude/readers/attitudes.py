@@ -142,7 +142,8 @@ def configured_estimator(flight: Flight) -> tuple[str | None, str]:
     if _is_copter(flight):  # which EKF: the one whose parameters the log holds
         ekf = "EKF3" if any(k.startswith("EK3_") for k in params) else \
             "EKF2" if any(k.startswith("EK2_") for k in params) else "EKF"
-        return ekf, f"a copter ({flight.vehicle}) always uses an EKF{'; ' + ekf + ' parameters in the log' if ekf != 'EKF' else ''}"
+        which = f"; {ekf} parameters in the log" if ekf != "EKF" else ""
+        return ekf, f"a copter ({flight.vehicle}) always uses an EKF{which}"
     return None, "nothing in the log says (no AHRS_EKF_TYPE/AHRS_EKF_USE, no firmware version)"
 
 

@@ -80,7 +80,8 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
             flight.baro = BaroSeries(key, t, v[:, 0], v[:, 1], arrival=arrival)
     flight.attitudes = _attitudes(col, columns)
     # the primary: of its messages (ATT; ATTITUDE or ATTITUDE_QUATERNION), the one with most samples
-    primary = [flight.attitudes[k] for kind in ("att_euler", "att_quat") for k in col.keys(kind) if k in flight.attitudes]
+    primary = [flight.attitudes[k] for kind in ("att_euler", "att_quat") for k in col.keys(kind)
+               if k in flight.attitudes]
     flight.attitude = max(primary, key=lambda s: len(s.t)) if primary else None
     flight.truth = _attitude(col, "truth", segment, columns)
     return unusable

@@ -67,7 +67,8 @@ def write_ulog(sim, path) -> None:
     definitions.append(_message(b"P", _key("float EKF2_MAG_DECL") + struct.pack("<f", math.degrees(sim.declination_rad))))
     definitions.append(_message(b"P", _key("int32_t MAV_TYPE") + struct.pack("<i", 2)))
     if sim.ekf_q is not None:  # the Q estimator and EKF2 both on: Q published vehicle_attitude first
-        definitions += [_message(b"P", _key(f"int32_t {name}") + struct.pack("<i", 1)) for name in ("ATT_EN", "EKF2_EN")]
+        definitions += [_message(b"P", _key(f"int32_t {name}") + struct.pack("<i", 1))
+                        for name in ("ATT_EN", "EKF2_EN")]
     topics = []
     for msg_id, (name, values) in enumerate(columns.items()):
         definitions.append(_message(b"A", struct.pack("<BH", 0, msg_id) + name.encode()))
@@ -108,7 +109,8 @@ def _topic_columns(sim) -> dict[str, dict[str, np.ndarray]]:
                                          "q": sim.truth.q[::every]},
     }
     if sim.ekf_q is not None:
-        topics["estimator_attitude"] = {"timestamp": attitude_t, "timestamp_sample": attitude_t, "q": sim.ekf_q[::every]}
+        topics["estimator_attitude"] = {"timestamp": attitude_t, "timestamp_sample": attitude_t,
+                                        "q": sim.ekf_q[::every]}
     return topics
 
 
