@@ -205,14 +205,15 @@ class Collector:
         t = np.concatenate([m[1] for m in merged.values()])
         sort = np.argsort(order, kind="stable")
         tracker = ClockTracker()
-        seg_sorted, _ = tracker.push(t[sort])
+        t_sorted = t[sort]
+        seg_sorted, _ = tracker.push(t_sorted)
         for g, label in tracker.finish():
             seg_sorted[g] = label
         seg = np.empty_like(seg_sorted)
         seg[sort] = seg_sorted
         if followers:
             clocked = seg_sorted >= 0
-            self._follow(followers, order[sort][clocked], t[sort][clocked], seg_sorted[clocked])
+            self._follow(followers, order[sort][clocked], t_sorted[clocked], seg_sorted[clocked])
         self.outliers = int(np.count_nonzero(seg < 0))
         n_segments = int(seg.max()) + 1 if len(seg) else 0
         spans = []
