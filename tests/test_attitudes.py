@@ -6,6 +6,7 @@ import pytest
 
 from conftest import SHARED_LOGS, read_shared
 from mavattitude import info, quaternion as quat
+from mavattitude.flight import AttitudeSeries, Flight
 from mavattitude.readers import read_log
 from mavattitude.readers.attitudes import name_attitudes
 from mavattitude.readers.collect import Collector
@@ -185,3 +186,21 @@ def test_info_lists_the_streams(tmp_path):
     assert streams["EKF1"]["rate_hz"] == pytest.approx(25.0, rel=0.01) and streams["EKF1"]["equals"]["AHR2"] == 1.0
     text = info.render(summary)
     assert "* ATT" in text and "EKF1" in text and "autopilot attitudes" in text
+
+
+@pytest.mark.parametrize("use_ekf, att_is_ekf, expected", [
+    (0, True, "EKF1"),  # the comparison beats the parameter
+    (1, False, "DCM"),  # an EKF chosen but never in use: ATT equals none of the EKF's samples
+    (1, True, "EKF1"),
+    (0, False, "DCM"),
+])
+def test_primary_named_by_comparison_before_parameters(use_ekf, att_is_ekf, expected):
+    t = np.arange(0.0, 20.0, 0.1)
+    ekf_q = quat.from_euler(0.1 * np.sin(t), 0.05 * np.cos(t), 0.3 * t)
+    att_q = ekf_q if att_is_ekf else quat.from_euler(0.1 * np.sin(t) + 0.01, 0.05 * np.cos(t), 0.3 * t)
+    att = AttitudeSeries("ATT", t, att_q)
+    flight = Flight("x.bin", "bin", attitude=att, params={"AHRS_EKF_USE": float(use_ekf), "AHRS_TRIM_X": 0.0},
+                    attitudes={"ATT": att, "EKF1": AttitudeSeries("EKF1", t + 0.001, ekf_q)})
+    named = name_attitudes(flight)
+    assert [n.key for n in named] == ["ATT", "EKF1"] and named[0].algorithm == expected
+    assert named[0].equals["EKF1"] == (1.0 if att_is_ekf else 0.0)

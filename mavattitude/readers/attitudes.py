@@ -11,9 +11,9 @@ telemetry) EKF2. Which one ATT is, the evidence in this order:
 3. the parameters: AHRS_EKF_USE (3.2-3.3: 0 DCM, 1 EKF1), AHRS_EKF_TYPE (3.4+: 0 DCM, 2 EKF2,
    3 EKF3, 10 SITL, 11 external; ArduCopter always uses an EKF, 0 meaning EKF2 there: the
    constructor flag FLAG_ALWAYS_USE_EKF); parameters without either: a firmware before the EKF, DCM;
-4. the firmware's default (4.1+: EKF3); a copter's EKF (the one whose EKn_ parameters the log has);
-else "unknown". The parameters lose to the comparison: with AHRS_EKF_USE=1 an EKF that never became
-healthy left ATT to DCM, and ATT then equals no EKF stream.
+4. the firmware's default (4.1+: EKF3); a copter's EKF (3.4+: the one whose EKn_ parameters the log has);
+else "unknown". The parameters lose to the comparison: ATT that equals no EKF stream logged is DCM
+(with AHRS_EKF_USE=1, an EKF that never became healthy left ATT to DCM).
 
 PX4 (.ulg): ``vehicle_attitude`` is EKF2's where it equals an ``estimator_attitude[i]`` (EKF2
 instance i of a multi-EKF PX4), else the estimator SYS_MC_EST_GROUP selects (2: EKF2; 0, 1, 3:
@@ -117,9 +117,8 @@ def _ardupilot_primary(flight: Flight, att: AttitudeSeries, ekfs: list[NamedAtti
             algorithm = next(n.algorithm for n in ekfs if n.key == best).split(" core")[0]
             return NamedAttitude(key, algorithm, True, "the EKF stream it equals", shares)
     configured, why = configured_estimator(flight)
-    if shares and configured in ("EKF1", "EKF2", "EKF3"):  # an EKF was chosen, but ATT is none of them
-        return NamedAttitude(key, "DCM", True, f"{why}, but {key} equals no EKF stream: the EKF was not in use",
-                             shares)
+    if shares and configured in (None, "EKF", "EKF1", "EKF2", "EKF3"):  # ATT is none of the EKFs: DCM
+        return NamedAttitude(key, "DCM", True, f"{key} equals no EKF stream ({why})", shares)
     return NamedAttitude(key, configured or "unknown", True, why, shares)
 
 
@@ -134,12 +133,14 @@ def configured_estimator(flight: Flight) -> tuple[str | None, str]:
     if "AHRS_EKF_USE" in params:
         value = int(params["AHRS_EKF_USE"])
         return AHRS_EKF_USE.get(value), f"AHRS_EKF_USE={value}"
-    if any(name.startswith("AHRS_") for name in params):
-        return "DCM", "AHRS parameters without AHRS_EKF_USE/AHRS_EKF_TYPE: a firmware before the EKF"
-    version = re.search(r"V(\d+)\.(\d+)", flight.firmware or "")
-    if version and (int(version[1]), int(version[2])) >= (4, 1):
+    ekf_logged = any(key.startswith(("EKF1", "NKF1", "XKF1")) for key in flight.attitudes)
+    if any(name.startswith("AHRS_") for name in params) and not ekf_logged:
+        return "DCM", "AHRS parameters without AHRS_EKF_USE/AHRS_EKF_TYPE, no EKF logged: a firmware before the EKF"
+    found = re.search(r"V(\d+)\.(\d+)", flight.firmware or "")
+    version = (int(found[1]), int(found[2])) if found else None
+    if version and version >= (4, 1):
         return "EKF3", f"AHRS_EKF_TYPE not in the log: EKF3, the default of ArduPilot 4.1+ ({flight.firmware})"
-    if _is_copter(flight):  # which EKF: the one whose parameters the log holds
+    if _is_copter(flight) and (version is None or version >= (3, 4)):  # the EKF whose parameters the log holds
         ekf = "EKF3" if any(k.startswith("EK3_") for k in params) else \
             "EKF2" if any(k.startswith("EK2_") for k in params) else "EKF"
         which = f"; {ekf} parameters in the log" if ekf != "EKF" else ""
