@@ -13,7 +13,7 @@ taken at ``timestamp_sample`` where the topic has it set (when the sensor sample
 | vehicle_magnetometer (instances) | magnetometer_ga[3] (calibrated, body frame) | gauss |
 | vehicle_gps_position, sensor_gps | latitude_deg/longitude_deg/altitude_msl_m, or lat/lon (1e-7 °) and alt (mm); vel_n/e/d_m_s, fix_type, satellites_used, eph, epv | °, m, m/s, m |
 | vehicle_air_data | baro_pressure_pa, baro_alt_meter | Pa, m |
-| vehicle_attitude | q[4] (EKF2's estimate) | [w, x, y, z], body FRD -> NED |
+| vehicle_attitude | q[4] (the estimator in use: EKF2, or the Q filter; ``readers.attitudes``) | [w, x, y, z], body FRD -> NED |
 | estimator_attitude (instances: each EKF2 of a multi-EKF PX4) | q[4] | as vehicle_attitude |
 | vehicle_attitude_groundtruth (SITL) | q[4] | as vehicle_attitude |
 
