@@ -58,12 +58,12 @@ def _pymavlink_bin(path: str) -> int:
 def _pymavlink_tlog(path: str) -> int:
     from pymavlink import mavutil
 
-    from .readers.tlog import OTHER_MESSAGES, SAMPLE_MESSAGES
+    from .readers.tlog import OTHER_MESSAGES, SAMPLE_MESSAGES, STREAM_MESSAGES
 
     mavutil.set_dialect("ardupilotmega")
     log = mavutil.mavmmaplog(path)
     n = 0
-    while log.recv_match(type=list(SAMPLE_MESSAGES + OTHER_MESSAGES)) is not None:
+    while log.recv_match(type=list(SAMPLE_MESSAGES + STREAM_MESSAGES + OTHER_MESSAGES)) is not None:
         n += 1
     return n
 

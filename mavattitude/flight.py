@@ -85,6 +85,9 @@ class AttitudeSeries:
     source: str  # "ATT", "ATTITUDE", "SIMSTATE", "SIM", "vehicle_attitude", or an estimator's name
     t: np.ndarray
     q: np.ndarray  # (N, 4) unit quaternions [w, x, y, z], body -> NED
+    # ATT only (ArduPilot 4.1+, its AEKF): per sample, the estimator the autopilot was using
+    # (0 DCM, 2 EKF2, 3 EKF3, 10 SITL, 11 external); None where the log does not say
+    active: np.ndarray | None = None
 
     @property
     def euler(self) -> np.ndarray:
@@ -102,6 +105,10 @@ class Flight:
     gps: GpsSeries | None = None
     baro: BaroSeries | None = None
     attitude: AttitudeSeries | None = None  # the autopilot's own estimate
+    # Every attitude the autopilot logged, by message (and instance): "ATT", "AHR2", "EKF1",
+    # "XKF1[1]", "AHRS2", "estimator_attitude[1]", ...; ``attitude`` is one of them, the primary.
+    # Which algorithm made each: ``readers.attitudes.name_attitudes``.
+    attitudes: dict[str, AttitudeSeries] = field(default_factory=dict)
     truth: AttitudeSeries | None = None  # simulator ground truth
     params: dict[str, float] = field(default_factory=dict)
     vehicle: str | None = None  # e.g. "ArduCopter"

@@ -11,6 +11,7 @@ from .declination import NO_DECLINATION, for_flight
 from .flight import GRAVITY, Flight
 from .imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful, rate_warning
 from .readers import best_imu_source, imu_rate
+from .readers.attitudes import name_attitudes
 
 
 def _rate(t: np.ndarray) -> float:
@@ -76,6 +77,11 @@ def summarize(flight: Flight) -> dict:
         "best_imu": best,
         "scores": {"meaningful": rate_not_meaningful(best_rate) is None, "why": rate_not_meaningful(best_rate)},
         "sample_rates_hz": rates,
+        "attitude_streams": [{"stream": n.key, "algorithm": n.algorithm, "primary": n.primary,
+                              "samples": len(flight.attitudes[n.key].t),
+                              "rate_hz": round(_rate(flight.attitudes[n.key].t), 2), "named_by": n.evidence,
+                              "equals": {k: round(v, 3) for k, v in n.equals.items()}}
+                             for n in name_attitudes(flight)],
         "message_counts": dict(sorted(flight.message_counts.items())),
         "message_rates_hz": {k: round(v / duration, 3) if duration > 0 else None
                              for k, v in sorted(flight.message_counts.items())},
@@ -112,6 +118,13 @@ def render(info: dict) -> str:
         if g["ms2"] is not None:
             lines.append(f"{'':30s}reads g as {g['ms2']:.3f} m/s² ({100 * g['scale_error']:+.1f} %) "
                          + ("at rest" if g["at_rest"] else "over the whole log (no rest span)"))
+    if info["attitude_streams"]:
+        lines.append("  autopilot attitudes (* = primary, the 'autopilot' reference):")
+    for a in info["attitude_streams"]:
+        same = [f"{k} {100 * v:.0f} %" for k, v in a["equals"].items() if v >= 0.05]
+        why = a["named_by"] + ("; equals " + ", ".join(same) if same else "")
+        lines.append(f"   {'*' if a['primary'] else ' '} {a['stream']:22s} {a['algorithm']:16s} {a['samples']:8d} "
+                     f"samples  {a['rate_hz']:7.1f} Hz   ({why})")
     for note in info["notes"]:
         lines.append(f"  note: {note}")
     for warning in info["warnings"]:

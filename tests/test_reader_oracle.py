@@ -10,7 +10,7 @@ from conftest import SAMPLE_LOGS, shared_log_params
 from mavattitude.readers.collect import Collector
 from mavattitude.readers.dataflash import WANTED
 from mavattitude.readers.dfrecords import decode, open_log, scan_log
-from mavattitude.readers.tlog import MessageDecoder, is_vehicle, read_tlog
+from mavattitude.readers.tlog import STREAM_MESSAGES, MessageDecoder, is_vehicle, read_tlog, sample_values
 
 SAMPLE_BINS = [pytest.param(p, id=p.name) for p in sorted(SAMPLE_LOGS.glob("*.bin"))]
 SAMPLE_TLOGS = [pytest.param(p, id=p.name) for p in sorted(SAMPLE_LOGS.glob("*.tlog"))]
@@ -57,6 +57,9 @@ def _pymavlink_tlog(path) -> Collector:
             vehicle = msg.get_srcSystem()
         if vehicle is not None and msg.get_srcSystem() == vehicle:
             decoder.decode(msg, col.add)
+            if msg.get_type() in STREAM_MESSAGES and decoder.last_t is not None:  # read from files only
+                kind, values = sample_values(msg.get_type(), msg)
+                col.add(kind, msg.get_type(), decoder.last_t, tuple(float(v) for v in values))
     col.finish()
     col.params, col.texts = decoder.params, decoder.texts
     return col

@@ -19,6 +19,12 @@ Then, per series, ``columns`` keeps one segment and, of its samples in file orde
 than every one before them: a sample out of order within its series (a telemetry link that
 reordered two packets) or repeating a time is dropped, as a live link must drop it. Across
 series, order does not matter (a GPS sample logged after a later IMU sample).
+
+The autopilot's other attitude streams (``FOLLOWER_KINDS``: AHR2, EKF1, XKF1[1], AHRS2, ...) do
+not take part in following the clock: each of their samples takes the segment of the last sample
+before it in the file that did, or is dropped as corrupt when its time is more than ``JUMP_S``
+from that sample's. So reading more streams leaves every other series, the segments and the
+counts of corrupt samples as they were.
 """
 from __future__ import annotations
 
@@ -40,6 +46,9 @@ CONFIRM_SAMPLES = 5
 REBOOT_JUMP_S = JUMP_S
 FORWARD_JUMP_S = 60.0
 
+
+# Series that follow the clock the others found (see the module docstring).
+FOLLOWER_KINDS = ("stream_euler", "stream_quat")
 
 HELD = -2  # a label: waiting for the samples after it to say which clock it is on
 CORRUPT = -1
@@ -189,17 +198,22 @@ class Collector:
             chunks = series.pop(k)
             merged[k] = tuple(chunks[0][i] if len(chunks) == 1 else np.concatenate([c[i] for c in chunks])
                               for i in range(3))
+        followers = {k: merged.pop(k) for k in list(merged) if k[0] in FOLLOWER_KINDS}
         if not merged:
             return
         order = np.concatenate([m[0] for m in merged.values()])
         t = np.concatenate([m[1] for m in merged.values()])
         sort = np.argsort(order, kind="stable")
         tracker = ClockTracker()
-        seg_sorted, _ = tracker.push(t[sort])
+        t_sorted = t[sort]
+        seg_sorted, _ = tracker.push(t_sorted)
         for g, label in tracker.finish():
             seg_sorted[g] = label
         seg = np.empty_like(seg_sorted)
         seg[sort] = seg_sorted
+        if followers:
+            clocked = seg_sorted >= 0
+            self._follow(followers, order[sort][clocked], t_sorted[clocked], seg_sorted[clocked])
         self.outliers = int(np.count_nonzero(seg < 0))
         n_segments = int(seg.max()) + 1 if len(seg) else 0
         spans = []
@@ -211,6 +225,15 @@ class Collector:
         for k, (order, times, values) in merged.items():
             self._series[k] = (order, times, values, seg[start:start + len(times)])
             start += len(times)
+
+    def _follow(self, followers: dict, order: np.ndarray, t: np.ndarray, seg: np.ndarray) -> None:
+        """Each follower sample takes the segment of the last clocked sample before it in the
+        file (``order``, ``t``, ``seg``: those samples in file order), or CORRUPT when its time
+        is more than JUMP_S from that sample's."""
+        for k, (at, times, values) in followers.items():
+            before = np.searchsorted(order, at, side="right") - 1
+            near = (before >= 0) & (np.abs(times - t[np.maximum(before, 0)]) <= JUMP_S)
+            self._series[k] = (at, times, values, np.where(near, seg[np.maximum(before, 0)], CORRUPT))
 
     @property
     def segments(self) -> list[tuple[float, float]]:

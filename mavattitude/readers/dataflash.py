@@ -15,7 +15,8 @@ degrees, 'L' 1e-7 degrees -> degrees, but not the FMTU multipliers):
 | MAG, MAG2, MAG3 / MAG with I | MagX..Z | milligauss (FMTU says 1e-3 G; not applied) |
 | GPS / GPS with I | Lat, Lng, Alt, Spd, GCrs, VZ, Status, NSats; GWk, GMS (old: Week, TimeMS) | deg, deg, m AMSL, m/s, deg, m/s down; GPS week, ms of week (the log's date) |
 | BARO | Press, Alt | Pa, m |
-| ATT | Roll, Pitch, Yaw | degrees, yaw 0-360 |
+| ATT | Roll, Pitch, Yaw (+ AEKF, 4.1+: the estimator in use) | degrees, yaw 0-360 |
+| AHR2, EKF1, NKF1/XKF1 (with C: per core), NKF6/XKF6 (old logs: core 1), DCM | Roll, Pitch, Yaw | degrees |
 | SIM | Roll, Pitch, Yaw (+ Q1..Q4 when present) | degrees; quaternion |
 | PARM | Name, Value | as the parameter |
 
@@ -55,8 +56,13 @@ SENSORS = {
     "ACC": ("acc", ("AccX", "AccY", "AccZ")),
     "MAG": ("mag", ("MagX", "MagY", "MagZ")),
 }
+# The autopilot's attitude streams beside ATT (``readers.attitudes`` names them): the secondary
+# (AHR2), the old EKF (EKF1), EKF2 and EKF3 per core, and DCM (4.5+). Old EKF2/EKF3 logs write
+# their second core as NKF6/XKF6; newer ones a core field C in NKF1/XKF1.
+ATTITUDE_STREAMS = ("AHR2", "EKF1", "NKF1", "NKF6", "XKF1", "XKF6", "DCM")
+SECOND_CORE = {"NKF6": "NKF1", "XKF6": "XKF1"}
 WANTED = ["IMU", "IMU2", "IMU3", "GYR", "ACC", "IMT", "IMT2", "IMT3", "MAG", "MAG2", "MAG3", "GPS", "BARO",
-          "ATT", "SIM", "PARM", "MSG", "VER"]
+          "ATT", "SIM", "PARM", "MSG", "VER", *ATTITUDE_STREAMS]
 
 
 def read_dataflash(path: str, progress=None) -> Decoded:
@@ -158,7 +164,21 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
         col.add_columns("baro", "BARO", order[primary], t[primary], values[primary])
     elif name == "ATT":
         values = np.column_stack([r["Roll"], r["Pitch"], r["Yaw"]]) * DEG
+        if "AEKF" in r:
+            values = np.column_stack([values, r["AEKF"]])
         col.add_columns("att_euler", "ATT", order, t, values)
+    elif name in ATTITUDE_STREAMS and "Roll" in r:  # (an EKF3 XKF6 of another layout has none)
+        values = np.column_stack([r["Roll"], r["Pitch"], r["Yaw"]]) * DEG
+        if "C" in r:  # one message for every core
+            for core in np.unique(r["C"][r["C"] <= MAX_INSTANCE]):
+                mine = r["C"] == core
+                col.add_columns("stream_euler", f"{name}[{core}]", order[mine], t[mine], values[mine])
+        elif name in SECOND_CORE:
+            col.add_columns("stream_euler", f"{SECOND_CORE[name]}[1]", order, t, values)
+        elif name in SECOND_CORE.values():
+            col.add_columns("stream_euler", f"{name}[0]", order, t, values)
+        else:
+            col.add_columns("stream_euler", name, order, t, values)
     elif name == "SIM":
         if "Q1" in r:
             col.add_columns("truth_quat", "SIM", order, t, np.column_stack([r[c] for c in ("Q1", "Q2", "Q3", "Q4")]))

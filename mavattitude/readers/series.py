@@ -78,7 +78,11 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
         t, v, arrival = columns("baro", key)
         if len(t):
             flight.baro = BaroSeries(key, t, v[:, 0], v[:, 1], arrival=arrival)
-    flight.attitude = _attitude(col, "att", segment, columns)
+    flight.attitudes = _attitudes(col, columns)
+    # the primary: of its messages (ATT; ATTITUDE or ATTITUDE_QUATERNION), the one with most samples
+    primary = [flight.attitudes[k] for kind in ("att_euler", "att_quat") for k in col.keys(kind)
+               if k in flight.attitudes]
+    flight.attitude = max(primary, key=lambda s: len(s.t)) if primary else None
     flight.truth = _attitude(col, "truth", segment, columns)
     return unusable
 
@@ -131,19 +135,37 @@ def _attitude(col: Collector, prefix: str, segment: int, columns) -> AttitudeSer
     best = None
     for kind in (f"{prefix}_euler", f"{prefix}_quat"):
         for key in col.keys(kind):
-            t, v, _ = columns(kind, key)
-            if not len(t):
-                continue
-            ok = np.isfinite(v).all(axis=1) & (np.abs(v).max(axis=1) < 10.0)  # rad or unit quaternion
-            t, v = t[ok], v[ok]
-            if kind.endswith("quat"):
-                ok = np.linalg.norm(v, axis=1) > 0.5
-                t, v = t[ok], v[ok]
-            if not len(t):
-                continue
-            q = quat.from_euler(v[:, 0], v[:, 1], v[:, 2]) if kind.endswith("euler") else quat.normalize(v)
-            if best is None or len(t) > len(best.t):
-                best = AttitudeSeries(key, t, q)
+            s = _attitude_series(kind, key, columns)
+            if s is not None and (best is None or len(s.t) > len(best.t)):
+                best = s
     return best
 
 
+def _attitudes(col: Collector, columns) -> dict[str, AttitudeSeries]:
+    """Every attitude the autopilot logged: the primary's messages and the streams beside them."""
+    streams = {}
+    for kind in ("att_euler", "att_quat", "stream_euler", "stream_quat"):
+        for key in col.keys(kind):
+            s = _attitude_series(kind, key, columns)
+            if s is not None:
+                streams[key] = s
+    return streams
+
+
+def _attitude_series(kind: str, key: str, columns) -> AttitudeSeries | None:
+    """One attitude message's samples (roll, pitch, yaw in rad, or a quaternion; a fourth
+    Euler column is ATT's AEKF) as quaternions; None when no sample is usable."""
+    t, v, _ = columns(kind, key)
+    if not len(t):
+        return None
+    width = 3 if kind.endswith("euler") else 4
+    ok = np.isfinite(v).all(axis=1) & (np.abs(v[:, :width]).max(axis=1) < 10.0)  # rad or unit quaternion
+    t, v = t[ok], v[ok]
+    if kind.endswith("quat"):
+        ok = np.linalg.norm(v, axis=1) > 0.5
+        t, v = t[ok], v[ok]
+    if not len(t):
+        return None
+    q = quat.from_euler(v[:, 0], v[:, 1], v[:, 2]) if kind.endswith("euler") else quat.normalize(v)
+    active = v[:, width].astype(int) if v.shape[1] > width else None
+    return AttitudeSeries(key, t, q, active=active)

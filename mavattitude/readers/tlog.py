@@ -11,6 +11,7 @@ Units as sent (MAVLink common/ardupilotmega definitions):
 | SCALED_PRESSURE | press_abs | hPa |
 | ATTITUDE | roll, pitch, yaw | rad |
 | ATTITUDE_QUATERNION | q1..q4 | - |
+| AHRS2, AHRS3 (ArduPilot: its other estimators; no time of their own) | roll, pitch, yaw | rad |
 | SIMSTATE (ArduPilot SITL truth) | roll, pitch, yaw | rad |
 | SYSTEM_TIME | time_unix_usec (else GPS_RAW_INT time_usec when a UNIX time) | µs: the log's date |
 | PARAM_VALUE | param_id, param_value | - |
@@ -75,6 +76,9 @@ def tlog_start(data: bytes) -> int | None:
 IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
 SAMPLE_MESSAGES = IMU_MESSAGES + ("GPS_RAW_INT", "SCALED_PRESSURE", "ATTITUDE", "ATTITUDE_QUATERNION", "SIMSTATE")
 OTHER_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "AUTOPILOT_VERSION", "HEARTBEAT", "SYSTEM_TIME")
+# The autopilot's attitude streams beside ATTITUDE (``readers.attitudes`` names them): read from a
+# file, for comparison; a live link does not ask for them.
+STREAM_MESSAGES = ("AHRS2", "AHRS3")
 VEHICLE_MESSAGES = IMU_MESSAGES + ("ATTITUDE",)  # what only a vehicle sends (``is_vehicle``)
 
 
@@ -151,6 +155,8 @@ def sample_values(name: str, m) -> tuple | None:
         return "att_quat", (m.q1, m.q2, m.q3, m.q4)
     if name == "SIMSTATE":
         return "truth_euler", (m.roll, m.pitch, m.yaw)
+    if name in STREAM_MESSAGES:
+        return "stream_euler", (m.roll, m.pitch, m.yaw)
     return None
 
 
@@ -234,10 +240,11 @@ def read_tlog(path: str, progress=None) -> Decoded:
         start = tlog_start(f.read(TLOG_SEARCH_BYTES))
     if start is None:
         raise InputError(path, "not a readable telemetry log (no MAVLink records found)")
-    packets = scan(data, start, list(SAMPLE_MESSAGES + OTHER_MESSAGES))
+    samples = SAMPLE_MESSAGES + STREAM_MESSAGES
+    packets = scan(data, start, list(samples + OTHER_MESSAGES))
     if progress is not None:
         progress(0.5)
-    names = {msgid(name): name for name in SAMPLE_MESSAGES + OTHER_MESSAGES}
+    names = {msgid(name): name for name in samples + OTHER_MESSAGES}
     rows_of = {name: np.flatnonzero(packets.msgids == i) for i, name in names.items()}
     text_rows = np.sort(np.concatenate([rows_of[name] for name in OTHER_MESSAGES]))
     mav = dialect.MAVLink(None)  # the few text and identity messages: pymavlink decodes them
@@ -258,7 +265,7 @@ def read_tlog(path: str, progress=None) -> Decoded:
         if mine[i]:
             decoder.note(msg)
     columns, order = {}, {}
-    for name in SAMPLE_MESSAGES:  # only the vehicle's packets are decoded
+    for name in samples:  # only the vehicle's packets are decoded
         rows = rows_of[name][mine[rows_of[name]]]
         if len(rows):
             columns[name] = SimpleNamespace(**decode(data, packets, name, rows))

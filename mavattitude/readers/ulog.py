@@ -13,7 +13,8 @@ taken at ``timestamp_sample`` where the topic has it set (when the sensor sample
 | vehicle_magnetometer (instances) | magnetometer_ga[3] (calibrated, body frame) | gauss |
 | vehicle_gps_position, sensor_gps | latitude_deg/longitude_deg/altitude_msl_m, or lat/lon (1e-7 °) and alt (mm); vel_n/e/d_m_s, fix_type, satellites_used, eph, epv; time_utc_usec | °, m, m/s, m; µs UNIX time (the log's date) |
 | vehicle_air_data | baro_pressure_pa, baro_alt_meter | Pa, m |
-| vehicle_attitude | q[4] (EKF2's estimate) | [w, x, y, z], body FRD -> NED |
+| vehicle_attitude | q[4] (the estimator in use: EKF2, or the Q filter; ``readers.attitudes``) | [w, x, y, z], body FRD -> NED |
+| estimator_attitude (instances: each EKF2 of a multi-EKF PX4) | q[4] | as vehicle_attitude |
 | vehicle_attitude_groundtruth (SITL) | q[4] | as vehicle_attitude |
 
 The IMU is ``sensor_combined``: PX4's selected IMU (``sensor_selection``), the one its EKF uses.
@@ -38,7 +39,8 @@ GAUSS_TO_TESLA = 1e-4
 S_PER_US = 1e-6
 RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: the *_timestamp_relative of a sensor not in this sample
 TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_magnetometer", "vehicle_gps_position", "sensor_gps",
-          "vehicle_air_data", "vehicle_attitude", "vehicle_attitude_groundtruth", "sensor_selection"]
+          "vehicle_air_data", "vehicle_attitude", "vehicle_attitude_groundtruth", "sensor_selection",
+          "estimator_attitude"]
 
 
 def read_ulog(path: str, progress=None) -> Decoded:
@@ -129,8 +131,8 @@ def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]
             col.add_columns("gps", key, order, t, _gps_rows(data))
         elif name == "vehicle_air_data":
             col.add_columns("baro", key, order, t, np.column_stack([data["baro_pressure_pa"], data["baro_alt_meter"]]))
-        elif name in ("vehicle_attitude", "vehicle_attitude_groundtruth"):
-            kind = "att_quat" if name == "vehicle_attitude" else "truth_quat"
+        elif name in ("vehicle_attitude", "vehicle_attitude_groundtruth", "estimator_attitude"):
+            kind = {"vehicle_attitude": "att_quat", "vehicle_attitude_groundtruth": "truth_quat"}.get(name, "stream_quat")
             col.add_columns(kind, key, order, t, vector("q", 4))
 
 

@@ -23,6 +23,8 @@ What is written (TimeUS: µs since boot):
 - GPS and GPA, I = 0, at the GPS rate: Status 3, Lat/Lng degrees, Alt m, Spd m/s, GCrs deg,
   VZ m/s down; GWk/GMS from the fake boot epoch, so pymavlink's clock gives that UNIX time;
 - BARO, I = 0, at the baro rate: Alt m above the ground at boot, Press Pa, Temp degC;
+- with a DCM primary (``SimFlight.ekf_q``): ATT is DCM's (AEKF 0), and EKF1 and AHR2 carry the
+  EKF's estimate on ATT's ticks (their other fields zero, or AHR2's position the truth's);
 - ATT (the autopilot's estimate; DesRoll.. = Roll.., AEKF 3) and SIM (truth: Roll/Pitch/Yaw deg,
   Alt m above sea level, Lat/Lng deg, Q1..Q4 with Q1 >= 0) on every ``att_every``-th IMU sample,
   25 Hz by default. Yaw fields are 0-360° headings.
@@ -133,6 +135,12 @@ SIM = LogFormat(75, "SIM", "QccCfLLffff", "TimeUS,Roll,Pitch,Yaw,Alt,Lat,Lng,Q1,
 IMT = LogFormat(204, "IMT", "QBfffffffff", "TimeUS,I,DelT,DelvT,DelaT,DelAX,DelAY,DelAZ,DelVX,DelVY,DelVZ",
            "s#sssrrrnnn", "F-000000000")
 FORMATS = (FMT, UNIT, FMTU, MULT, PARM, MSG, VER, IMU, IMT, MAG, GPS, GPA, BARO, ATT, SIM)
+# With a DCM primary (``SimFlight.ekf_q``): the EKF beside it (ArduCopter 3.4's EKF1 layout) and the
+# secondary AHR2, which is the EKF while DCM is in use
+EKF1 = LogFormat(142, "EKF1", "QccCfffffffccc", "TimeUS,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ",
+            "sddhnnnnmmmkkk", "FBBB0000000BBB")
+AHR2 = LogFormat(68, "AHR2", "QccCfLLffff", "TimeUS,Roll,Pitch,Yaw,Alt,Lat,Lng,Q1,Q2,Q3,Q4",
+            "sddhmDU????", "FBBB0GG????")
 
 # The UNIT and MULT tables ArduPilot 4.4 writes (id character -> label / multiplier).
 UNITS = {
@@ -157,18 +165,19 @@ def _us(t) -> np.ndarray:
 
 def _header(sim, t_us: int) -> list[np.ndarray]:
     """FMT for every type (FMT first), UNIT, MULT, FMTU, then parameters, version and firmware text."""
-    n = len(FORMATS)
+    formats = FORMATS + ((EKF1, AHR2) if sim.ekf_q is not None else ())
+    n = len(formats)
     blocks = [FMT.records(
-        n, Type=[f.type_id for f in FORMATS], Length=[f.length for f in FORMATS],
-        Name=np.array([f.name for f in FORMATS], dtype="S4"),
-        Format=np.array([f.fmt for f in FORMATS], dtype="S16"),
-        Columns=np.array([f.columns for f in FORMATS], dtype="S64"))]
+        n, Type=[f.type_id for f in formats], Length=[f.length for f in formats],
+        Name=np.array([f.name for f in formats], dtype="S4"),
+        Format=np.array([f.fmt for f in formats], dtype="S16"),
+        Columns=np.array([f.columns for f in formats], dtype="S64"))]
     blocks.append(UNIT.records(len(UNITS), TimeUS=t_us, Id=[ord(k) for k in UNITS],
                                Label=np.array(list(UNITS.values()), dtype="S64")))
     blocks.append(MULT.records(len(MULTS), TimeUS=t_us, Id=[ord(k) for k in MULTS], Mult=list(MULTS.values())))
-    blocks.append(FMTU.records(n, TimeUS=t_us, FmtType=[f.type_id for f in FORMATS],
-                               UnitIds=np.array([f.units for f in FORMATS], dtype="S16"),
-                               MultIds=np.array([f.mults for f in FORMATS], dtype="S16")))
+    blocks.append(FMTU.records(n, TimeUS=t_us, FmtType=[f.type_id for f in formats],
+                               UnitIds=np.array([f.units for f in formats], dtype="S16"),
+                               MultIds=np.array([f.mults for f in formats], dtype="S16")))
     params = sim.log_params
     blocks.append(PARM.records(len(params), TimeUS=t_us, Name=np.array(list(params), dtype="S16"),
                                Value=list(params.values()), Default=0.0))
@@ -223,9 +232,19 @@ def _data(sim, imt: bool = False) -> list[np.ndarray]:
     n = len(t_us)
     est = np.degrees(quat.to_euler(sim.autopilot_q[every]))
     est_yaw = _heading_deg(est[:, 2])
+    dcm = sim.ekf_q is not None
     blocks.append(ATT.records(
         n, TimeUS=t_us, DesRoll=est[:, 0], Roll=est[:, 0], DesPitch=est[:, 1], Pitch=est[:, 1],
-        DesYaw=est_yaw, Yaw=est_yaw, ErrRP=0.0, ErrYaw=0.0, AEKF=3))
+        DesYaw=est_yaw, Yaw=est_yaw, ErrRP=0.0, ErrYaw=0.0, AEKF=0 if dcm else 3))
+    if dcm:
+        ekf = np.degrees(quat.to_euler(sim.ekf_q[every]))
+        ekf_yaw = _heading_deg(ekf[:, 2])
+        blocks.append(EKF1.records(n, TimeUS=t_us, Roll=ekf[:, 0], Pitch=ekf[:, 1], Yaw=ekf_yaw, VN=0.0, VE=0.0,
+                                   VD=0.0, dPD=0.0, PN=0.0, PE=0.0, PD=0.0, GX=0.0, GY=0.0, GZ=0.0))
+        lat, lon, alt = earth.ned_to_geodetic(sim.home, sim.truth.pos_ned[every])
+        q = sim.ekf_q[every] * np.where(sim.ekf_q[every][:, :1] < 0, -1.0, 1.0)
+        blocks.append(AHR2.records(n, TimeUS=t_us, Roll=ekf[:, 0], Pitch=ekf[:, 1], Yaw=ekf_yaw, Alt=alt,
+                                   Lat=lat, Lng=lon, Q1=q[:, 0], Q2=q[:, 1], Q3=q[:, 2], Q4=q[:, 3]))
     q = quat.normalize(sim.truth.q[every])
     q = q * np.where(q[:, :1] < 0, -1.0, 1.0)  # ArduPilot logs the quaternion with w >= 0
     true = np.degrees(quat.to_euler(q))

@@ -66,6 +66,11 @@ class SensorParams:
     # magnetometer fault (e.g. a current-carrying cable or steel nearby); empty = no fault
     mag_fault_field: tuple[float, float, float] = (0.0, 0.0, 0.0)  # T, body frame, added during the fault
     mag_fault_scale: float = 1.0  # the field reads this many times the true one during the fault
+    # A DCM primary (off: None): the autopilot's attitude (ATT, ATTITUDE) is then its DCM, truth
+    # plus this constant [roll, pitch, yaw] bias (rad) and white noise of RMS ``dcm_noise`` per
+    # axis, and the EKF's estimate (the one above) is logged beside it (EKF1 and AHR2, AHRS2)
+    dcm_bias: tuple[float, float, float] | None = None
+    dcm_noise: float = np.radians(0.3)  # rad
 
 
 @dataclass
@@ -202,3 +207,12 @@ def autopilot_attitude(truth: TrajectorySample, params: SensorParams,
     euler = quat.to_euler(truth.q) + error
     q = quat.make_continuous(quat.from_euler(euler[:, 0], euler[:, 1], euler[:, 2]))
     return q, error
+
+
+def dcm_attitude(truth: TrajectorySample, params: SensorParams,
+                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A DCM primary's attitude (``SensorParams.dcm_bias``): truth plus the constant bias and
+    white noise. Returns (q (N, 4), error (N, 3) = [roll, pitch, yaw] rad)."""
+    error = np.asarray(params.dcm_bias) + rng.normal(0.0, params.dcm_noise, (len(truth.t), 3))
+    euler = quat.to_euler(truth.q) + error
+    return quat.make_continuous(quat.from_euler(euler[:, 0], euler[:, 1], euler[:, 2])), error

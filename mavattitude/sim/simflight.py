@@ -40,6 +40,9 @@ class SimFlight:
     gps: GpsTrack
     baro: BaroTrack
     firmware: str  # the firmware string the logs carry (MSG, VER, STATUSTEXT)
+    # With a DCM primary (SensorParams.dcm_bias): the EKF's estimate, logged beside
+    # ``autopilot_q`` (then DCM's) as EKF1 and AHR2 in a .bin, AHRS2 in a .tlog; else None
+    ekf_q: np.ndarray | None = None
     extra_params: dict[str, float] = field(default_factory=dict)  # more parameters for the logs (tests)
 
     @property
@@ -65,6 +68,7 @@ class SimFlight:
             "COMPASS_OFS_X": float(offsets_mgauss[0]),
             "COMPASS_OFS_Y": float(offsets_mgauss[1]),
             "COMPASS_OFS_Z": float(offsets_mgauss[2]),
+            **({"AHRS_EKF_USE": 0.0} if self.ekf_q is not None else {}),  # DCM in use, the EKF beside it
             **self.extra_params,
         }
 
@@ -95,6 +99,10 @@ def simulate(scenario: str, duration: float, seed: int = 0, *, imu_rate: float =
     truth = sample(spec, sensors.sample_times(duration, rates.imu))
     imus = [sensors.imu(truth, params, rates.imu, rng, t0) for rng in rng_imus]
     autopilot_q, autopilot_error = sensors.autopilot_attitude(truth, params, rng_ap)
+    ekf_q = None
+    if params.dcm_bias is not None:  # DCM in use: the estimate above is the EKF's
+        ekf_q = autopilot_q
+        autopilot_q, autopilot_error = sensors.dcm_attitude(truth, params, rng_ap)
     truth = replace(truth, t=truth.t + t0)  # on the autopilot clock from here on
 
     def at_rate(rate):
@@ -108,7 +116,7 @@ def simulate(scenario: str, duration: float, seed: int = 0, *, imu_rate: float =
         home=home, earth_field=field, epoch_unix_at_boot=earth.EPOCH_UNIX_AT_BOOT,
         still_until=t0 + min(spec.still_until, duration), truth=truth, imu=imus,
         autopilot_q=autopilot_q, autopilot_error=autopilot_error, mag=mag, gps=gps, baro=baro,
-        firmware=f"mavattitude-sim {SIM_VERSION} scenario {scenario}",
+        firmware=f"mavattitude-sim {SIM_VERSION} scenario {scenario}", ekf_q=ekf_q,
     )
 
 

@@ -14,7 +14,9 @@ What is written, and when:
 - every IMU sample: RAW_IMU (IMU 0) and SCALED_IMU2 (IMU 1): acceleration mG, rates mrad/s,
   field mGauss (the latest compass sample, as ArduPilot sends it); then ATTITUDE (the autopilot's
   estimate, rad) and SIMSTATE (truth; it has no timestamp, so it follows ATTITUDE in the same tick);
-- GPS_RAW_INT at the GPS rate, SCALED_PRESSURE (hPa, cdegC) at the baro rate.
+- GPS_RAW_INT at the GPS rate, SCALED_PRESSURE (hPa, cdegC) at the baro rate;
+- with a DCM primary (``SimFlight.ekf_q``): ATTITUDE is DCM's, AHRS2 the EKF's (after SIMSTATE),
+  and PARAM_VALUE AHRS_EKF_USE 0.
 """
 from __future__ import annotations
 
@@ -109,6 +111,11 @@ def _start_packets(sim, mav):
 
 def _imu_packets(sim, mav):
     per = imu_packers(sim, mav)
+    if sim.ekf_q is not None:  # a DCM primary: the EKF's estimate as AHRS2, after ATTITUDE and SIMSTATE
+        ekf = quat.to_euler(sim.ekf_q).tolist()
+        lat, lon, alt = earth.ned_to_geodetic(sim.home, sim.truth.pos_ned)
+        lat_e7, lon_e7, alt = _int_list(lat * 1e7), _int_list(lon * 1e7), alt.tolist()
+        per["AHRS2"] = lambda i: mavlink2.MAVLink_ahrs2_message(*ekf[i], alt[i], lat_e7[i], lon_e7[i]).pack(mav)
     return lambda i: (pack(i) for pack in per.values())  # lazily: each packs with the next seq
 
 

@@ -15,7 +15,9 @@ order. pyulog reads what this writes (tested). What is written:
 - vehicle_attitude (the autopilot's estimate) and vehicle_attitude_groundtruth (truth), q
   [w, x, y, z] body FRD -> NED, at the .bin's ATT rate;
 - parameters EKF2_MAG_DECL (degrees) and MAV_TYPE (2, quadrotor); the firmware text as
-  information ``ver_sw_branch``.
+  information ``ver_sw_branch``;
+- with a second attitude (``SimFlight.ekf_q``): vehicle_attitude is the Q complementary filter's
+  (PX4's DCM), EKF2's goes to estimator_attitude (instance 0), and ATT_EN and EKF2_EN are 1.
 """
 from __future__ import annotations
 
@@ -48,14 +50,15 @@ TOPICS = {
     "vehicle_attitude": [("uint64_t", "<u8", 1, "timestamp"), ("uint64_t", "<u8", 1, "timestamp_sample"),
                          ("float", "<f4", 4, "q")],
 }
-TOPICS["vehicle_attitude_groundtruth"] = TOPICS["vehicle_attitude"]
+TOPICS["vehicle_attitude_groundtruth"] = TOPICS["estimator_attitude"] = TOPICS["vehicle_attitude"]
 
 
 def write_ulog(sim, path) -> None:
     """Write ``sim`` (a SimFlight) as a PX4 ULog at ``path``."""
     columns = _topic_columns(sim)
     definitions = [_message(b"B", bytes(16) + bytes(24))]  # no flags; no appended data
-    for name, fields in TOPICS.items():
+    for name in columns:
+        fields = TOPICS[name]
         text = name + ":" + "".join(f"{u}{f'[{n}]' if n > 1 else ''} {field};" for u, _, n, field in fields)
         definitions.append(_message(b"F", text.encode()))
     definitions.append(_info("ver_sw_branch", sim.firmware))
@@ -63,6 +66,9 @@ def write_ulog(sim, path) -> None:
     definitions.append(_info("ver_hw", "MAVATTITUDE_SIM"))
     definitions.append(_message(b"P", _key("float EKF2_MAG_DECL") + struct.pack("<f", math.degrees(sim.declination_rad))))
     definitions.append(_message(b"P", _key("int32_t MAV_TYPE") + struct.pack("<i", 2)))
+    if sim.ekf_q is not None:  # the Q estimator and EKF2 both on: Q published vehicle_attitude first
+        definitions += [_message(b"P", _key(f"int32_t {name}") + struct.pack("<i", 1))
+                        for name in ("ATT_EN", "EKF2_EN")]
     topics = []
     for msg_id, (name, values) in enumerate(columns.items()):
         definitions.append(_message(b"A", struct.pack("<BH", 0, msg_id) + name.encode()))
@@ -84,7 +90,7 @@ def _topic_columns(sim) -> dict[str, dict[str, np.ndarray]]:
     gps, baro, mag = sim.gps, sim.baro, sim.mag
     dt_us = np.full(len(imu.t), int(round(US_PER_S / sim.rates.imu)), np.uint32)
     attitude_t = us(sim.truth.t[::every])
-    return {
+    topics = {
         "sensor_combined": {"timestamp": us(imu.t), "gyro_rad": imu.gyro, "gyro_integral_dt": dt_us,
                             "accelerometer_timestamp_relative": np.zeros(len(imu.t), np.int32),
                             "accelerometer_m_s2": imu.accel, "accelerometer_integral_dt": dt_us},
@@ -102,6 +108,10 @@ def _topic_columns(sim) -> dict[str, dict[str, np.ndarray]]:
         "vehicle_attitude_groundtruth": {"timestamp": attitude_t, "timestamp_sample": attitude_t,
                                          "q": sim.truth.q[::every]},
     }
+    if sim.ekf_q is not None:
+        topics["estimator_attitude"] = {"timestamp": attitude_t, "timestamp_sample": attitude_t,
+                                        "q": sim.ekf_q[::every]}
+    return topics
 
 
 def _packed(msg_id: int, fields, values: dict) -> np.ndarray:
