@@ -527,8 +527,9 @@ def _number(low: float, high: float = math.inf, *, above: bool = False, whole: b
             ok = False
         if not ok:
             kind = "a whole number" if whole else "a number"
-            bound = f"above {low:g}" if above else f"at least {low:g}"
-            limit = f" and at most {high:g}" if math.isfinite(high) else ""
+            shown = (lambda x: f"{x:.0f}") if whole else (lambda x: f"{x:g}")  # 4294967295, not 4.29497e+09
+            bound = f"above {shown(low)}" if above else f"at least {shown(low)}"
+            limit = f" and at most {shown(high)}" if math.isfinite(high) else ""
             raise argparse.ArgumentTypeError(f"expected {kind} {bound}{limit}, not {text!r}")
         return int(value) if whole else value
     parse.__name__ = "number"
@@ -547,6 +548,16 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+    def _get_values(self, action, arg_strings):
+        # Python before 3.12.7 drops a value of exactly '--' (--seed=--) as if it were the
+        # separator: the option gets [] and its type and choices are never checked. Take the
+        # value as given, as later versions do, so that the type refuses it.
+        if action.option_strings and action.nargs is None and arg_strings == ["--"]:
+            value = self._get_value(action, "--")
+            self._check_value(action, value)
+            return value
+        return super()._get_values(action, arg_strings)
 
 
 def quiet_arg(p) -> None:
