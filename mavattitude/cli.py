@@ -381,6 +381,7 @@ def cmd_simulate(args) -> int:
         raise UsageError(f"{args.output}: the output must end in .tlog, .bin or .ulg")
     if args.imt and suffix != ".bin":
         raise UsageError("--imt writes DataFlash records: give -o FILE.bin")
+    _check_sim_length(args.duration, args.imu_rate)
     if args.live:
         return _simulate_live(args)
     with Outputs(force=args.force) as outputs:
@@ -391,6 +392,17 @@ def cmd_simulate(args) -> int:
     print(f"{out.path}: {args.scenario}, {args.duration:g} s, IMU {args.imu_rate:g} Hz, seed {args.seed} "
           f"({out.path.stat().st_size / 1e6:.2f} MB)")
     return 0
+
+
+def _check_sim_length(duration: float, imu_rate: float, options: str = "--duration/--imu-rate") -> None:
+    """A usage error, before any work, when the simulator cannot make that flight."""
+    from .sim import Rates
+    from .sim.simflight import check_length
+
+    try:
+        check_length(duration, Rates(imu=imu_rate))
+    except ValueError as exc:
+        raise UsageError(f"{options}: {exc}") from None
 
 
 def _simulate_live(args) -> int:
@@ -484,6 +496,10 @@ def cmd_bench(args) -> int:
     names = _estimator_names(args.estimators)
     if args.log and not args.read:
         raise UsageError("--log is for --read (the reading figures)")
+    _check_sim_length(args.duration, args.imu_rate)
+    if args.live:
+        from .bench_live import LIVE_IMU_HZ, SETTLE_S
+        _check_sim_length(args.live_seconds + SETTLE_S, LIVE_IMU_HZ, f"--live-seconds plus {SETTLE_S:g} s of settling")
     with Outputs(force=args.force) as outputs:
         json_out = outputs.file(args.json, "--json", "json")
         if args.read:

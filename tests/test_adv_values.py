@@ -65,3 +65,44 @@ def test_no_option_is_left_without_a_value():
             continue
         value = getattr(args, action.dest)
         assert value == "--" or value == ["--"], f"{command} {option}: {value!r}"
+
+
+# ---------------------------------------------------------------- simulate and bench: what can be made
+
+
+@pytest.mark.parametrize("args, text", [
+    (["simulate", "--duration", "0.1", "-o", "x.bin"], "0.1 s is too short: every sensor needs two samples, "
+                                                        "which takes 0.4 s"),
+    (["simulate", "--duration", "1e308", "-o", "x.bin"], "at most 36000 s at that rate"),
+    (["simulate", "--imu-rate", "1e9", "-o", "x.tlog"], "above the simulator's 10000 Hz"),
+    (["simulate", "--imu-rate", "0.01", "-o", "x.bin"], "which takes 200 s at these rates"),
+    (["simulate", "--duration", "3600", "--imu-rate", "1000.5", "-o", "x.ulg"], "3,600,000 IMU samples"),
+    (["simulate", "--live", "udpout:127.0.0.1:9", "--duration", "1e308"], "at most 36000 s"),
+    (["bench", "--duration", "1e308"], "at most 9000 s at that rate"),
+    (["bench", "--read", "--imu-rate", "1e9"], "above the simulator's 10000 Hz"),
+    (["bench", "--live", "--live-seconds", "1e300"], "--live-seconds plus 3 s of settling"),
+])
+def test_a_flight_the_simulator_cannot_make_is_a_usage_error(capsys, tmp_path, monkeypatch, args, text):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run(capsys, *args)
+    assert code == 2 and text in one_line(err)
+    assert not list(tmp_path.iterdir())  # refused before anything was written
+
+
+def test_the_shortest_flight_is_made(capsys, tmp_path):
+    code, out, err = run(capsys, "simulate", "--duration", "0.4", "-o", tmp_path / "short.bin")
+    assert code == 0, err
+    code, _, err = run(capsys, "simulate", "--duration", "0.39", "-o", tmp_path / "shorter.bin")
+    assert code == 2 and "too short" in one_line(err)
+
+
+def test_the_longest_flight_is_the_limit_exactly():
+    from mavattitude.sim import Rates, simulate
+    from mavattitude.sim.simflight import MAX_IMU_RATE_HZ, MAX_IMU_SAMPLES, check_length
+
+    check_length(MAX_IMU_SAMPLES / 400.0, Rates(imu=400.0))
+    check_length(1.0, Rates(imu=MAX_IMU_RATE_HZ))
+    with pytest.raises(ValueError, match="at most 9000 s"):
+        check_length(MAX_IMU_SAMPLES / 400.0 * (1 + 1e-12), Rates(imu=400.0))
+    with pytest.raises(ValueError, match="above the simulator's"):
+        simulate("figure8", 1.0, imu_rate=MAX_IMU_RATE_HZ * 1.001)
