@@ -56,8 +56,8 @@ class Interval:
         return above and below
 
     def __str__(self) -> str:
-        def end(v):
-            return "inf" if v == math.inf else "-inf" if v == -math.inf else f"{v:g}"
+        def end(v):  # 1e6 and 1e-12, as they are declared, not 1e+06 and 1e-12
+            return "inf" if v == math.inf else "-inf" if v == -math.inf else re.sub(r"e\+?(-?)0*(\d)", r"e\1\2", f"{v:g}")
         return f"{'[' if self.lo_closed else '('}{end(self.lo)}, {end(self.hi)}{']' if self.hi_closed else ')'}"
 
 

@@ -106,3 +106,19 @@ def test_the_longest_flight_is_the_limit_exactly():
         check_length(MAX_IMU_SAMPLES / 400.0 * (1 + 1e-12), Rates(imu=400.0))
     with pytest.raises(ValueError, match="above the simulator's"):
         simulate("figure8", 1.0, imu_rate=MAX_IMU_RATE_HZ * 1.001)
+
+
+# ---------------------------------------------------------------- parameter values the estimators cannot take
+
+
+@pytest.mark.parametrize("setting, text", [
+    ("ekf.r_accel=1e-308", "ekf.r_accel = 1e-308 is outside its valid range [1e-12, 1e6]"),
+    ("eskf.accel_noise=1e-300", "eskf.accel_noise = 1e-300 is outside its valid range [1e-6, 1e6]"),
+    ("mahony-ekf.r0=1e-320", "mahony-ekf.r0 = 9.99989e-321 is outside its valid range [1e-12, 1e6]"),
+    ("eskf.gyro_arw=1e300", "eskf.gyro_arw = 1e+300 is outside its valid range (0, 1000]"),
+])
+def test_values_the_estimators_cannot_take_are_outside_their_interval(capsys, setting, text):
+    """(Every value inside works: test_bad_input's edge and decade runs.)"""
+    name = setting.partition(".")[0]
+    code, _, err = run(capsys, "replay", LOG, "--no-view", "--estimators", name, "--set", setting)
+    assert code == 2 and text in one_line(err)
