@@ -60,7 +60,7 @@ def is_kind(path: Path, kind: str) -> bool:
     if kind == "toml":
         try:
             tomllib.loads(head.decode())
-        except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+        except (UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):  # deep nesting: no parameter file
             return False
         return True
     if kind == "study":

@@ -129,6 +129,8 @@ def load_file(path: str) -> dict[str, dict[str, object]]:
         raise InputError(path, "is a folder, not a TOML file") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InputError(path, f"not valid TOML: {exc}") from None
+    except RecursionError:  # tomllib parses nested arrays and tables recursively
+        raise InputError(path, "not a parameter file: its arrays or tables nest too deeply") from None
     for name, table in data.items():
         if not isinstance(table, dict):
             raise InputError(path, f"'{name}' must be a table of parameters, [{name}], not a value")

@@ -122,3 +122,24 @@ def test_values_the_estimators_cannot_take_are_outside_their_interval(capsys, se
     name = setting.partition(".")[0]
     code, _, err = run(capsys, "replay", LOG, "--no-view", "--estimators", name, "--set", setting)
     assert code == 2 and text in one_line(err)
+
+
+# ---------------------------------------------------------------- files
+
+
+def deep_toml(path):
+    path.write_text("[mahony]\nkp = " + "[" * 5000 + "]" * 5000 + "\n")
+    return path
+
+
+def test_a_deeply_nested_parameter_file_is_one_line_naming_it(capsys, tmp_path):
+    path = deep_toml(tmp_path / "deep.toml")
+    code, _, err = run(capsys, "replay", LOG, "--no-view", "--params", path)
+    line = one_line(err)
+    assert code == 1 and str(path) in line and "nest too deeply" in line
+
+
+def test_a_deeply_nested_file_is_no_parameter_file_to_write_over(capsys, tmp_path):
+    path = deep_toml(tmp_path / "deep.toml")
+    code, _, err = run(capsys, "tune", LOG, "--estimator", "mahony", "-o", path)
+    assert code == 1 and "is not a TOML parameter file" in one_line(err)
