@@ -150,7 +150,9 @@ def parse_assignment(text: str) -> tuple[str, str, str]:
 def build(names: list[str], file_values: dict | None = None, assignments: list[str] = (),
           source: str = "--params", log_values: dict | None = None) -> dict[str, object]:
     """The parameter dataclass for each estimator in ``names``, defaults overridden: first by
-    ``log_values`` (see ``log_defaults``), then the file, then the assignments."""
+    ``log_values`` (see ``log_defaults``), then the file, then the assignments. Every value is
+    checked, a file's tables for estimators not in ``names`` too (one file may serve several
+    runs); an assignment to an estimator not in ``names`` would do nothing, and is an error."""
     from .estimators import ESTIMATORS
 
     values: dict[str, dict[str, tuple[object, str]]] = {}
@@ -167,8 +169,11 @@ def build(names: list[str], file_values: dict | None = None, assignments: list[s
         if name not in ESTIMATORS:
             _fail(values[name][next(iter(values[name]))][1],
                   f"unknown estimator {name!r}; choose from: {', '.join(ESTIMATORS)}")
+        if name not in names and any(origin == "--set" for _, origin in values[name].values()):
+            _fail("--set", f"{name} is not among the estimators run ({', '.join(names)}): "
+                           f"--set {name}.… would do nothing")
     params = {}
-    for name in names:
+    for name in [*names, *(n for n in values if n not in names)]:
         cls = ESTIMATORS[name].Params
         defaults = cls()
         changes, origins = {}, {}
@@ -189,7 +194,7 @@ def build(names: list[str], file_values: dict | None = None, assignments: list[s
                 _fail(origins.get(lo, origins.get(hi, "--set")),
                       f"{name}.{lo} ({getattr(chosen, lo):g}) must be below {name}.{hi} ({getattr(chosen, hi):g})")
         params[name] = chosen
-    return params
+    return {name: params[name] for name in names}
 
 
 def _fail(origin: str, problem: str):

@@ -143,3 +143,33 @@ def test_a_deeply_nested_file_is_no_parameter_file_to_write_over(capsys, tmp_pat
     path = deep_toml(tmp_path / "deep.toml")
     code, _, err = run(capsys, "tune", LOG, "--estimator", "mahony", "-o", path)
     assert code == 1 and "is not a TOML parameter file" in one_line(err)
+
+
+# ---------------------------------------------------------------- --set and --params for estimators not run
+
+
+@pytest.mark.parametrize("args, code, text", [
+    (["--set", "ekf.bogus=1"], 2, "ekf is not among the estimators run (mahony): --set ekf.… would do nothing"),
+    (["--set", "ekf.r_accel=0.5"], 2, "ekf is not among the estimators run (mahony)"),
+    (["--estimators", "ekf", "--set", "ekf.bogus=1"], 2, "ekf has no parameter 'bogus'"),
+    (["--set", "nope.x=1"], 2, "unknown estimator 'nope'"),
+])
+def test_set_is_checked_for_every_estimator(capsys, args, code, text):
+    got, _, err = run(capsys, "replay", LOG, "--no-view", *args)
+    assert got == code and text in one_line(err)
+
+
+def test_a_file_table_for_an_estimator_not_run_is_checked_but_allowed(capsys, tmp_path):
+    """One file may hold every estimator's parameters; each value in it is checked."""
+    path = tmp_path / "p.toml"
+    path.write_text("[ekf]\nr_accel = 1e-300\n")
+    code, _, err = run(capsys, "replay", LOG, "--no-view", "--params", path)
+    assert code == 1 and "ekf.r_accel = 1e-300 is outside its valid range" in one_line(err)
+    path.write_text("[ekf]\nr_accel = 0.5\n")
+    code, _, err = run(capsys, "replay", LOG, "--no-view", "--params", path, "-q")
+    assert code == 0, err
+
+
+def test_tune_refuses_a_set_for_another_estimator(capsys):
+    code, _, err = run(capsys, "tune", LOG, "--estimator", "mahony", "--set", "ekf.r_accel=0.5")
+    assert code == 2 and "ekf is not among the estimators run (mahony)" in one_line(err)
