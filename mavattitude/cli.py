@@ -446,6 +446,10 @@ def cmd_live(args) -> int:
     names = _estimator_names(args.estimators)
     params = build(names, load_file(args.params) if args.params else None, args.set or (),
                    source=args.params or "--params")
+    from .live.link import MAX_REQUEST_HZ, MIN_REQUEST_HZ
+    if not MIN_REQUEST_HZ <= args.imu_rate <= MAX_REQUEST_HZ:
+        raise UsageError(f"--imu-rate {args.imu_rate:g}: MAVLink asks for rates from {MIN_REQUEST_HZ:.3g} Hz "
+                         f"(an interval of 2^31-1 µs) to {MAX_REQUEST_HZ:g} Hz")
     if args.record and args.no_record:
         raise UsageError("choose --record FILE or --no-record, not both")
     with Outputs(inputs=[args.params], force=args.force) as outputs:

@@ -173,3 +173,32 @@ def test_a_file_table_for_an_estimator_not_run_is_checked_but_allowed(capsys, tm
 def test_tune_refuses_a_set_for_another_estimator(capsys):
     code, _, err = run(capsys, "tune", LOG, "--estimator", "mahony", "--set", "ekf.r_accel=0.5")
     assert code == 2 and "ekf is not among the estimators run (mahony)" in one_line(err)
+
+
+# ---------------------------------------------------------------- live: rates a request can carry
+
+
+@pytest.mark.parametrize("rate", ["1e-300", "0.0004", "65536", "1e9"])
+def test_live_refuses_a_rate_mavlink_cannot_ask_for(capsys, rate):
+    code, _, err = run(capsys, "live", "udpin:127.0.0.1:0", "--imu-rate", rate, "--no-record")
+    assert code == 2 and "--imu-rate" in one_line(err) and "65535 Hz" in err
+
+
+def test_the_rate_limits_pack_in_both_requests():
+    """At each limit, SET_MESSAGE_INTERVAL (unanswered twice) and REQUEST_DATA_STREAM are sent."""
+    import io
+    from types import SimpleNamespace
+
+    from mavattitude.live.link import MAX_REQUEST_HZ, MIN_REQUEST_HZ, RateRequester, mavlink2
+
+    sent = io.BytesIO()
+    conn = SimpleNamespace(mav=mavlink2.MAVLink(sent, srcSystem=255))
+    requester = RateRequester(conn, (1, 1), {"RAW_IMU": MIN_REQUEST_HZ, "ATTITUDE": MAX_REQUEST_HZ})
+    requester.start(0.0)
+    for now in range(1, 10):
+        requester.tick(float(now))
+    assert requester.done and "at 65535 Hz (REQUEST_DATA_STREAM)" in " ".join(requester.notes)
+    parser = mavlink2.MAVLink(None)
+    messages = parser.parse_buffer(sent.getvalue())
+    intervals = [m.param2 for m in messages if m.get_type() == "COMMAND_LONG"]
+    assert max(intervals) == pytest.approx(2**31 - 1, rel=1e-7)
