@@ -249,6 +249,9 @@ def cmd_evaluate(args) -> int:
     print(f"{len(records)} logs: {summary['scored']} scored, {len(summary['failed'])} failed, "
           f"{len(summary['skipped'])} skipped; written to {out}/ (report.md, summary.json, results.csv"
           f"{', results.parquet' if parquet else ''}, tilt_error.svg)")
+    if records and len(summary["failed"]) == len(records):  # some failing among others is a result; all is not
+        raise InputError(", ".join(args.paths), f"every one of the {len(records)} logs failed; "
+                                                f"the reasons are above and in {out / 'report.md'}")
     return 0
 
 
@@ -702,7 +705,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "results.csv (a row per log, estimator and axis; Parquet too with pyarrow), "
                     "tilt_error.svg, and a record per log in logs/. A stopped run resumes: logs with a "
                     "record made with the same options are not replayed again (--force redoes them). "
-                    "A log that fails is listed with its reason; the others go on.",
+                    "A log that fails is listed with its reason; the others go on (exit status 1 "
+                    "only when every log failed).",
         epilog="examples:\n  mavattitude evaluate ../logs --estimators all\n"
                "  mavattitude evaluate 'flights/**/*.bin' --estimators mahony,ncs-eskf -j 8 --out eval/\n"
                "  mavattitude evaluate /shared/logs --estimators all --scheduler tcp://10.0.0.5:8786",

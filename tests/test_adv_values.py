@@ -3,6 +3,9 @@ point 8, "values" and "messages"): each is one line and its exit status, or work
 from __future__ import annotations
 
 import argparse
+import math
+import re
+from dataclasses import replace
 
 import pytest
 
@@ -202,3 +205,44 @@ def test_the_rate_limits_pack_in_both_requests():
     messages = parser.parse_buffer(sent.getvalue())
     intervals = [m.param2 for m in messages if m.get_type() == "COMMAND_LONG"]
     assert max(intervals) == pytest.approx(2**31 - 1, rel=1e-7)
+
+
+# ---------------------------------------------------------------- evaluate
+
+
+def garbage_logs(folder):
+    paths = [folder / "a.bin", folder / "b.tlog"]
+    for path in paths:
+        path.write_bytes(b"\\x00garbage, no log" * 50)
+    return paths
+
+
+def test_evaluate_fails_when_every_log_failed(capsys, tmp_path):
+    code, out, err = run(capsys, "evaluate", *garbage_logs(tmp_path), "-j", "1", "-q", "--out", tmp_path / "eval")
+    last = err.strip().splitlines()[-1]  # after "evaluating ..." and a "failed: ..." line per log
+    assert code == 1 and "Traceback" not in err
+    assert last.startswith("mavattitude: error: ") and "every one of the 2 logs failed" in last and "report.md" in last
+    assert "2 logs: 0 scored, 2 failed" in out
+
+
+def test_evaluate_succeeds_when_some_log_was_scored(capsys, tmp_path):
+    code, out, err = run(capsys, "evaluate", LOG, *garbage_logs(tmp_path)[:1], "-j", "1", "-q",
+                         "--out", tmp_path / "eval")
+    assert code == 0 and "2 logs: 1 scored, 1 failed" in out, err
+
+
+@pytest.mark.parametrize("change, text", [
+    ({"warmup_s": []}, "--warmup []"),
+    ({"warmup_s": math.nan}, "--warmup nan"),
+    ({"declination_deg": 400.0}, "--declination 400.0"),
+    ({"segment": -1}, "--segment -1"),
+    ({"segment": 1.5}, "--segment 1.5"),
+    ({"reference": "gps"}, "--reference 'gps'"),
+])
+def test_replay_settings_are_checked_once_before_any_log(change, text):
+    """Not per log, as "internal error" for each (evaluate --warmup=-- did that)."""
+    from mavattitude.errors import UsageError
+    from mavattitude.pipeline import ReplaySettings
+
+    with pytest.raises(UsageError, match=re.escape(text)):
+        replace(ReplaySettings(names=("mahony",)), **change).check()
