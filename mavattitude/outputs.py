@@ -38,6 +38,7 @@ KIND_NAMES = {"rrd": "Rerun recording", "json": "JSON file", "csv": "CSV file",
 CSV_HEADER_STARTS = (b"time_s,", b"log,status,")  # replay --export's, evaluate's results
 REPORT_START = b"# Attitude estimators across logs"
 SQLITE_MAGIC = b"SQLite format 3\x00"
+NAME_MAX = 255  # bytes in one file name (Linux, macOS)
 SIM_MARK = b"mavattitude-sim"  # in the firmware text of every simulated log, near its start
 
 
@@ -68,6 +69,16 @@ def is_kind(path: Path, kind: str) -> bool:
     if kind == "sim":  # a user's flight log is never "of the simulator's kind"
         return SIM_MARK in head
     raise ValueError(f"unknown output kind {kind!r}")
+
+
+def temporary_name(name: str, name_max: int = NAME_MAX) -> str:
+    """A new hidden name beside ``name`` for writing it: ``.NAME.RANDOM.partial``, with NAME
+    cut short where the whole would pass ``name_max`` bytes, so that every name the user may
+    give can be written (238 to 255 bytes were refused)."""
+    suffix = f".{secrets.token_hex(4)}.partial"
+    room = name_max - 1 - len(suffix)
+    kept = name.encode("utf-8", "surrogateescape")[:room].decode("utf-8", "ignore")  # whole characters
+    return f".{kept}{suffix}"
 
 
 def same_file(a: Path, b: Path) -> bool:
@@ -150,7 +161,7 @@ class Outputs:
                 raise InputError(path, f"exists and is not a {KIND_NAMES[kind]}: {option} will not write "
                                        "over it (choose another name, or --force)")
         folder = self._make_folder(path.parent, option)
-        temp = folder / f".{path.name}.{secrets.token_hex(4)}.partial"
+        temp = folder / temporary_name(path.name)
         try:  # created as any new file is (the umask applies), and only if it is new
             os.close(os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         except OSError as exc:
@@ -207,8 +218,12 @@ class Outputs:
         return folder
 
     def _unclaimed(self, path, option: str) -> Path:
-        """``path``, once sure it is no input and no other output of this command."""
+        """``path``, once sure it is no input and no other output of this command, and a name
+        the file system can hold (found now, not when the finished file is renamed to it)."""
         path = Path(path)
+        if len(os.fsencode(path.name)) > NAME_MAX:
+            raise InputError(path, f"{option}: the file name is {len(os.fsencode(path.name))} bytes long; "
+                                   f"a name has at most {NAME_MAX}")
         for source in self.inputs:
             if same_file(path, source) or path.resolve() == source.resolve():
                 raise InputError(path, f"{option} would write over the input {source}; choose another name")

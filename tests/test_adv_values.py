@@ -246,3 +246,30 @@ def test_replay_settings_are_checked_once_before_any_log(change, text):
 
     with pytest.raises(UsageError, match=re.escape(text)):
         replace(ReplaySettings(names=("mahony",)), **change).check()
+
+
+# ---------------------------------------------------------------- messages: long output names
+
+
+def test_every_legal_output_name_is_written(capsys, tmp_path):
+    """Names of 238-255 bytes were refused: the temporary name beside them was too long."""
+    json_name, rrd_name = "j" * 250 + ".json", "r" * 251 + ".rrd"
+    assert len(json_name) == len(rrd_name) == 255
+    code, _, err = run(capsys, "replay", LOG, "-q", "--json", tmp_path / json_name, "--rrd", tmp_path / rrd_name)
+    assert code == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([json_name, rrd_name])  # no temporary left
+
+
+def test_a_name_too_long_is_refused_before_the_work(capsys, tmp_path):
+    code, _, err = run(capsys, "replay", LOG, "--no-view", "--json", tmp_path / ("j" * 252 + ".json"))
+    assert code == 1 and "--json: the file name is 257 bytes long; a name has at most 255" in one_line(err)
+
+
+def test_a_temporary_name_fits_and_keeps_whole_characters():
+    from mavattitude.outputs import temporary_name
+
+    for name in ["a.json", "é" * 127 + ".rrd", "x" * 255]:
+        temp = temporary_name(name)
+        assert len(temp.encode()) <= 255 and temp.startswith(".") and temp.endswith(".partial")
+        assert temp.encode().decode() == temp
+    assert temporary_name("a.json").startswith(".a.json.")
