@@ -273,3 +273,32 @@ def test_a_temporary_name_fits_and_keeps_whole_characters():
         assert len(temp.encode()) <= 255 and temp.startswith(".") and temp.endswith(".partial")
         assert temp.encode().decode() == temp
     assert temporary_name("a.json").startswith(".a.json.")
+
+
+# ---------------------------------------------------------------- messages: whose warning
+
+
+def test_only_the_decoders_own_warnings_are_blamed_on_it(monkeypatch):
+    """A numpy warning from our code while a log is read was reported as "pymavlink skipped
+    corrupt data"; it is issued as itself, and pymavlink's own still counts as corrupt data."""
+    import warnings
+
+    import numpy as np
+    import pymavlink
+
+    from mavattitude import readers
+
+    real = readers.read_dataflash
+
+    def noisy(path, progress):
+        np.log(np.zeros(1))  # RuntimeWarning: divide by zero, raised here, not in pymavlink
+        warnings.warn_explicit("bad packet", UserWarning, pymavlink.__file__, 1)
+        return real(path, progress)
+
+    monkeypatch.setattr(readers, "read_dataflash", noisy)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        flight = readers.read_log(str(LOG))
+    assert [str(w) for w in flight.warnings if "skipped corrupt data" in w] == [
+        "pymavlink skipped corrupt data (1 reports; first: UserWarning: bad packet)"]
+    assert [(w.category, w.filename) for w in seen] == [(RuntimeWarning, __file__)]
