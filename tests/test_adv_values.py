@@ -302,3 +302,38 @@ def test_only_the_decoders_own_warnings_are_blamed_on_it(monkeypatch):
     assert [str(w) for w in flight.warnings if "skipped corrupt data" in w] == [
         "pymavlink skipped corrupt data (1 reports; first: UserWarning: bad packet)"]
     assert [(w.category, w.filename) for w in seen] == [(RuntimeWarning, __file__)]
+
+
+def test_standard_atmosphere_out_of_its_range_is_nan_without_a_warning():
+    import warnings
+
+    import numpy as np
+
+    from mavattitude.phase import height_pressure, pressure_height
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isnan(height_pressure(np.array([44330.77, 5e4, 1e300]))).all()
+        assert np.isnan(pressure_height(np.array([0.0, -5.0]))).all()
+        assert pressure_height(height_pressure(np.array([-400.0, 120.0])))[1] == pytest.approx(120.0)
+
+
+def test_a_ulog_height_above_the_atmosphere_reads_without_numpy_warnings(tmp_path):
+    """The fuzzer's case (scripts/fuzz_logs.py ulog/*.ulg --seed 2 --case 35): a damaged
+    sensor_combined.baro_alt_meter above 44331 m made numpy warn in height_pressure."""
+    import random
+    import sys
+    import warnings
+    from pathlib import Path
+
+    from conftest import shared_log
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    from fuzz_logs import mutate, replay_or_error
+
+    source = shared_log("ulog/px4-real-auav-x21-flight.ulg")
+    path = tmp_path / "case.ulg"
+    path.write_bytes(mutate(source.read_bytes(), random.Random(2 * 1_000_003 + 35)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        assert replay_or_error(path) == "read"
