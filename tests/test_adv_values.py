@@ -318,9 +318,11 @@ def test_standard_atmosphere_out_of_its_range_is_nan_without_a_warning():
         assert pressure_height(height_pressure(np.array([-400.0, 120.0])))[1] == pytest.approx(120.0)
 
 
-def test_a_ulog_height_above_the_atmosphere_reads_without_numpy_warnings(tmp_path):
-    """The fuzzer's case (scripts/fuzz_logs.py ulog/*.ulg --seed 2 --case 35): a damaged
-    sensor_combined.baro_alt_meter above 44331 m made numpy warn in height_pressure."""
+@pytest.mark.parametrize("seed, case", [(2, 35), (3, 750), (3, 765)])
+def test_damaged_ulogs_read_without_numpy_warnings(tmp_path, seed, case):
+    """The fuzzer's cases (scripts/fuzz_logs.py ulog/*.ulg --seed S --case N): a damaged
+    sensor_combined.baro_alt_meter above 44331 m made numpy warn in height_pressure (2, 35),
+    a signalling NaN in gyro_rad in the cast to float64 (3, 750 and 765)."""
     import random
     import sys
     import warnings
@@ -333,7 +335,7 @@ def test_a_ulog_height_above_the_atmosphere_reads_without_numpy_warnings(tmp_pat
 
     source = shared_log("ulog/px4-real-auav-x21-flight.ulg")
     path = tmp_path / "case.ulg"
-    path.write_bytes(mutate(source.read_bytes(), random.Random(2 * 1_000_003 + 35)))
+    path.write_bytes(mutate(source.read_bytes(), random.Random(seed * 1_000_003 + case)))
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
         assert replay_or_error(path) == "read"

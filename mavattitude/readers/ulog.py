@@ -77,13 +77,20 @@ def read_ulog(path: str, progress=None) -> Decoded:
     return Decoded(col, params, [], counts, notes=notes, warnings=warnings, identity=_identify(ulog, params))
 
 
+def _floats(values) -> np.ndarray:
+    """A field as float64: a corrupt float may be a signalling NaN, and NaN it stays (dropped
+    later with the other bad samples) without numpy's "invalid value in cast", as in dfrecords."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(values).astype(np.float64)
+
+
 def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]) -> None:
     order = data["timestamp"].astype(np.int64)
     sampled = data.get("timestamp_sample", order)  # 0 where a driver left it unset (GPS)
     t = np.where(sampled > 0, sampled, order).astype(np.float64) * S_PER_US
 
     def vector(field, n=3):
-        return np.column_stack([data[f"{field}[{k}]"].astype(np.float64) for k in range(n)])
+        return np.column_stack([_floats(data[f"{field}[{k}]"]) for k in range(n)])
 
     if name == "sensor_combined":
         accel_ok = data.get("accelerometer_timestamp_relative", order * 0) != RELATIVE_TIMESTAMP_INVALID
@@ -94,13 +101,13 @@ def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]
         if "baro_alt_meter" in data:
             # old logs give only the height PX4 computed from pressure in the standard atmosphere
             # (QNH 1013.25 hPa): that pressure back, for the phase that differences it
-            height = data["baro_alt_meter"].astype(np.float64)
+            height = _floats(data["baro_alt_meter"])
             pressure = height_pressure(height)
             if _add_relative(col, "baro", key, data, "baro", order, np.column_stack([pressure, height])):
                 notes.append("baro pressure from sensor_combined.baro_alt_meter (standard atmosphere)")
     elif name == "vehicle_imu":
-        angle_dt = data["delta_angle_dt"].astype(np.float64) * S_PER_US
-        velocity_dt = data["delta_velocity_dt"].astype(np.float64) * S_PER_US
+        angle_dt = _floats(data["delta_angle_dt"]) * S_PER_US
+        velocity_dt = _floats(data["delta_velocity_dt"]) * S_PER_US
         ok = (angle_dt > 0) & (velocity_dt > 0)
         with np.errstate(divide="ignore", invalid="ignore"):  # as rates over their intervals, as IMT
             rows = np.hstack([vector("delta_angle") / angle_dt[:, None], vector("delta_velocity") / velocity_dt[:, None]])
@@ -146,7 +153,7 @@ def _gps_rows(data: dict) -> np.ndarray:
         lat, lon, alt = data["latitude_deg"], data["longitude_deg"], data["altitude_msl_m"]
     else:  # before PX4 1.14: integers
         lat, lon, alt = data["lat"] * 1e-7, data["lon"] * 1e-7, data["alt"] * 1e-3  # 1e-7 °, mm
-    velocity = np.column_stack([data["vel_n_m_s"], data["vel_e_m_s"], data["vel_d_m_s"]]).astype(np.float64)
+    velocity = _floats(np.column_stack([data["vel_n_m_s"], data["vel_e_m_s"], data["vel_d_m_s"]]))
     if "vel_ned_valid" in data:
         velocity[data["vel_ned_valid"] == 0] = np.nan
     return np.column_stack([lat, lon, alt, velocity, data["fix_type"], data["satellites_used"], data["eph"]])
