@@ -573,9 +573,9 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
     def _get_values(self, action, arg_strings):
-        # Python before 3.12.7 drops a value of exactly '--' (--seed=--) as if it were the
-        # separator: the option gets [] and its type and choices are never checked. Take the
-        # value as given, as later versions do, so that the type refuses it.
+        # argparse without CPython's fix gh-109475 (early 2024; 3.11.7 has it not) drops a value
+        # of exactly '--' (--seed=--) as if it were the separator: the option gets [] and its
+        # type and choices are never checked. Take the value as given, as the fix does.
         if action.option_strings and action.nargs is None and arg_strings == ["--"]:
             value = self._get_value(action, "--")
             self._check_value(action, value)

@@ -48,8 +48,8 @@ def test_every_numeric_option_is_found():
 
 @pytest.mark.parametrize("command, action", numeric_options())
 def test_a_dash_dash_value_is_checked_like_any_other(capsys, command, action):
-    """argparse (before Python 3.12.7) took '--' after '=' for the separator and skipped the
-    option's type: bench --seed=-- started a full benchmark."""
+    """argparse without CPython's gh-109475 fix took '--' after '=' for the separator and
+    skipped the option's type: bench --seed=-- started a full benchmark."""
     option = action.option_strings[-1]
     code, _, err = run(capsys, command, *POSITIONALS.get(command, []), f"{option}=--")
     line = one_line(err)
