@@ -109,6 +109,8 @@ def test_the_longest_flight_is_the_limit_exactly():
         check_length(MAX_IMU_SAMPLES / 400.0 * (1 + 1e-12), Rates(imu=400.0))
     with pytest.raises(ValueError, match="above the simulator's"):
         simulate("figure8", 1.0, imu_rate=MAX_IMU_RATE_HZ * 1.001)
+    with pytest.raises(ValueError, match="a finite number of seconds, not inf"):
+        simulate("figure8", math.inf)
 
 
 # ---------------------------------------------------------------- parameter values the estimators cannot take

@@ -121,8 +121,10 @@ def check_length(duration: float, rates: Rates = Rates()) -> None:
             raise ValueError(f"the {name} rate must be a positive number of Hz, not {rate:g}")
     if rates.imu > MAX_IMU_RATE_HZ:
         raise ValueError(f"an IMU rate of {rates.imu:g} Hz is above the simulator's {MAX_IMU_RATE_HZ:g} Hz")
+    if not np.isfinite(duration):
+        raise ValueError(f"the duration must be a finite number of seconds, not {duration:g}")
     shortest = 2.0 / min(vars(rates).values())
-    if not np.isfinite(duration) or duration < shortest:
+    if duration < shortest:
         raise ValueError(f"{duration:g} s is too short: every sensor needs two samples, "
                          f"which takes {shortest:g} s at these rates")
     longest = MAX_IMU_SAMPLES / rates.imu
