@@ -269,6 +269,9 @@ def cmd_evaluate(args) -> int:
           f"{len(summary['failed'])} failed, "
           f"{len(summary['skipped'])} skipped; written to {out}/ (report.md, summary.json, results.csv"
           f"{', results.parquet' if parquet else ''}, tilt_error.svg)")
+    if records and len(summary["failed"]) == len(records):  # some failing among others is a result; all is not
+        raise InputError(", ".join(args.paths), f"every one of the {len(records)} logs failed; "
+                                                f"the reasons are above and in {out / 'report.md'}")
     return 0
 
 
@@ -401,6 +404,7 @@ def cmd_simulate(args) -> int:
         raise UsageError(f"{args.output}: the output must end in .tlog, .bin or .ulg")
     if args.imt and suffix != ".bin":
         raise UsageError("--imt writes DataFlash records: give -o FILE.bin")
+    _check_sim_length(args.duration, args.imu_rate)
     if args.live:
         return _simulate_live(args)
     with Outputs(force=args.force) as outputs:
@@ -411,6 +415,17 @@ def cmd_simulate(args) -> int:
     print(f"{out.path}: {args.scenario}, {args.duration:g} s, IMU {args.imu_rate:g} Hz, seed {args.seed} "
           f"({out.path.stat().st_size / 1e6:.2f} MB)")
     return 0
+
+
+def _check_sim_length(duration: float, imu_rate: float, options: str = "--duration/--imu-rate") -> None:
+    """A usage error, before any work, when the simulator cannot make that flight."""
+    from .sim import Rates
+    from .sim.simflight import check_length
+
+    try:
+        check_length(duration, Rates(imu=imu_rate))
+    except ValueError as exc:
+        raise UsageError(f"{options}: {exc}") from None
 
 
 def _simulate_live(args) -> int:
@@ -454,6 +469,10 @@ def cmd_live(args) -> int:
     names = _estimator_names(args.estimators)
     params = build(names, load_file(args.params) if args.params else None, args.set or (),
                    source=args.params or "--params")
+    from .live.link import MAX_REQUEST_HZ, MIN_REQUEST_HZ
+    if not MIN_REQUEST_HZ <= args.imu_rate <= MAX_REQUEST_HZ:
+        raise UsageError(f"--imu-rate {args.imu_rate:g}: MAVLink asks for rates from {MIN_REQUEST_HZ:.3g} Hz "
+                         f"(an interval of 2^31-1 µs) to {MAX_REQUEST_HZ:g} Hz")
     if args.record and args.no_record:
         raise UsageError("choose --record FILE or --no-record, not both")
     with Outputs(inputs=[args.params], force=args.force) as outputs:
@@ -504,6 +523,10 @@ def cmd_bench(args) -> int:
     names = _estimator_names(args.estimators)
     if args.log and not args.read:
         raise UsageError("--log is for --read (the reading figures)")
+    _check_sim_length(args.duration, args.imu_rate)
+    if args.live:
+        from .bench_live import LIVE_IMU_HZ, SETTLE_S
+        _check_sim_length(args.live_seconds + SETTLE_S, LIVE_IMU_HZ, f"--live-seconds plus {SETTLE_S:g} s of settling")
     with Outputs(force=args.force) as outputs:
         json_out = outputs.file(args.json, "--json", "json")
         if args.read:
@@ -547,8 +570,9 @@ def _number(low: float, high: float = math.inf, *, above: bool = False, whole: b
             ok = False
         if not ok:
             kind = "a whole number" if whole else "a number"
-            bound = f"above {low:g}" if above else f"at least {low:g}"
-            limit = f" and at most {high:g}" if math.isfinite(high) else ""
+            shown = (lambda x: f"{x:.0f}") if whole else (lambda x: f"{x:g}")  # 4294967295, not 4.29497e+09
+            bound = f"above {shown(low)}" if above else f"at least {shown(low)}"
+            limit = f" and at most {shown(high)}" if math.isfinite(high) else ""
             raise argparse.ArgumentTypeError(f"expected {kind} {bound}{limit}, not {text!r}")
         return int(value) if whole else value
     parse.__name__ = "number"
@@ -586,6 +610,16 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+    def _get_values(self, action, arg_strings):
+        # argparse without CPython's fix gh-109475 (early 2024; 3.11.7 has it not) drops a value
+        # of exactly '--' (--seed=--) as if it were the separator: the option gets [] and its
+        # type and choices are never checked. Take the value as given, as the fix does.
+        if action.option_strings and action.nargs is None and arg_strings == ["--"]:
+            value = self._get_value(action, "--")
+            self._check_value(action, value)
+            return value
+        return super()._get_values(action, arg_strings)
 
 
 def quiet_arg(p) -> None:
@@ -717,7 +751,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "results.csv (a row per log, estimator and axis; Parquet too with pyarrow), "
                     "tilt_error.svg, and a record per log in logs/. A stopped run resumes: logs with a "
                     "record made with the same options are not replayed again (--force redoes them). "
-                    "A log that fails is listed with its reason; the others go on.",
+                    "A log that fails is listed with its reason; the others go on (exit status 1 "
+                    "only when every log failed).",
         epilog="examples:\n  mavattitude evaluate ../logs --estimators all\n"
                "  mavattitude evaluate 'flights/**/*.bin' --estimators mahony,ncs-eskf -j 8 --out eval/\n"
                "  mavattitude evaluate /shared/logs --estimators all --scheduler tcp://10.0.0.5:8786",

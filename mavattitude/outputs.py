@@ -53,6 +53,7 @@ KIND_NAMES = {"rrd": "Rerun recording", "json": "JSON file written by mavattitud
 CSV_HEADER_STARTS = (b"time_s,roll_deg,pitch_deg,yaw_deg\n", b"log,status,error,")  # replay --export's, evaluate's
 REPORT_START = b"# Attitude estimators across logs"
 SQLITE_MAGIC = b"SQLite format 3\x00"
+NAME_MAX = 255  # bytes in one file name (Linux, macOS)
 SIM_MARK = b"mavattitude-sim"  # in the firmware text of every simulated log, near its start
 PARTIAL_TOKEN_BYTES = 4
 PARTIAL_NAME = re.compile(r"\..+\.[0-9a-f]{8}\.partial")  # an output being written: ".name.<token>.partial"
@@ -97,7 +98,7 @@ def is_kind(path: Path, kind: str) -> bool:
     if kind == "toml":
         try:
             tomllib.loads(head.decode())
-        except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+        except (UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):  # deep nesting: no parameter file
             return False
         return TOML_MARK in head
     if kind == "study":
@@ -154,6 +155,16 @@ def _foreign_tables(path: Path, option: str) -> list[str]:
     except sqlite3.DatabaseError as exc:
         raise InputError(path, f"{option}: not a readable SQLite database ({exc})") from None
     return sorted(n for n in names if n not in OPTUNA_TABLES and not n.startswith("sqlite_"))
+
+
+def temporary_name(name: str, name_max: int = NAME_MAX) -> str:
+    """A new hidden name beside ``name`` for writing it: ``.NAME.RANDOM.partial``, with NAME
+    cut short where the whole would pass ``name_max`` bytes, so that every name the user may
+    give can be written (238 to 255 bytes were refused)."""
+    suffix = f".{secrets.token_hex(PARTIAL_TOKEN_BYTES)}.partial"
+    room = name_max - 1 - len(suffix)
+    kept = name.encode("utf-8", "surrogateescape")[:room].decode("utf-8", "ignore")  # whole characters
+    return f".{kept}{suffix}"
 
 
 def same_file(a: Path, b: Path) -> bool:
@@ -244,7 +255,7 @@ class Outputs:
                 raise InputError(path, f"exists and is not a {KIND_NAMES[kind]}: {option} will not write "
                                        "over it (choose another name, or --force)")
         folder = self._make_folder(path.parent, option)
-        temp = folder / f".{path.name}.{secrets.token_hex(PARTIAL_TOKEN_BYTES)}.partial"
+        temp = folder / temporary_name(path.name)
         try:  # created as any new file is (the umask applies), and only if it is new
             os.close(os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         except OSError as exc:
@@ -314,8 +325,12 @@ class Outputs:
         return folder
 
     def _unclaimed(self, path, option: str) -> Path:
-        """``path``, once sure it is no input and no other output of this command."""
+        """``path``, once sure it is no input and no other output of this command, and a name
+        the file system can hold (found now, not when the finished file is renamed to it)."""
         path = Path(path)
+        if len(os.fsencode(path.name)) > NAME_MAX:
+            raise InputError(path, f"{option}: the file name is {len(os.fsencode(path.name))} bytes long; "
+                                   f"a name has at most {NAME_MAX}")
         for source in self.inputs:
             if same_file(path, source) or path.resolve() == source.resolve():
                 raise InputError(path, f"{option} would write over the input {source}; choose another name")

@@ -56,8 +56,8 @@ class Interval:
         return above and below
 
     def __str__(self) -> str:
-        def end(v):
-            return "inf" if v == math.inf else "-inf" if v == -math.inf else f"{v:g}"
+        def end(v):  # 1e6 and 1e-12, as they are declared, not 1e+06 and 1e-12
+            return "inf" if v == math.inf else "-inf" if v == -math.inf else re.sub(r"e\+?(-?)0*(\d)", r"e\1\2", f"{v:g}")
         return f"{'[' if self.lo_closed else '('}{end(self.lo)}, {end(self.hi)}{']' if self.hi_closed else ')'}"
 
 
@@ -130,6 +130,8 @@ def load_file(path: str) -> dict[str, dict[str, object]]:
         raise InputError(path, "is a folder, not a TOML file") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InputError(path, f"not valid TOML: {exc}") from None
+    except RecursionError:  # tomllib parses nested arrays and tables recursively
+        raise InputError(path, "not a parameter file: its arrays or tables nest too deeply") from None
     for name, table in data.items():
         if not isinstance(table, dict):
             raise InputError(path, f"'{name}' must be a table of parameters, [{name}], not a value")
@@ -149,7 +151,9 @@ def parse_assignment(text: str) -> tuple[str, str, str]:
 def build(names: list[str], file_values: dict | None = None, assignments: list[str] = (),
           source: str = "--params", log_values: dict | None = None) -> dict[str, object]:
     """The parameter dataclass for each estimator in ``names``, defaults overridden: first by
-    ``log_values`` (see ``log_defaults``), then the file, then the assignments."""
+    ``log_values`` (see ``log_defaults``), then the file, then the assignments. Every value is
+    checked, a file's tables for estimators not in ``names`` too (one file may serve several
+    runs); an assignment to an estimator not in ``names`` would do nothing, and is an error."""
     from .estimators import ESTIMATORS
 
     values: dict[str, dict[str, tuple[object, str]]] = {}
@@ -166,8 +170,11 @@ def build(names: list[str], file_values: dict | None = None, assignments: list[s
         if name not in ESTIMATORS:
             _fail(values[name][next(iter(values[name]))][1],
                   f"unknown estimator {name!r}; choose from: {', '.join(ESTIMATORS)}")
+        if name not in names and any(origin == "--set" for _, origin in values[name].values()):
+            _fail("--set", f"{name} is not among the estimators run ({', '.join(names)}): "
+                           f"--set {name}.… would do nothing")
     params = {}
-    for name in names:
+    for name in [*names, *(n for n in values if n not in names)]:
         cls = ESTIMATORS[name].Params
         defaults = cls()
         changes, origins = {}, {}
@@ -188,7 +195,7 @@ def build(names: list[str], file_values: dict | None = None, assignments: list[s
                 _fail(origins.get(lo, origins.get(hi, "--set")),
                       f"{name}.{lo} ({getattr(chosen, lo):g}) must be below {name}.{hi} ({getattr(chosen, hi):g})")
         params[name] = chosen
-    return params
+    return {name: params[name] for name in names}
 
 
 def _fail(origin: str, problem: str):

@@ -50,13 +50,18 @@ class PhaseSeries:
 
 
 def pressure_height(pressure_pa: np.ndarray) -> np.ndarray:
-    """Height (m) in the ICAO standard atmosphere; only differences are used."""
-    return 44330.77 * (1.0 - (np.asarray(pressure_pa) / SEA_LEVEL_PA) ** 0.190263)
+    """Height (m) in the ICAO standard atmosphere; only differences are used. NaN for a
+    pressure not above 0 (a corrupt sample), without numpy's warning."""
+    pressure = np.asarray(pressure_pa, dtype=float)
+    return 44330.77 * (1.0 - (np.where(pressure > 0, pressure, np.nan) / SEA_LEVEL_PA) ** 0.190263)
 
 
 def height_pressure(height_m: np.ndarray) -> np.ndarray:
-    """``pressure_height``'s inverse: the pressure (Pa) at a standard-atmosphere height (m)."""
-    return SEA_LEVEL_PA * (1.0 - np.asarray(height_m) / 44330.77) ** (1 / 0.190263)
+    """``pressure_height``'s inverse: the pressure (Pa) at a standard-atmosphere height (m).
+    NaN at or above the formula's top, 44331 m, where the pressure would be 0 or less (a
+    corrupt height: "invalid value in power" was numpy's warning)."""
+    base = 1.0 - np.asarray(height_m, dtype=float) / 44330.77
+    return SEA_LEVEL_PA * np.where(base > 0, base, np.nan) ** (1 / 0.190263)
 
 
 def detect_phase(flight: Flight) -> PhaseSeries | None:

@@ -274,7 +274,21 @@ class ReplaySettings:
     params_source: str = "--params"
 
     def check(self) -> None:
-        """Raise UsageError / InputError for a bad parameter now, before any log is read."""
+        """Raise UsageError / InputError for a bad setting now, before any log is read (evaluate
+        would otherwise fail every log with the same "internal error")."""
+        def number(value) -> bool:
+            return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+        if not (number(self.warmup_s) and self.warmup_s >= 0):
+            raise UsageError(f"--warmup {self.warmup_s!r}: expected a number of seconds, 0 or more")
+        if self.declination_deg is not None and not (number(self.declination_deg)
+                                                     and -180 <= self.declination_deg <= 180):
+            raise UsageError(f"--declination {self.declination_deg!r}: expected degrees from -180 to 180")
+        if self.segment is not None and not (isinstance(self.segment, int) and not isinstance(self.segment, bool)
+                                             and self.segment >= 0):
+            raise UsageError(f"--segment {self.segment!r}: expected a clock segment number, 0 or more")
+        if self.reference not in ("autopilot", "truth"):
+            raise UsageError(f"--reference {self.reference!r}: use 'autopilot' or 'truth'")
         build(list(self.names), self.file_values, self.assignments, source=self.params_source)
 
 

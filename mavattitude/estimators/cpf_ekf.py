@@ -193,9 +193,9 @@ NAUX = 25
 
 @dataclass
 class CpfEkfParams:
-    gyro_noise: float = param(1.5e-3, "(0, inf)", "log [1e-5, 0.1]")  # gyro rate noise density, rad/s/√Hz
+    gyro_noise: float = param(1.5e-3, "(0, 1e3]", "log [1e-5, 0.1]")  # gyro rate noise density, rad/s/√Hz
     accel_noise: float = param(0.2, "(0, inf)", "log [0.01, 2]")  # accelerometer noise density (vibration included), m/s²/√Hz
-    gyro_bias_walk: float = param(5e-5, "[0, inf)", "log [1e-7, 1e-3]")  # gyro bias random walk, rad/s/√s
+    gyro_bias_walk: float = param(5e-5, "[0, 1e3]", "log [1e-7, 1e-3]")  # gyro bias random walk, rad/s/√s
     accel_bias_walk: float = param(1e-3, "[0, inf)", "log [1e-5, 0.1]")  # z-accelerometer bias random walk, m/s²/√s
     earth_field_walk: float = param(1e-4, "[0, inf)")  # earth field random walk, gauss/√s
     body_field_walk: float = param(1e-5, "[0, inf)")  # magnetometer bias random walk, gauss/√s
@@ -217,10 +217,10 @@ class CpfEkfParams:
     heading_hold_noise_deg: float = param(0.5, "[0, inf)")  # without a magnetometer: zero-innovation heading measurement, degrees (1σ; 0: off)
     vel_sigma0: float = param(1.0, "[0, inf)")  # initial velocity 1σ, m/s
     pos_sigma0: float = param(5.0, "[0, inf)")  # initial position 1σ, m
-    gyro_bias_sigma0_dps: float = param(0.1, "[0, inf)")  # initial gyro bias 1σ, °/s
-    accel_bias_sigma0: float = param(0.1, "[0, inf)")  # initial z-accelerometer bias 1σ, m/s²
-    earth_field_sigma0: float = param(0.02, "[0, inf)")  # initial earth field 1σ, gauss
-    body_field_sigma0: float = param(0.02, "[0, inf)")  # initial magnetometer bias 1σ, gauss
+    gyro_bias_sigma0_dps: float = param(0.1, "[0, 1e6]")  # initial gyro bias 1σ, °/s
+    accel_bias_sigma0: float = param(0.1, "[0, 1e6]")  # initial z-accelerometer bias 1σ, m/s²
+    earth_field_sigma0: float = param(0.02, "[0, 1e6]")  # initial earth field 1σ, gauss
+    body_field_sigma0: float = param(0.02, "[0, 1e6]")  # initial magnetometer bias 1σ, gauss
     watchdog: bool = param(True)  # reset the EKF from the complementary filter on divergence (eq 21)
     reset_threshold: float = param(0.27416, "(0, inf)", "log [0.01, 3]")  # N of eq 21: squared Euler-angle difference sum, rad²
     reset_cycles: int = param(3, "[1, inf)")  # consecutive watchdog cycles over N that trigger a reset

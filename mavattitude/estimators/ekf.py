@@ -71,8 +71,8 @@ from .base import MAX_STEP_S, Estimator, filter_state
 
 @dataclass
 class EkfParams:
-    q_gyro: float = param(1e-2, "(0, inf)", "log [1e-6, 1]")  # gyro noise variance per axis (paper 000's Q), (rad/s)²
-    r_accel: float = param(0.25, "(0, inf)", "log [1e-4, 10]")  # noise variance per axis of the normalised accelerometer a/‖a‖, 1
+    q_gyro: float = param(1e-2, "(0, 1e6]", "log [1e-6, 1]")  # gyro noise variance per axis (paper 000's Q), (rad/s)²
+    r_accel: float = param(0.25, "[1e-12, 1e6]", "log [1e-4, 10]")  # noise variance per axis of the normalised accelerometer a/‖a‖, 1
     r_mag: float = param(0.01, "(0, inf)", "log [1e-4, 1]")  # compass heading noise variance, rad²
     use_mag: bool = param(True)  # measure heading from the magnetometer when the log has one
 

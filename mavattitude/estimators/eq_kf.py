@@ -199,13 +199,13 @@ from .consistency import attitude_error, carried, learn_gravity, step_rotation_i
 
 @dataclass
 class EqKfParams:
-    gyro_noise: float = param(1e-3, "(0, inf)", "log [1e-5, 0.1]")  # rad/s/√Hz, gyro white-noise density (attitude process noise)
-    bias_walk: float = param(3e-5, "[0, inf)", "log [1e-7, 1e-3]")  # rad/s/√s, gyro-bias random walk
-    int_noise: float = param(0.02, "[0, inf)", "linear [0, 0.2]")  # 1: step-rotation uncertainty as a fraction of |ω_k - ω_k-1|·Δt
-    accel_noise: float = param(0.007, "(0, inf)", "log [1e-4, 0.3]")  # rad·√s (1/√Hz), accelerometer direction noise density; R₀ = σ²/Δt
+    gyro_noise: float = param(1e-3, "(0, 1e3]", "log [1e-5, 0.1]")  # rad/s/√Hz, gyro white-noise density (attitude process noise)
+    bias_walk: float = param(3e-5, "[0, 1e3]", "log [1e-7, 1e-3]")  # rad/s/√s, gyro-bias random walk
+    int_noise: float = param(0.02, "[0, 1e3]", "linear [0, 0.2]")  # 1: step-rotation uncertainty as a fraction of |ω_k - ω_k-1|·Δt
+    accel_noise: float = param(0.007, "(0, 1e6]", "log [1e-4, 0.3]")  # rad·√s (1/√Hz), accelerometer direction noise density; R₀ = σ²/Δt
     mag_noise: float = param(0.05, "(0, inf)", "log [1e-3, 1]")  # rad·√s, magnetometer heading noise density; R_m = σ²/Δt
     init_att_sigma: float = param(0.2, "[0, 3.15]")  # rad, initial attitude uncertainty, 1σ per axis
-    init_bias_sigma: float = param(5e-4, "[0, inf)")  # rad/s, initial gyro-bias uncertainty, 1σ per axis
+    init_bias_sigma: float = param(5e-4, "[0, 1e6]")  # rad/s, initial gyro-bias uncertainty, 1σ per axis
     norm_lo: float = param(0.05, "[0, inf)", "log [0.01, 0.1]")  # 1 (fraction of g): trust falls from 1 when |‖f̃‖/g - 1| exceeds this ...
     norm_hi: float = param(0.2, "(0, inf)", "log [0.11, 1]")  # 1 (fraction of g): ... to 0 here
     rate_lo: float = param(1.0, "[0, inf)", "log [0.1, 2]")  # rad/s: trust falls from 1 above this rotation rate ...

@@ -64,8 +64,8 @@ from .base import MAX_STEP_S, Estimator, filter_state
 
 @dataclass
 class EskfParams:
-    gyro_arw: float = param(1e-3, "(0, inf)", "log [1e-5, 0.1]")  # gyro rate noise density (angle random walk), rad/s/√Hz
-    accel_noise: float = param(0.04, "(0, inf)", "log [1e-3, 2]")  # accelerometer noise density, m/s²/√Hz
+    gyro_arw: float = param(1e-3, "(0, 1e3]", "log [1e-5, 0.1]")  # gyro rate noise density (angle random walk), rad/s/√Hz
+    accel_noise: float = param(0.04, "[1e-6, 1e6]", "log [1e-3, 2]")  # accelerometer noise density, m/s²/√Hz
     p0_deg: float = param(2.0, "[0, 180]")  # initial 1σ of each attitude error angle, degrees
 
 

@@ -44,8 +44,8 @@ from .base import MAX_STEP_S, Estimator
 
 @dataclass
 class MahonyParams:
-    kp: float = param(0.2, "[0, inf)", "log [0.01, 10]")  # proportional gain, 1/s
-    ki: float = param(0.0005, "[0, inf)", "log [1e-5, 0.1]")  # integral gain, 1/s²
+    kp: float = param(0.2, "[0, 1e6]", "log [0.01, 10]")  # proportional gain, 1/s
+    ki: float = param(0.0005, "[0, 1e6]", "log [1e-5, 0.1]")  # integral gain, 1/s²
     use_mag: bool = param(True)  # correct heading from the magnetometer when the log has one
 
 

@@ -121,12 +121,12 @@ from .mahony import mahony_step
 
 @dataclass
 class MahonyEkfParams:
-    kp: float = param(0.5, "[0, inf)", "log [0.01, 10]")  # internal Mahony proportional gain, 1/s (mahony's: 0.2; see the docstring)
-    ki: float = param(0.005, "[0, inf)", "log [1e-5, 0.1]")  # internal Mahony integral gain, 1/s² (mahony's: 0.0005)
+    kp: float = param(0.5, "[0, 1e6]", "log [0.01, 10]")  # internal Mahony proportional gain, 1/s (mahony's: 0.2; see the docstring)
+    ki: float = param(0.005, "[0, 1e6]", "log [1e-5, 0.1]")  # internal Mahony integral gain, 1/s² (mahony's: 0.0005)
     use_mag: bool = param(True)  # the internal Mahony corrects heading from the magnetometer
-    q_gyro: float = param(1e-2, "(0, inf)", "log [1e-5, 1]")  # gyro noise variance per axis (eq 12: Q = 1e-2 I₃), (rad/s)²
-    r0: float = param(1e-4, "(0, inf)", "log [1e-7, 0.1]")  # measurement noise variance per quaternion component at rest (eq 17), 1
-    k_accel: float = param(1000.0, "[0, inf)", "log [1, 1e5]")  # eq 17's k: R = r0 [1 + k_accel |‖a‖ - g|], 1/(m/s²)
+    q_gyro: float = param(1e-2, "(0, 1e6]", "log [1e-5, 1]")  # gyro noise variance per axis (eq 12: Q = 1e-2 I₃), (rad/s)²
+    r0: float = param(1e-4, "[1e-12, 1e6]", "log [1e-7, 0.1]")  # measurement noise variance per quaternion component at rest (eq 17), 1
+    k_accel: float = param(1000.0, "[0, 1e9]", "log [1, 1e5]")  # eq 17's k: R = r0 [1 + k_accel |‖a‖ - g|], 1/(m/s²)
     k_mahony: float = param(100.0, "[0, inf)", "log [0.1, 1e4]")  # Mahony gravity-error weight 1/(1 + k_mahony |ā - ā_ref|); 0: none, 1/(m/s²)
     accel_lp_s: float = param(0.5, "[0, inf)", "log [0.02, 5]")  # time constant of ā, the low-passed ‖a‖ - g, s
     accel_ref_s: float = param(60.0, "[0, inf)")  # time constant of ā_ref, ā's slow baseline (0: none, ā_ref = 0), s
@@ -338,8 +338,8 @@ def mahony_ekf_run(s, state, cfg, out, diag, mahony_out):
         weight = 1.0
         if k_mahony > 0.0 and lp == lp and not mean_dt * weight_min_rate > 1.0 and not rest:
             weight = 1.0 / (1.0 + k_mahony * abs(lp - (ref if accel_ref_s > 0.0 else 0.0)))
-            if lock_s > 0.0:  # the coasting debt raises the weight (its budget ∝ the IMU rate)
-                budget = lock_s * (0.01 / mean_dt) ** 2  # trapezoidal integration: error ∝ step²
+            if lock_s > 0.0 and debt > 0.0:  # the coasting debt raises the weight (its budget ∝ the IMU rate)
+                budget = lock_s * (0.01 / mean_dt) ** 2  # trapezoidal integration: error ∝ step² (may underflow to 0)
                 weight = max(weight, debt / (debt + budget))
         if step and k_mahony > 0.0:  # debt: time coasted on the gyro, paid back as the accelerometer corrects
             debt = max(debt + dt * (1.0 - weight) - dt * weight * kp * debt, 0.0)

@@ -160,8 +160,8 @@ from .eskf import set_q, step_dt
 
 @dataclass
 class NcsEskfParams:
-    gyro_arw: float = param(1e-3, "(0, inf)", "log [1e-5, 0.1]")  # gyro rate noise density (angle random walk), rad/s/√Hz
-    accel_noise: float = param(0.14, "(0, inf)", "log [1e-3, 2]")  # accelerometer noise density, m/s²/√Hz
+    gyro_arw: float = param(1e-3, "(0, 1e3]", "log [1e-5, 0.1]")  # gyro rate noise density (angle random walk), rad/s/√Hz
+    accel_noise: float = param(0.14, "(0, 1e6]", "log [1e-3, 2]")  # accelerometer noise density, m/s²/√Hz
     p0_deg: float = param(2.0, "[0, 180]")  # initial 1σ of each attitude error angle, degrees
     total_threshold: float = param(0.2, "[0, inf)", "linear [0.02, 0.5]")  # g: skip the update when |‖a‖ - g| exceeds it (paper 0.2 g)
     h_threshold_air: float = param(0.01, "[0, inf)", "log [0.002, 0.2]")  # g: horizontal manoeuvre threshold in the air (paper 0.01 g)
@@ -172,9 +172,9 @@ class NcsEskfParams:
     gate_sigma: float = param(6.0, "[0, inf)", "linear [0, 12]")  # σ of tilt uncertainty added (root-sum-square) to the gate; 0: off
     taper: float = param(1.0, "[0, 1]", "linear [0, 1]")  # 0-1: R / (1 - taper · residual / gate), 1 = no weight at the gate; 0: off
     estimate_bias: bool = param(True)  # learn the gyro bias (horizontal effect only); False: 3 states
-    bias_p0_dps: float = param(0.01, "[0, inf)")  # initial 1σ of the bias left after the alignment, °/s
-    bias_walk: float = param(6e-5, "[0, inf)", "log [1e-6, 1e-3]")  # gyro bias random walk, rad/s/√s
-    step_noise: float = param(0.25, "[0, inf)", "linear [0, 1]")  # integration uncertainty per step, fraction of |Δω| dt; 0: off
+    bias_p0_dps: float = param(0.01, "[0, 1e6]")  # initial 1σ of the bias left after the alignment, °/s
+    bias_walk: float = param(6e-5, "[0, 1e3]", "log [1e-6, 1e-3]")  # gyro bias random walk, rad/s/√s
+    step_noise: float = param(0.25, "[0, 1e3]", "linear [0, 1]")  # integration uncertainty per step, fraction of |Δω| dt; 0: off
     cons_tol: float = param(0.05, "[0, inf)")  # rad: residual angle beyond what ‖f̃‖ explains that means attitude error ...
     cons_norm: float = param(0.02, "[0, inf)")  # 1 (fraction of g): ... while |‖f̃‖/g - 1| stays below this ...
     cons_rate: float = param(1.0, "[0, inf)")  # rad/s: ... and the rotation below this ...

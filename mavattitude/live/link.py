@@ -34,6 +34,10 @@ RATE_WINDOW_S = 3.0  # s: arrival rates are counted over this trailing window
 # at net.core.rmem_max unless the process may force it.
 UDP_RECEIVE_BUFFER = 8 << 20
 ACK_TIMEOUT_S = 1.0  # s: a command without an answer is sent once more, then given up
+# The rates a request can carry: the autopilot keeps SET_MESSAGE_INTERVAL's interval as an
+# int32 of µs (MESSAGE_INTERVAL.interval_us), REQUEST_DATA_STREAM's rate is a uint16 of Hz.
+MIN_REQUEST_HZ = 1e6 / (2**31 - 1)
+MAX_REQUEST_HZ = 65535.0
 REQUEST_STREAMS = {  # REQUEST_DATA_STREAM group of each message (ArduPilot's grouping)
     "RAW_IMU": mavlink2.MAV_DATA_STREAM_RAW_SENSORS,
     "SCALED_IMU": mavlink2.MAV_DATA_STREAM_RAW_SENSORS,

@@ -12,6 +12,7 @@ import io
 import os
 import sys
 import tempfile
+import warnings as py_warnings
 
 from ..errors import InputError, check_not_special
 from ..flight import Flight
@@ -58,17 +59,21 @@ def sniff_format(path: str) -> str:
 def _captured_output():
     """Capture what pymavlink prints while it decodes, Python and C alike (its Cython
     indexer writes to the process's stdout and stderr directly); yields a function that
-    returns the captured lines. The progress display is let through: it writes after."""
+    returns the captured lines. The progress display is let through: it writes after.
+    Python warnings are the decoder's only when raised in its own files: any other (numpy's,
+    from our code) is issued again afterwards, as itself, not as "corrupt data"."""
     sys.stdout.flush()
     sys.stderr.flush()
     with tempfile.TemporaryFile(mode="w+b") as sink:
         saved = [os.dup(1), os.dup(2)]
         lines: list[str] = []
+        caught: list = []
         try:
             os.dup2(sink.fileno(), 1)
             os.dup2(sink.fileno(), 2)
             with contextlib.redirect_stdout(io.StringIO()) as out, \
-                    contextlib.redirect_stderr(io.StringIO()) as err:
+                    contextlib.redirect_stderr(io.StringIO()) as err, \
+                    py_warnings.catch_warnings(record=True) as caught:  # the filters stay as they are
                 yield lambda: lines
         finally:
             sys.stdout.flush()
@@ -80,6 +85,21 @@ def _captured_output():
             sink.seek(0)
             lines += sink.read().decode(errors="replace").splitlines()
             lines += out.getvalue().splitlines() + err.getvalue().splitlines()
+            for warning in caught:
+                if _in_decoder(warning.filename):
+                    lines.append(f"{warning.category.__name__}: {warning.message}")
+                else:  # on the restored stderr
+                    py_warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno,
+                                              source=warning.source)
+
+
+def _in_decoder(filename: str) -> bool:
+    """Whether code in this file is pymavlink's or pyulog's."""
+    import pymavlink
+    import pyulog
+
+    return any(os.path.abspath(filename).startswith(os.path.dirname(os.path.abspath(package.__file__)) + os.sep)
+               for package in (pymavlink, pyulog))
 
 
 def reader_needs_compile(path: str) -> bool:

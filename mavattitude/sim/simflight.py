@@ -12,6 +12,11 @@ from .trajectory import REGISTRY, TrajectorySample, sample
 
 SIM_VERSION = "0.1"
 IMU_COUNT = 2  # IMU instance 0 (.bin IMU I=0, .tlog RAW_IMU) and 1 (IMU I=1, SCALED_IMU2)
+# What one flight may hold. Writing a .tlog takes ~2 KB of memory per IMU sample (measured:
+# 200 s at 1 kHz peaked at 515 MB), so an hour at 1 kHz needs ~7 GB; the IMU rate stays
+# within what autopilots log (ArduPilot's fast sampling logs up to 8 kHz).
+MAX_IMU_SAMPLES = 3_600_000
+MAX_IMU_RATE_HZ = 10_000.0
 
 
 @dataclass
@@ -85,11 +90,7 @@ def simulate(scenario: str, duration: float, seed: int = 0, *, imu_rate: float =
     if scenario not in REGISTRY:
         raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(sorted(REGISTRY))}")
     rates = Rates(imu=imu_rate, att=att_rate, mag=mag_rate, gps=gps_rate, baro=baro_rate)
-    for name, rate in vars(rates).items():
-        if not np.isfinite(rate) or rate <= 0:
-            raise ValueError(f"{name} rate must be a positive number of Hz, not {rate}")
-    if not np.isfinite(duration) or duration < 2.0 / min(vars(rates).values()):
-        raise ValueError(f"duration {duration} s is too short: need two samples of every sensor")
+    check_length(duration, rates)
     spec = REGISTRY[scenario]
     params = replace(params or SensorParams(), **spec.sensor_overrides)
     home, field = earth.Home(), earth.EarthField()
@@ -118,6 +119,26 @@ def simulate(scenario: str, duration: float, seed: int = 0, *, imu_rate: float =
         autopilot_q=autopilot_q, autopilot_error=autopilot_error, mag=mag, gps=gps, baro=baro,
         firmware=f"mavattitude-sim {SIM_VERSION} scenario {scenario}", ekf_q=ekf_q,
     )
+
+
+def check_length(duration: float, rates: Rates = Rates()) -> None:
+    """A ValueError saying why ``duration`` s at ``rates`` is no flight ``simulate`` can make:
+    every sensor needs two samples, and the IMU at most ``MAX_IMU_SAMPLES`` at ``MAX_IMU_RATE_HZ``."""
+    for name, rate in vars(rates).items():
+        if not np.isfinite(rate) or rate <= 0:
+            raise ValueError(f"the {name} rate must be a positive number of Hz, not {rate:g}")
+    if rates.imu > MAX_IMU_RATE_HZ:
+        raise ValueError(f"an IMU rate of {rates.imu:g} Hz is above the simulator's {MAX_IMU_RATE_HZ:g} Hz")
+    if not np.isfinite(duration):
+        raise ValueError(f"the duration must be a finite number of seconds, not {duration:g}")
+    shortest = 2.0 / min(vars(rates).values())
+    if duration < shortest:
+        raise ValueError(f"{duration:g} s is too short: every sensor needs two samples, "
+                         f"which takes {shortest:g} s at these rates")
+    longest = MAX_IMU_SAMPLES / rates.imu
+    if duration > longest:
+        raise ValueError(f"{duration:g} s at {rates.imu:g} Hz is more than the simulator's "
+                         f"{MAX_IMU_SAMPLES:,} IMU samples: at most {longest:g} s at that rate")
 
 
 def _random_streams(seed: int):
