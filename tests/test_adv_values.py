@@ -147,7 +147,7 @@ def test_a_deeply_nested_parameter_file_is_one_line_naming_it(capsys, tmp_path):
 def test_a_deeply_nested_file_is_no_parameter_file_to_write_over(capsys, tmp_path):
     path = deep_toml(tmp_path / "deep.toml")
     code, _, err = run(capsys, "tune", LOG, "--estimator", "mahony", "-o", path)
-    assert code == 1 and "is not a TOML parameter file" in one_line(err)
+    assert code == 1 and "is not a TOML file written by mavattitude tune" in one_line(err)
 
 
 # ---------------------------------------------------------------- --set and --params for estimators not run
@@ -224,13 +224,13 @@ def test_evaluate_fails_when_every_log_failed(capsys, tmp_path):
     last = err.strip().splitlines()[-1]  # after "evaluating ..." and a "failed: ..." line per log
     assert code == 1 and "Traceback" not in err
     assert last.startswith("mavattitude: error: ") and "every one of the 2 logs failed" in last and "report.md" in last
-    assert "2 logs: 0 scored, 2 failed" in out
+    assert "2 logs: 0 scored, 0 not meaningful, 2 failed" in out
 
 
 def test_evaluate_succeeds_when_some_log_was_scored(capsys, tmp_path):
     code, out, err = run(capsys, "evaluate", LOG, *garbage_logs(tmp_path)[:1], "-j", "1", "-q",
                          "--out", tmp_path / "eval")
-    assert code == 0 and "2 logs: 1 scored, 1 failed" in out, err
+    assert code == 0 and "2 logs: 1 scored, 0 not meaningful, 1 failed" in out, err
 
 
 @pytest.mark.parametrize("change, text", [
