@@ -531,3 +531,14 @@ def test_update_before_initialize_says_so():
     for name in ESTIMATORS:
         with pytest.raises(RuntimeError, match=rf"{name}: call initialize\(q0, gyro_bias\) before update"):
             create(name).update(np.zeros(2), np.zeros((2, 3)), np.zeros((2, 3)), None)
+
+
+def test_a_ulog_topic_whose_format_lost_its_timestamp_is_a_warning(tmp_path):
+    """A damaged format definition can leave a topic without its timestamp field: that topic is
+    left out with a warning, not a KeyError (found by scripts/fuzz_logs.py --seed 6 --case 149)."""
+    from conftest import shared_log
+
+    source = shared_log("ulog/px4-sitl-events-31s.ulg")
+    path = tmp_path / "case.ulg"
+    path.write_bytes(mutate(source.read_bytes(), random.Random(6 * 1_000_003 + 149)))
+    assert replay_or_error(path, ["mahony"]) in ("read", "error")

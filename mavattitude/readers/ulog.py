@@ -72,6 +72,9 @@ def read_ulog(path: str, progress=None) -> Decoded:
             continue
         key = d.name if d.name in ("sensor_combined", "vehicle_attitude", "vehicle_attitude_groundtruth") \
             else f"{d.name}[{d.multi_id}]"
+        if "timestamp" not in d.data:  # a damaged format definition: its samples cannot be placed in time
+            warnings.append(f"{key}: not read, its format has no timestamp field (damaged)")
+            continue
         counts[key] = len(d.data["timestamp"])
         if not counts[key]:
             continue
@@ -153,7 +156,7 @@ def _add_relative(col: Collector, kind: str, key: str, data: dict, sensor: str, 
 def _selected_imu(data_list) -> str | None:
     """The ``vehicle_imu[i]`` whose gyro PX4's ``sensor_selection`` names, when there are several."""
     selection = next((d.data for d in data_list if d.name == "sensor_selection"), None)
-    imus = [d for d in data_list if d.name == "vehicle_imu" and len(d.data["timestamp"])]
+    imus = [d for d in data_list if d.name == "vehicle_imu" and len(d.data.get("timestamp", ()))]
     if selection is None or len(imus) < 2 or "gyro_device_id" not in selection:
         return None
     wanted = selection["gyro_device_id"][-1]
