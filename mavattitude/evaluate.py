@@ -136,9 +136,9 @@ def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: 
         if keep:
             _kept[path, settings.segment] = flight
     facts = log_facts(flight, choose_imu(flight, settings.imu, settings.imu_family))
-    if settings.reference == "truth" and flight.truth is None:
+    if settings.reference.lower() == "truth" and flight.truth is None:
         return {"status": "skipped", "facts": facts, "error": "no ground truth (SIM / SIMSTATE / vehicle_attitude_groundtruth)"}
-    if settings.reference == "autopilot" and flight.attitude is None:
+    if settings.reference.lower() == "autopilot" and flight.attitude is None:
         return {"status": "skipped", "facts": facts, "error": "no attitude reference (ATT / ATTITUDE / vehicle_attitude)"}
     try:
         result, _ = replay_flight(flight, settings)

@@ -180,6 +180,7 @@ def choose_reference(flight: Flight, choice: str, named: list[NamedAttitude] | N
     - a stream's name: that stream.
     NoReference (naming the log, and the streams it has) when the log has no such stream.
     ``named``: ``name_attitudes(flight)``, when already made."""
+    choice = choice.lower() if choice.lower() in REFERENCE_WORDS else choice
     if choice == "truth":
         if flight.truth is None:
             raise NoReference(flight.path, "--reference truth, but the log has no ground truth "
@@ -189,7 +190,7 @@ def choose_reference(flight: Flight, choice: str, named: list[NamedAttitude] | N
     if choice == "autopilot":
         first = next((n for n in named if n.primary), None)
         return None if first is None else Reference(first.key, first.algorithm, choice, first.evidence)
-    if choice.lower() == "ekf":
+    if choice == "ekf":
         ekfs = sorted((n for n in named if is_ekf(n.algorithm)),
                       key=lambda n: (not n.primary, n.key in SECONDARY_KEYS))  # stable: the log's order otherwise
         if not ekfs:
