@@ -158,7 +158,7 @@ def summarize(records: list[dict], names: list[str], baseline: str, reference: s
     }
     if all(n in names for n in PAPER_001_CHAIN):
         summary["paper_001_ranking"] = paper_001_check(by_log)
-    if reference == "truth":
+    if reference.lower() == "truth":
         summary["against_autopilot"] = against_autopilot(by_log, names)
     return summary
 

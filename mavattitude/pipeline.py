@@ -42,7 +42,7 @@ class Reference:
     stream: str  # "ATT", "EKF1", "XKF1[1]", ... or the truth's source ("SIM", "SIMSTATE", ...)
     algorithm: str  # "DCM", "EKF1", "EKF3 core 0", "PX4 EKF2", "truth", "unknown", ...
     choice: str  # "autopilot", "truth", "ekf" or the stream's name as given
-    evidence: str = ""  # how the algorithm was named
+    evidence: str = ""  # how the primary's algorithm was named (a stream's own message names the others)
 
     def as_dict(self) -> dict:
         return {"stream": self.stream, "algorithm": self.algorithm, "choice": self.choice}
@@ -195,12 +195,12 @@ def choose_reference(flight: Flight, choice: str, named: list[NamedAttitude] | N
                       key=lambda n: (not n.primary, n.key in SECONDARY_KEYS))  # stable: the log's order otherwise
         if not ekfs:
             raise NoReference(flight.path, f"--reference ekf, but the log has no EKF attitude ({_streams_said(named)})")
-        return Reference(ekfs[0].key, ekfs[0].algorithm, "ekf", ekfs[0].evidence)
+        return Reference(ekfs[0].key, ekfs[0].algorithm, "ekf", ekfs[0].evidence if ekfs[0].primary else "")
     found = next((n for n in named if n.key.lower() == choice.lower()), None)
     if found is None:
         raise NoReference(flight.path, f"has no attitude stream {choice!r} (--reference); it has: "
                                        f"{_streams_said(named)}; or use {', '.join(REFERENCE_WORDS)}")
-    return Reference(found.key, found.algorithm, choice, found.evidence)
+    return Reference(found.key, found.algorithm, choice, found.evidence if found.primary else "")
 
 
 def _streams_said(named: list[NamedAttitude]) -> str:

@@ -97,11 +97,14 @@ def test_reference_truth_gives_a_row_per_stream(dcm_flight):
     assert result.metrics["reference_spread_deg"] is None  # a spread of the autopilot, not of the truth
 
 
-def test_the_view_draws_the_streams_and_names_the_reference(dcm_flight):
+def test_the_view_draws_the_streams_and_names_the_reference(dcm_flight, tmp_path):
     result = run_replay(dcm_flight, ["mahony"], reference="EKF1")
     keys = [key for key, _, _ in _series(result)]
     assert keys == ["reference", "truth", "autopilot:DCM (ATT)", "mahony"]  # ATT drawn once, as its row
-    assert "EKF1 (EKF1" in summary_markdown(result) and "autopilot:DCM (ATT)" in summary_markdown(result)
+    assert "**reference**: EKF1 (EKF1)" in summary_markdown(result)
+    assert "| autopilot:DCM (ATT) |" in summary_markdown(result)
+    result.write_rrd(tmp_path / "r.rrd")  # the streams' lines and errors drawn
+    assert (tmp_path / "r.rrd").stat().st_size > 0
 
 
 def test_unknown_stream_is_one_line_listing_the_log_s(dcm_log, capsys):
