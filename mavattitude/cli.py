@@ -604,12 +604,12 @@ def _estimation_args(p, source: str, estimators: bool = True) -> None:
                        help="comma-separated estimator names, or 'all' (default: mahony)")
     if source == "log":
         p.add_argument("--reference", default="autopilot", metavar="NAME",
-                       help="what to score against: 'autopilot' (its attitude in use: ATT/ATTITUDE/vehicle_attitude, "
-                            "default), 'truth' (the simulator's: SIM/SIMSTATE/vehicle_attitude_groundtruth), 'ekf' (the "
-                            "autopilot's EKF where the log has one; evaluate skips a log without) or any attitude stream "
-                            "'mavattitude info' lists (EKF1, AHR2, XKF1[1], ...; any case). The autopilot's other "
-                            "streams are scored against it too, as rows 'autopilot:ALGORITHM (STREAM)'; with truth the "
-                            "attitude in use is the row 'autopilot'")
+                       help="what to score against: 'autopilot' (its attitude in use: ATT/ATTITUDE/"
+                            "vehicle_attitude, default), 'truth' (the simulator's: SIM/SIMSTATE/"
+                            "vehicle_attitude_groundtruth), 'ekf' (the autopilot's EKF where the log has one; evaluate "
+                            "skips a log without) or any attitude stream 'mavattitude info' lists (EKF1, AHR2, XKF1[1], "
+                            "...; any case). The autopilot's other streams are scored against it too, as rows "
+                            "'autopilot:ALGORITHM (STREAM)'; with truth the attitude in use is the row 'autopilot'")
     else:
         p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
                        help="score against the autopilot's attitude (ATTITUDE, default) or the simulator's ground "

@@ -153,7 +153,8 @@ def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: 
     facts["declination_deg"], facts["declination_source"] = metrics["declination_deg"], metrics["declination_source"]
     spread = metrics["reference_spread_deg"]
     return {"status": "ok", "facts": facts, "metrics": metrics["estimators"], "reference": metrics["reference"],
-            "reference_stream": metrics["reference"]["stream"], "reference_algorithm": metrics["reference"]["algorithm"],
+            "reference_stream": metrics["reference"]["stream"],
+            "reference_algorithm": metrics["reference"]["algorithm"],
             "reference_spread_deg": None if spread is None else spread["tilt"],
             "autopilot_streams": metrics["autopilot_streams"],
             "suspects": metrics["scoring"]["reference_suspect"], "reference_notes": metrics["scoring"]["reference_notes"]}

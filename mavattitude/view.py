@@ -115,7 +115,8 @@ ROLE_COLORS: dict[str, Color] = {
     "autopilot": AUTOPILOT_COLOR, "truth": TRUTH_COLOR, "reference": REFERENCE_COLOR,
 }
 STREAM_PREFIX = "autopilot:"  # the autopilot's other streams: "autopilot:EKF1 (EKF1)" (pipeline.stream_row)
-STREAM_COLORS: tuple[Color, ...] = ((120, 100, 80), (90, 140, 160), (160, 120, 150), (110, 150, 110))  # muted, as the autopilot's
+# muted, as the autopilot's grey
+STREAM_COLORS: tuple[Color, ...] = ((120, 100, 80), (90, 140, 160), (160, 120, 150), (110, 150, 110))
 
 
 def is_role(name: str) -> bool:

@@ -67,7 +67,8 @@ def test_table_and_json_name_the_reference_and_say_the_spread(dcm_log, tmp_path,
     assert "Attitude error against ATT (DCM, ArduPilot's complementary filter; ATT.AEKF)" in out
     assert EKF_ROW in out
     spread_said = [line for line in out.splitlines() if line.startswith("roll: the estimators' MAEs span")]
-    assert len(spread_said) == 1 and "the autopilot's own spread" in spread_said[0] and "(DCM vs EKF1)" in spread_said[0]
+    assert len(spread_said) == 1
+    assert "the autopilot's own spread" in spread_said[0] and "(DCM vs EKF1)" in spread_said[0]
     data = json.loads((tmp_path / "m.json").read_text())
     assert data["reference"] == {"stream": "ATT", "algorithm": "DCM", "choice": "autopilot"}
     assert list(data["autopilot_streams"]) == [EKF_ROW] and EKF_ROW not in data["estimators"]
@@ -170,7 +171,8 @@ def test_shared_dcm_log_names_its_reference_and_scores_ekf1(tmp_path, capsys):
     ekf1 = data["autopilot_streams"]["autopilot:EKF1 (EKF1)"]
     assert 0.5 < ekf1["roll"]["mae"] < 3.0 and data["reference_spread_deg"]["roll"] == ekf1["roll"]["mae"]
     assert "against ATT (DCM, ArduPilot's complementary filter; AHRS_EKF_USE=0)" in out
-    code, out, err = run(capsys, "replay", path, "--no-view", "-q", "--reference", "EKF1", "--json", tmp_path / "e.json")
+    code, out, err = run(capsys, "replay", path, "--no-view", "-q", "--reference", "EKF1",
+                         "--json", tmp_path / "e.json")
     assert code == 0, err
     data = json.loads((tmp_path / "e.json").read_text())
     assert data["reference"] == {"stream": "EKF1", "algorithm": "EKF1", "choice": "EKF1"}
