@@ -2,7 +2,7 @@
 """Replay every log in ../shared/logs with `mavattitude replay` and print a Markdown table of
 roll / pitch / yaw MAE per estimator (the README's accuracy table comes from this).
 
-    python scripts/replay_shared_logs.py [--estimators mahony] [--reference autopilot|truth|ekf|STREAM] [--wide] [LOGS_DIR]
+    python scripts/replay_shared_logs.py [--estimators mahony] [--reference NAME] [--wide] [LOGS_DIR]
 
 ``--wide``: one row per log, one column per estimator with "roll / pitch / yaw" MAE, and the
 best mean roll+pitch MAE of the row in bold.
