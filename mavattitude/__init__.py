@@ -34,7 +34,11 @@ def replay(log, estimators=("mahony",), reference: str = "autopilot", params: di
     """Run ``estimators`` over a log (a path, or a flight from ``load``) and score them, as
     ``mavattitude replay`` does: a ``pipeline.ReplayResult`` with ``metrics`` (the --json
     dict), ``estimates`` (name -> series with ``t``, ``q``, ``euler``), ``reference``,
-    ``events``, and ``write_json``, ``write_csv``, ``write_rrd``.
+    ``reference_info`` (its stream and algorithm), ``stream_comparisons`` (the autopilot's other
+    streams scored against it), ``events``, and ``write_json``, ``write_csv``, ``write_rrd``.
+
+    ``reference``: "autopilot" (the attitude in use), "truth", "ekf" or a stream ``info``
+    lists, e.g. "EKF1" (``pipeline.choose_reference``).
 
     ``params``: {estimator: {parameter: value}} (or a parameter dataclass), checked against
     each parameter's valid range; ``declination`` in degrees (default: as the autopilot had it,

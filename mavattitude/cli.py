@@ -172,19 +172,21 @@ def cmd_replay(args) -> int:
             trim = "" if result.trim is None else (
                 f"; estimates turned by the board trim (roll {math.degrees(result.trim[0]):.2f}°, "
                 f"pitch {math.degrees(result.trim[1]):.2f}°) as the autopilot's are")
+            ref = result.reference_info
             print(f"{flight.path}: {len(result.flight.imu[result.imu_source].t)} samples of "
-                  f"{result.imu_source}, scored against {result.reference.source} "
-                  f"({args.reference}) after a {args.warmup:g} s warm-up{trim}")
-            print(format_table(result.comparisons, result.reference.source, result.declination))
+                  f"{result.imu_source}, scored against {ref.stream} ({ref.algorithm}; --reference {ref.choice}) "
+                  f"after a {args.warmup:g} s warm-up{trim}")
+            print(format_table(result.comparisons, ref.label, result.declination, streams=result.stream_comparisons,
+                               reference_algorithm=ref.algorithm))
             why = nothing_scored(result.comparisons, args.warmup)
             if why:
                 _warn(why)
         print(format_events(result), end="")
         if json_out:
             with json_out.writing() as path:
-                write_json(path, flight.path, result.reference.source if result.reference else "none",
-                           result.comparisons, estimator_extras(result), scoring=result.scoring,
-                           events=result.events, declination=result.declination)
+                write_json(path, flight.path, result.reference_object, result.comparisons, estimator_extras(result),
+                           scoring=result.scoring, events=result.events, declination=result.declination,
+                           streams=result.stream_comparisons)
             print(f"metrics written to {json_out.path}")
         if export:
             if result.reference is None:
@@ -506,7 +508,8 @@ def cmd_live(args) -> int:
                                         else "no reference attitude (ATTITUDE / SIMSTATE) arrived"))
         if json_out:
             with json_out.writing() as path:
-                write_json(path, args.url, result.reference or "none", result.comparisons, link=result.link(),
+                write_json(path, args.url, {"stream": result.reference, "algorithm": None, "choice": args.reference},
+                           result.comparisons, link=result.link(),
                            declination=result.estimation.declination_choice)
             print(f"metrics written to {json_out.path}")
         if sink is not None and sink.kind == "rrd":
@@ -633,10 +636,18 @@ def _estimation_args(p, source: str, estimators: bool = True) -> None:
     if estimators:
         p.add_argument("--estimators", default="mahony", metavar="LIST",
                        help="comma-separated estimator names, or 'all' (default: mahony)")
-    p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
-                   help="score against the autopilot's attitude (ATT/ATTITUDE/vehicle_attitude, default) or the "
-                        "simulator's ground truth (SIM/SIMSTATE/vehicle_attitude_groundtruth); with truth the autopilot is "
-                        "scored too, as the row 'autopilot'")
+    if source == "log":
+        p.add_argument("--reference", default="autopilot", metavar="NAME",
+                       help="what to score against: 'autopilot' (its attitude in use: ATT/ATTITUDE/"
+                            "vehicle_attitude, default), 'truth' (the simulator's: SIM/SIMSTATE/"
+                            "vehicle_attitude_groundtruth), 'ekf' (the autopilot's EKF where the log has one; evaluate "
+                            "skips a log without) or any attitude stream 'mavattitude info' lists (EKF1, AHR2, XKF1[1], "
+                            "...; any case). The autopilot's other streams are scored against it too, as rows "
+                            "'autopilot:ALGORITHM (STREAM)'; with truth the attitude in use is the row 'autopilot'")
+    else:
+        p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
+                       help="score against the autopilot's attitude (ATTITUDE, default) or the simulator's ground "
+                            "truth (SIMSTATE); with truth the autopilot is scored too, as the row 'autopilot'")
     p.add_argument("--imu", default=None, metavar="SOURCE",
                    help="IMU source to estimate from, e.g. IMU[1], RAW_IMU, SCALED_IMU2, HIGHRES_IMU "
                         "(default: the fastest, most precise" + ("; see 'mavattitude info')" if source == "log"

@@ -23,6 +23,9 @@ METRIC_KEYS = ("n", "mae", "rmse", "mse", "r2", "max", "sigma1", "sigma3")
 FACT_KEYS = ("format", "vehicle", "firmware", "imu_source", "imu_rate_hz", "duration_s", "gps", "compass",
              "baro", "clock_segments", "gaps", "reference_suspect", "accel_scale_error", "not_meaningful",
              "declination_deg", "declination_source")
+# per log, from the record (evaluate._replay): the reference's stream and algorithm, and its spread
+# (the smallest tilt MAE of the autopilot's other streams against it, report.reference_spread)
+REFERENCE_KEYS = ("reference_stream", "reference_algorithm", "reference_spread_deg")
 PAPER_001_CHAIN = ("ncs-eskf", "eskf", "ekf", "mahony")  # paper 001's ranking, best first
 
 
@@ -59,6 +62,7 @@ def result_rows(records: list[dict]) -> list[dict]:
     for r in records:
         base = {"log": r["log"], "status": r["status"], "error": r.get("error") or ""}
         base.update({k: r.get("facts", {}).get(k) for k in FACT_KEYS})
+        base.update({k: r.get(k) for k in REFERENCE_KEYS})
         if r["status"] != "ok":
             rows.append(dict(base, estimator="", axis=""))
             continue
@@ -75,7 +79,7 @@ def result_rows(records: list[dict]) -> list[dict]:
 
 
 def columns() -> list[str]:
-    return (["log", "status", "error", *FACT_KEYS, "estimator", "axis", *METRIC_KEYS, "yaw_aligned"]
+    return (["log", "status", "error", *FACT_KEYS, *REFERENCE_KEYS, "estimator", "axis", *METRIC_KEYS, "yaw_aligned"]
             + [f"share_{k}" for k in BUCKET_KEYS])
 
 
@@ -148,11 +152,13 @@ def summarize(records: list[dict], names: list[str], baseline: str, reference: s
         "skipped": [{"log": r["log"], "why": r["error"]} for r in records if r["status"] == "skipped"],
         "reference_suspect": [{"log": r["log"], "spans": r.get("suspects", []), "notes": r.get("reference_notes", [])}
                               for r in records if r.get("suspects") or r.get("reference_notes")],
+        "references": [{"log": r["log"], "stream": r.get("reference_stream"), "algorithm": r.get("reference_algorithm"),
+                        "spread_deg": r.get("reference_spread_deg")} for r in records if r["status"] == "ok"],
         "estimators": estimators,
     }
     if all(n in names for n in PAPER_001_CHAIN):
         summary["paper_001_ranking"] = paper_001_check(by_log)
-    if reference == "truth":
+    if reference.lower() == "truth":
         summary["against_autopilot"] = against_autopilot(by_log, names)
     return summary
 
@@ -230,6 +236,15 @@ def report_markdown(summary: dict, command: str, figure: str | None) -> str:
     for name in order:
         worst = ", ".join(f"`{_short(w['log'])}` {w['score']:.2f}" for w in est[name]["worst_logs"])
         lines.append(f"| {name} | {worst or '-'} |")
+    if summary.get("references"):
+        lines += ["", "## Reference per log", "",
+                  f"What `--reference {summary['reference']}` scored each log against: "
+                  + references_said(summary["references"]) + ". Spread: the smallest tilt error (mean of roll and "
+                  "pitch MAE, °) of the autopilot's other streams against the reference, the least it is known to "
+                  "be uncertain by.", "",
+                  "| log | stream | algorithm | spread |", "|---|---|---|---|"]
+        lines += [f"| `{_short(e['log'])}` | {e['stream'] or '-'} | {e['algorithm'] or '-'} | {_f(e['spread_deg'])} |"
+                  for e in summary["references"]]
     if summary["reference_suspect"]:
         lines += ["", "## References not trusted", "",
                   "Spans where the log's own IMU says the autopilot's attitude cannot be right; they are "
@@ -248,6 +263,15 @@ def report_markdown(summary: dict, command: str, figure: str | None) -> str:
     return "\n".join(lines) + "\n"
 
 
+def references_said(references: list[dict]) -> str:
+    """How many logs were scored against each algorithm: "DCM (ATT) 12 logs, EKF3 core 0 (XKF1[0]) 3 logs"."""
+    counts: dict[str, int] = {}
+    for e in references:
+        said = f"{e['algorithm']} ({e['stream']})"
+        counts[said] = counts.get(said, 0) + 1
+    return ", ".join(f"{said} {n} log{'s' if n != 1 else ''}" for said, n in counts.items())
+
+
 def ranking_text(summary: dict) -> str:
     """The ranking for the terminal."""
     est = summary["estimators"]
@@ -261,6 +285,8 @@ def ranking_text(summary: dict) -> str:
         lines.append(f"{n:12s} {e['logs']:5d} {_f(e['median']):>7s} {_f(e['mean']):>7s} {_f(e['p90']):>7s} "
                      f"{_f(e['ratio_to_baseline_geomean'], 2):>6s} {e['wins']:5d} {_f(e['mean_rank'], 2):>5s} "
                      f"{e['logs_at_most_0.8x_baseline']:6d} {e['logs_over_2x_baseline']:4d}")
+    if summary.get("references"):
+        lines.append(f"reference per log: {references_said(summary['references'])} (report.md lists each)")
     left_out = summary.get("not_meaningful", [])
     if left_out:
         named = "; ".join(f"{_short(n['log'])}: {n['why']}" for n in left_out[:3])

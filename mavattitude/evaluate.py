@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError, UsageError, check_not_special, special_file
-from .pipeline import ReplaySettings
+from .pipeline import NoReference, ReplaySettings
 from .progress import clock
 
 LOG_SUFFIXES = (".bin", ".tlog", ".ulg")
-RECORD_VERSION = 1
+RECORD_VERSION = 2  # 2: the reference as an object, its stream, algorithm and spread, the autopilot's streams
 
 
 # ---------------------------------------------------------------- which logs
@@ -136,11 +136,14 @@ def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: 
         if keep:
             _kept[path, settings.segment] = flight
     facts = log_facts(flight, choose_imu(flight, settings.imu, settings.imu_family))
-    if settings.reference == "truth" and flight.truth is None:
+    if settings.reference.lower() == "truth" and flight.truth is None:
         return {"status": "skipped", "facts": facts, "error": "no ground truth (SIM / SIMSTATE / vehicle_attitude_groundtruth)"}
-    if settings.reference == "autopilot" and flight.attitude is None:
+    if settings.reference.lower() == "autopilot" and flight.attitude is None:
         return {"status": "skipped", "facts": facts, "error": "no attitude reference (ATT / ATTITUDE / vehicle_attitude)"}
-    result, _ = replay_flight(flight, settings)
+    try:
+        result, _ = replay_flight(flight, settings)
+    except NoReference as exc:  # --reference ekf (or a stream) the log has not
+        return {"status": "skipped", "facts": facts, "error": exc.problem}
     facts["imu_source"] = result.imu_source
     metrics = result.metrics
     facts["board_trim"] = metrics["scoring"]["board_trim"]
@@ -148,7 +151,12 @@ def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: 
     facts["accel_scale_error"] = metrics["scoring"]["accel_g_reading"]["scale_error"]
     facts["reference_suspect"] = len(metrics["scoring"]["reference_suspect"])
     facts["declination_deg"], facts["declination_source"] = metrics["declination_deg"], metrics["declination_source"]
+    spread = metrics["reference_spread_deg"]
     return {"status": "ok", "facts": facts, "metrics": metrics["estimators"], "reference": metrics["reference"],
+            "reference_stream": metrics["reference"]["stream"],
+            "reference_algorithm": metrics["reference"]["algorithm"],
+            "reference_spread_deg": None if spread is None else spread["tilt"],
+            "autopilot_streams": metrics["autopilot_streams"],
             "suspects": metrics["scoring"]["reference_suspect"], "reference_notes": metrics["scoring"]["reference_notes"]}
 
 

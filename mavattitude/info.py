@@ -119,7 +119,7 @@ def render(info: dict) -> str:
             lines.append(f"{'':30s}reads g as {g['ms2']:.3f} m/s² ({100 * g['scale_error']:+.1f} %) "
                          + ("at rest" if g["at_rest"] else "over the whole log (no rest span)"))
     if info["attitude_streams"]:
-        lines.append("  autopilot attitudes (* = primary, the 'autopilot' reference):")
+        lines.append("  autopilot attitudes (* = primary, the 'autopilot' reference; --reference NAME takes any):")
     for a in info["attitude_streams"]:
         same = [f"{k} {100 * v:.0f} %" for k, v in a["equals"].items() if v >= 0.05]
         why = a["named_by"] + ("; equals " + ", ".join(same) if same else "")

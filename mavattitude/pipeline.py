@@ -12,7 +12,7 @@ from . import aiding as aid
 from . import declination as decl
 from . import quaternion as quat
 from . import estimators as est
-from .errors import InputError, UsageError
+from .errors import InputError
 from .events import Event
 from .flight import GRAVITY, AttitudeSeries, Flight
 from .imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful
@@ -21,16 +21,53 @@ from .params import build, log_defaults
 from .phase import PhaseSeries
 from .refcheck import check_reference, excluded_spans, whole_log_notes
 from .readers import best_imu_source, imu_rate, mag_for_imu
+from .readers.attitudes import SECONDARY_KEYS, NamedAttitude, name_attitudes
 from .runner import REINIT_GAP_S, Runner
+
+
+REFERENCE_WORDS = ("autopilot", "truth", "ekf")  # --reference besides a stream's name
+COPY_SHARE = 0.9  # a stream equal to another on more than this share of samples is a copy of it
+ALGORITHM_KINDS = {"DCM": "ArduPilot's complementary filter", "PX4 Q": "PX4's complementary filter",
+                   "SITL": "the simulator's attitude"}  # said beside the name in the table's title
+
+
+class NoReference(InputError):
+    """The log has not the reference asked for (``evaluate`` skips such a log)."""
+
+
+@dataclass(frozen=True)
+class Reference:
+    """What the estimates are scored against: a stream of ``Flight.attitudes`` (or the truth),
+    the algorithm that made it (``readers.attitudes``) and the --reference that chose it."""
+    stream: str  # "ATT", "EKF1", "XKF1[1]", ... or the truth's source ("SIM", "SIMSTATE", ...)
+    algorithm: str  # "DCM", "EKF1", "EKF3 core 0", "PX4 EKF2", "truth", "unknown", ...
+    choice: str  # "autopilot", "truth", "ekf" or the stream's name as given
+    evidence: str = ""  # how the primary's algorithm was named (a stream's own message names the others)
+
+    def as_dict(self) -> dict:
+        return {"stream": self.stream, "algorithm": self.algorithm, "choice": self.choice}
+
+    @property
+    def label(self) -> str:
+        """For the table's title: "ATT (DCM, ArduPilot's complementary filter; AHRS_EKF_USE=0)"."""
+        if self.algorithm == "truth":
+            return f"{self.stream} (the simulator's ground truth)"
+        kind = f", {ALGORITHM_KINDS[self.algorithm]}" if self.algorithm in ALGORITHM_KINDS else ""
+        return f"{self.stream} ({self.algorithm}{kind}" + (f"; {self.evidence})" if self.evidence else ")")
 
 
 @dataclass
 class ReplayResult:
     flight: Flight
     imu_source: str  # key into flight.imu of the IMU the estimators ran on
-    reference: AttitudeSeries  # what the comparisons score against (flight.attitude or flight.truth)
+    reference: AttitudeSeries  # what the comparisons score against (a stream of flight.attitudes, or flight.truth)
     estimates: dict[str, AttitudeSeries]  # estimator name -> its attitude at the IMU timestamps
     comparisons: dict[str, Comparison]  # estimator name (and "autopilot" when scoring against truth)
+    reference_info: Reference | None = None  # which stream the reference is, and its algorithm
+    # The autopilot's other streams scored as the estimators are ("autopilot:EKF1 (EKF1)" -> its
+    # comparison, and its series), see score_autopilot_streams
+    stream_comparisons: dict[str, Comparison] = field(default_factory=dict)
+    stream_series: dict[str, AttitudeSeries] = field(default_factory=dict)
     events: list[Event] = field(default_factory=list)
     declination: decl.Declination = decl.Declination(0.0, "none (0)")  # as used, and its source
     mag_source: str | None = None
@@ -70,18 +107,25 @@ class ReplayResult:
         """What ``replay --json`` writes: per estimator and axis the statistics, its events,
         diagnostics and parameters; ``scoring``."""
         from .report import estimator_extras, to_json_dict
-        return to_json_dict(self.flight.path, self.reference.source if self.reference else "none",
-                            self.comparisons, estimator_extras(self), scoring=self.scoring, events=self.events,
-                            declination=self.declination)
+        return to_json_dict(self.flight.path, self.reference_object, self.comparisons, estimator_extras(self),
+                            scoring=self.scoring, events=self.events, declination=self.declination,
+                            streams=self.stream_comparisons)
+
+    @property
+    def reference_object(self) -> dict:
+        """The JSON's ``reference``: {"stream", "algorithm", "choice"} (nulls without a reference)."""
+        if self.reference_info is None:
+            return {"stream": None, "algorithm": None, "choice": None}
+        return self.reference_info.as_dict()
 
     def write_json(self, path) -> None:
         """The metrics as JSON (``replay --json``)."""
         from .outputs import Outputs
         from .report import estimator_extras, write_json
         with Outputs(inputs=[self.flight.path]) as outputs, outputs.file(path, "write_json", "json").writing() as to:
-            write_json(to, self.flight.path, self.reference.source if self.reference else "none",
-                       self.comparisons, estimator_extras(self), scoring=self.scoring, events=self.events,
-                       declination=self.declination)
+            write_json(to, self.flight.path, self.reference_object, self.comparisons, estimator_extras(self),
+                       scoring=self.scoring, events=self.events, declination=self.declination,
+                       streams=self.stream_comparisons)
 
     def write_csv(self, folder) -> None:
         """reference.csv and <estimator>.csv in ``folder`` (``replay --export``)."""
@@ -119,6 +163,86 @@ def board_trim(flight: Flight) -> tuple[float, float] | None:
 def trimmed(series: AttitudeSeries, trim: tuple[float, float]) -> AttitudeSeries:
     """The attitude of the vehicle body from the board's, as the autopilot does (``quaternion.trimmed``)."""
     return AttitudeSeries(series.source, series.t, quat.trimmed(series.q, *trim))
+
+
+def is_ekf(algorithm: str) -> bool:
+    """An EKF's attitude: ArduPilot's EKF1/2/3 (any core) or PX4's EKF2."""
+    return algorithm.startswith(("EKF", "PX4 EKF2"))
+
+
+def choose_reference(flight: Flight, choice: str, named: list[NamedAttitude] | None = None) -> Reference | None:
+    """The stream --reference names (``REFERENCE_WORDS`` or a key of ``flight.attitudes``, any case):
+
+    - "autopilot": the primary (``flight.attitude``; None when the log has none);
+    - "truth": the simulator's ground truth;
+    - "ekf": the EKF where the log has one: the primary if it is an EKF, else the first EKF
+      stream of the algorithm's own message (EKF1, NKF1[0], XKF1[0]), else a secondary named EKF (AHR2, AHRS2);
+    - a stream's name: that stream.
+    NoReference (naming the log, and the streams it has) when the log has no such stream.
+    ``named``: ``name_attitudes(flight)``, when already made."""
+    choice = choice.lower() if choice.lower() in REFERENCE_WORDS else choice
+    if choice == "truth":
+        if flight.truth is None:
+            raise NoReference(flight.path, "--reference truth, but the log has no ground truth "
+                                           "(SIM in .bin, SIMSTATE in .tlog, vehicle_attitude_groundtruth in .ulg)")
+        return Reference(flight.truth.source, "truth", "truth")
+    named = name_attitudes(flight) if named is None else named
+    if choice == "autopilot":
+        first = next((n for n in named if n.primary), None)
+        return None if first is None else Reference(first.key, first.algorithm, choice, first.evidence)
+    if choice == "ekf":
+        ekfs = sorted((n for n in named if is_ekf(n.algorithm)),
+                      key=lambda n: (not n.primary, n.key in SECONDARY_KEYS))  # stable: the log's order otherwise
+        if not ekfs:
+            raise NoReference(flight.path, f"--reference ekf, but the log has no EKF attitude ({_streams_said(named)})")
+        return Reference(ekfs[0].key, ekfs[0].algorithm, "ekf", ekfs[0].evidence if ekfs[0].primary else "")
+    found = next((n for n in named if n.key.lower() == choice.lower()), None)
+    if found is None:
+        raise NoReference(flight.path, f"has no attitude stream {choice!r} (--reference); it has: "
+                                       f"{_streams_said(named)}; or use {', '.join(REFERENCE_WORDS)}")
+    return Reference(found.key, found.algorithm, choice, found.evidence if found.primary else "")
+
+
+def _streams_said(named: list[NamedAttitude]) -> str:
+    return ", ".join(f"{n.key} ({n.algorithm})" for n in named) or "no autopilot attitude"
+
+
+def is_copy(a: NamedAttitude, b: NamedAttitude) -> bool:
+    """Whether two streams are one estimate (equal on more than COPY_SHARE of their samples)."""
+    return max(a.equals.get(b.key, 0.0), b.equals.get(a.key, 0.0)) > COPY_SHARE
+
+
+def autopilot_streams(named: list[NamedAttitude], reference_key: str) -> list[NamedAttitude]:
+    """The autopilot's streams scored beside the estimators: all but the reference and its
+    copies (AHR2 equal to EKF1, ATT to XKF1[0], ...), one of each estimate: the stream of the
+    algorithm's own message before the secondary (AHR2, AHRS2) that repeats it."""
+    ref = next((n for n in named if n.key == reference_key), None)
+    kept: list[NamedAttitude] = []
+    for n in sorted(named, key=lambda n: n.key in SECONDARY_KEYS):  # stable: the log's order otherwise
+        if n.key == reference_key or (ref is not None and is_copy(n, ref)) or any(is_copy(n, k) for k in kept):
+            continue
+        kept.append(n)
+    return kept
+
+
+def stream_row(n: NamedAttitude) -> str:
+    """A stream's row name: "autopilot:DCM (AHR2)"."""
+    return f"autopilot:{n.algorithm} ({n.key})"
+
+
+def score_autopilot_streams(flight: Flight, streams: list[NamedAttitude], ref: AttitudeSeries, warmup_s: float,
+                            exclude=()) -> tuple[dict[str, Comparison], dict[str, AttitudeSeries]]:
+    """Each stream scored against ``ref`` as the estimators are (its gaps, its warm-up, the
+    untrusted spans ``exclude``), by row name (``stream_row``), with its series. No board trim:
+    the autopilot's streams come as the autopilot logged them (AHRS_TRIM_X/Y does not explain
+    EKF1's offsets from ATT on the shared logs)."""
+    comparisons, series = {}, {}
+    for n in streams:
+        row = stream_row(n)
+        series[row] = flight.attitudes[n.key]
+        comparisons[row] = compare(ref, series[row], warmup_s=warmup_s, name=row, max_gap_s=REINIT_GAP_S,
+                                   exclude=exclude)
+    return comparisons, series
 
 
 def choose_imu(flight: Flight, imu_source: str | None = None, imu_family: str | None = None) -> str:
@@ -177,21 +301,18 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                progress=None, home: decl.Fix | None = None) -> ReplayResult:
     """Estimate with every named estimator and score each against the reference.
 
-    ``reference``: "autopilot" (ATT / ATTITUDE) or "truth" (SIM / SIMSTATE); with truth the
-    autopilot's own attitude is scored as an extra row named "autopilot". ``trim``: against
-    the autopilot, turn the estimates by the log's board trim first, as the autopilot turns
-    its own (``board_trim``). ``declination_deg`` (--declination) and ``home`` (--home): see
-    ``declination.choose``.
+    ``reference``: see ``choose_reference`` ("autopilot", "truth", "ekf" or a stream such as
+    "EKF1"). The autopilot's other streams are scored against it too (``score_autopilot_streams``);
+    with truth the primary's row is "autopilot" among the estimators' and the other streams'
+    rows are "autopilot:EKF1 (EKF1)", .... ``trim``: against the autopilot's primary, turn the
+    estimates by the log's board trim first, as the autopilot turns its own (``board_trim``);
+    not against another stream, which the autopilot logs untrimmed. ``declination_deg``
+    (--declination) and ``home`` (--home): see ``declination.choose``.
     """
-    if reference == "truth":
-        if flight.truth is None:
-            raise InputError(flight.path, "--reference truth, but the log has no ground truth "
-                                          "(SIM in .bin, SIMSTATE in .tlog, vehicle_attitude_groundtruth in .ulg)")
-        ref = flight.truth
-    elif reference == "autopilot":
-        ref = flight.attitude
-    else:
-        raise UsageError(f"unknown reference {reference!r}: use 'autopilot' or 'truth'")
+    named = name_attitudes(flight)
+    chosen = choose_reference(flight, reference, named)
+    ref = None if chosen is None else flight.truth if chosen.algorithm == "truth" else flight.attitudes[chosen.stream]
+    against_truth = chosen is not None and chosen.algorithm == "truth"
 
     declination = decl.for_flight(flight, declination_deg, home)
     runner = run_estimators(flight, names, imu_source, declination, params, use_mag, imu_family, progress)
@@ -203,12 +324,13 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     g_reading = accel_at_rest(imu.t, imu.gyro, imu.accel)
     if (scale := accel_scale_warning(*g_reading, runner.estimators)) is not None:
         events.append(Event(float(imu.t[0]), "warn", scale))
-    applied_trim = board_trim(flight) if (trim and reference == "autopilot") else None
+    applied_trim = board_trim(flight) if (trim and ref is not None and ref is flight.attitude) else None
     if applied_trim:
         estimates = {name: trimmed(series, applied_trim) for name, series in estimates.items()}
         events.append(Event(flight.time_span[0], "info", "estimates turned by the board trim AHRS_TRIM_X/Y "
                             f"(roll {math.degrees(applied_trim[0]):.2f}°, pitch {math.degrees(applied_trim[1]):.2f}°) "
-                            "before scoring and drawing, as the autopilot turns its own (--no-trim: raw)"))
+                            "before scoring and drawing, as the autopilot turns its own (--no-trim: raw); "
+                            "the autopilot's other streams are scored as logged"))
     for name, series in estimates.items():
         bad = int(np.count_nonzero(~np.isfinite(series.q).all(axis=1)))
         if bad:
@@ -216,9 +338,9 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                                 f"{name}: {bad} non-finite attitude samples (a filter fault; "
                                 "they are left out of the metrics)"))
     restarts = [t for t, _ in runner.restarts]
-    comparisons = {}
+    comparisons, streams, stream_series = {}, {}, {}
     suspects, notes = [], []
-    if ref is not None and reference == "autopilot":
+    if ref is not None and not against_truth:
         phase = runner.phase_series()
         suspects = check_reference(ref, flight.imu[runner.imu_source], applied_trim,
                                    phase.on_clock if phase is not None else None, flight.gps)
@@ -233,8 +355,11 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                                         name=name, restarts=restarts, max_gap_s=REINIT_GAP_S,
                                         exclude=excluded_spans(suspects))
             comparisons[name].not_meaningful = not_meaningful
-        if reference == "truth" and flight.attitude is not None:
+        if against_truth and flight.attitude is not None:
             comparisons["autopilot"] = compare(ref, flight.attitude, warmup_s=warmup_s, name="autopilot")
+        primary = flight.attitude.source if against_truth and flight.attitude is not None else None
+        streams, stream_series = score_autopilot_streams(
+            flight, autopilot_streams(named, primary or chosen.stream), ref, warmup_s, excluded_spans(suspects))
     else:
         events.append(Event(flight.time_span[0], "warn",
                             "the log has no attitude reference (ATT / ATTITUDE / vehicle_attitude): nothing to score against"))
@@ -246,7 +371,8 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
         if "reset" in diag:
             estimator_events.setdefault(name, {})["resets"] = reset_events(imu_t, diag["reset"])
     return ReplayResult(flight=flight, imu_source=runner.imu_source, reference=ref,
-                        estimates=estimates, comparisons=comparisons, events=events,
+                        estimates=estimates, comparisons=comparisons, events=events, reference_info=chosen,
+                        stream_comparisons=streams, stream_series=stream_series,
                         declination=declination,
                         mag_source=runner.mag_source, alignment=runner.alignment, phase=runner.phase_series(),
                         diagnostics=diagnostics, estimator_events=estimator_events,

@@ -26,8 +26,13 @@ CSV_DECIMALS = 6  # µs for time (ArduPilot stamps in µs), 1e-6° for angles
 # ---------------------------------------------------------------- terminal table
 
 
-def format_table(comparisons: dict[str, Comparison], reference_name: str, declination=None) -> str:
+def format_table(comparisons: dict[str, Comparison], reference_name: str, declination=None,
+                 streams: dict[str, Comparison] | None = None, reference_algorithm: str | None = None) -> str:
     """A fixed-width table: per estimator and axis, n and MAE, RMSE, max |error| (degrees), R².
+
+    ``streams``: the autopilot's other streams scored against the same reference, as rows after
+    the estimators, and under the table a line per axis comparing the estimators' spread with
+    the autopilot's own (``spread_lines``; ``reference_algorithm`` names the reference there).
 
     Yaw is shown as ``yaw*``, marked as drift (YAW_DRIFT, with a footnote) where the estimator
     had no heading reference and its initial yaw was aligned; an axis with no scored sample
@@ -35,7 +40,8 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str, declin
     to follow the vehicle) are shown with one decimal, under a line that says why. ``declination``
     (a ``declination.Declination``): said under the title, with where it came from.
     """
-    name_w = max([len("estimator")] + [len(name) for name in comparisons])
+    streams = streams or {}
+    name_w = max([len("estimator")] + [len(name) for name in [*comparisons, *streams]])
     cols = ("n", "MAE", "RMSE", "max", "R²")
     widths = (9, 8, 8, 8, 8)
 
@@ -51,7 +57,7 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str, declin
         lines.append(f"{NOT_MEANINGFUL}: {why}. The scores below are shown, not to be relied on or ranked.")
     lines += [header, "-" * len(header)]
     any_aligned = False
-    for name, comp in comparisons.items():
+    for name, comp in {**comparisons, **streams}.items():
         digits, r2_digits = (1, 2) if comp.not_meaningful else (3, 4)
         for k, axis in enumerate(AXES):
             label, remark = axis, ""
@@ -68,16 +74,67 @@ def format_table(comparisons: dict[str, Comparison], reference_name: str, declin
         lines.append("(no estimates)")
     if any_aligned:
         lines.append(YAW_ALIGNED_NOTE)
+    if reference_algorithm != "truth":  # against truth the streams are scored, not a spread
+        lines += spread_lines(comparisons, streams, reference_algorithm or reference_name)
     return "\n".join(lines) + "\n"
+
+
+def reference_spread(streams: dict[str, Comparison]) -> dict | None:
+    """The reference's own spread: how far the autopilot's other estimates are from it.
+
+    ``roll`` and ``pitch``: the smallest MAE (°) on that axis among the autopilot's other
+    streams scored against the reference (``pipeline.score_autopilot_streams``; copies of the
+    reference left out); ``tilt``: the smallest mean of roll and pitch MAE among them (one
+    stream's). The closest other estimate is the least the reference is known to be uncertain
+    by: a lead between estimators smaller than this is not measured by this reference. Each
+    value is None where no stream scored that axis; the whole is None without another stream."""
+    if not streams:
+        return None
+    out = {}
+    for axis in ("roll", "pitch"):
+        maes = [c.axes[axis].mae for c in streams.values() if c.axes.get(axis) is not None]
+        out[axis] = min(maes) if maes else None
+    tilts = [0.5 * (c.axes["roll"].mae + c.axes["pitch"].mae) for c in streams.values()
+             if c.axes.get("roll") is not None and c.axes.get("pitch") is not None]
+    out["tilt"] = min(tilts) if tilts else None
+    return out
+
+
+def spread_lines(comparisons: dict[str, Comparison], streams: dict[str, Comparison], reference: str) -> list[str]:
+    """Per axis (roll, pitch), against the autopilot's own spread (``reference_spread``): whether
+    the estimators' order on it means anything. Nothing without another stream or two scored
+    estimators (the "autopilot" row against truth is not an estimator)."""
+    lines = []
+    for axis in ("roll", "pitch"):
+        scored = {n: c.axes[axis] for n, c in streams.items() if c.axes.get(axis) is not None}
+        maes = [c.axes[axis].mae for n, c in comparisons.items()
+                if n != "autopilot" and c.axes.get(axis) is not None and not c.not_meaningful]
+        if not scored or len(maes) < 2:
+            continue
+        closest = min(scored, key=lambda n: scored[n].mae)
+        spread, span = scored[closest].mae, max(maes) - min(maes)
+        other = closest.split(":", 1)[1].split(" (")[0]  # "autopilot:EKF1 (EKF1)" -> "EKF1"
+        said = (f"the estimators' MAEs span {span:.2f}° ({min(maes):.2f}-{max(maes):.2f}), "
+                f"{'less' if span < spread else 'more'} than the autopilot's own spread {spread:.2f}° "
+                f"({reference} vs {other})")
+        lines.append(f"{axis}: {said}: " + ("their order on it is not meaningful against this reference"
+                                           if span < spread else "a lead smaller than that is not meaningful"))
+    return lines
 
 
 # ---------------------------------------------------------------- JSON summary
 
 
-def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
+def to_json_dict(log: str, reference: dict, comparisons: dict[str, Comparison],
                  extras: dict[str, dict] | None = None, scoring: dict | None = None, events=None,
-                 declination=None) -> dict:
+                 declination=None, streams: dict[str, Comparison] | None = None) -> dict:
     """The JSON summary: ``{"log", "reference", "estimators": {name: {"roll": M, "pitch": M, "yaw": M}}}``.
+
+    ``reference``: ``{"stream": "ATT", "algorithm": "DCM", "choice": "autopilot"}`` (``pipeline.Reference``;
+    a live session's algorithm is null). ``streams`` (the autopilot's other streams scored
+    against the reference, ``pipeline.score_autopilot_streams``) adds ``autopilot_streams``
+    ({row name: as an estimator's, without extras}) and ``reference_spread_deg`` ({"roll",
+    "pitch", "tilt"}: ``reference_spread``; null without another stream, and against truth).
 
     M holds ``n``, ``mae``, ``rmse``, ``mse`` (deg²), ``r2``, ``max``, ``sigma1``, ``sigma3``
     (degrees) and ``buckets`` (shares keyed by ``BUCKET_KEYS``); the yaw M also holds
@@ -93,22 +150,14 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
     {t_s, level, kind, text}, each one (the terminal shows a line per kind). ``declination`` (a ``declination.Declination``)
     adds ``declination_deg`` (null where none was found and 0 used) and ``declination_source``.
     """
-    estimators = {}
-    for name, comp in comparisons.items():
-        axes = {}
-        for axis in AXES:
-            m = comp.axes.get(axis)
-            entry = None if m is None else _metrics_dict(m)
-            if entry is not None and axis == "yaw":
-                entry["aligned"] = bool(comp.yaw_aligned)
-            axes[axis] = entry
-        axes["meaningful"] = comp.not_meaningful is None
-        axes["why"] = comp.not_meaningful
-        axes["unscored_in_gaps"] = comp.n_in_gaps
-        axes["unscored_suspect_reference"] = comp.n_excluded
-        axes.update(_clean((extras or {}).get(name, {})))
-        estimators[str(name)] = axes
-    out = {"log": str(log), "reference": str(reference), "estimators": estimators}
+    estimators = {str(name): _comparison_dict(comp, (extras or {}).get(name, {})) for name, comp in comparisons.items()}
+    out = {"log": str(log), "reference": dict(reference), "estimators": estimators}
+    if streams is not None:
+        out["autopilot_streams"] = {str(name): _comparison_dict(comp, {}) for name, comp in streams.items()}
+        against_truth = reference.get("algorithm") == "truth"
+        spread = None if against_truth else reference_spread(streams)
+        out["reference_spread_deg"] = None if spread is None else {k: _number(v) if v is not None else None
+                                                                   for k, v in spread.items()}
     if declination is not None:
         out["declination_deg"] = round(declination.deg, 4) if declination.known else None
         out["declination_source"] = declination.source
@@ -117,6 +166,23 @@ def to_json_dict(log: str, reference: str, comparisons: dict[str, Comparison],
     if events is not None:
         out["events"] = [e.as_dict() for e in sorted(events, key=lambda e: e.t)]
     return out
+
+
+def _comparison_dict(comp: Comparison, extras: dict) -> dict:
+    """One row of the JSON: per axis its metrics, then how it was scored, then ``extras``."""
+    axes = {}
+    for axis in AXES:
+        m = comp.axes.get(axis)
+        entry = None if m is None else _metrics_dict(m)
+        if entry is not None and axis == "yaw":
+            entry["aligned"] = bool(comp.yaw_aligned)
+        axes[axis] = entry
+    axes["meaningful"] = comp.not_meaningful is None
+    axes["why"] = comp.not_meaningful
+    axes["unscored_in_gaps"] = comp.n_in_gaps
+    axes["unscored_suspect_reference"] = comp.n_excluded
+    axes.update(_clean(extras))
+    return axes
 
 
 def _clean(value):
@@ -181,14 +247,14 @@ def format_events(result) -> str:
     return "\n".join(lines) + ("\n" if lines else "")
 
 
-def write_json(path, log: str, reference: str, comparisons: dict[str, Comparison],
+def write_json(path, log: str, reference: dict, comparisons: dict[str, Comparison],
                extras: dict[str, dict] | None = None, scoring: dict | None = None, link: dict | None = None,
-               events=None, declination=None) -> Path:
+               events=None, declination=None, streams: dict[str, Comparison] | None = None) -> Path:
     """Write ``to_json_dict`` to ``path`` (strict JSON: no NaN), creating its directory;
     ``link``: a live session's link figures, as "link"."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = to_json_dict(log, reference, comparisons, extras, scoring, events, declination)
+    data = to_json_dict(log, reference, comparisons, extras, scoring, events, declination, streams)
     if link is not None:
         data["link"] = link
     path.write_text(json_text(data, allow_nan=False), encoding="utf-8")

@@ -9,10 +9,11 @@ helpers take a chunk of samples and always write the same entity paths, so a liv
 Timeline: ``"time"``, a duration in seconds on the autopilot clock (seconds since boot).
 
 Entity paths (``<s>`` is a series key: ``autopilot``, ``truth``, ``reference`` when the
-reference is neither of those, or an estimator's name, escaped for entity paths):
+reference is neither of those, one of the autopilot's other streams (``autopilot:EKF1 (EKF1)``),
+or an estimator's name, escaped for entity paths):
 
 - ``attitude/{roll,pitch,yaw}/estimates/<s>``, ``attitude/{roll,pitch,yaw}/reference/<s>`` (the
-  autopilot, truth: drawn on top)  Scalars, degrees (+ static SeriesLines: colour, label)
+  autopilot and its streams, truth: drawn on top)  Scalars, degrees (+ static SeriesLines: colour, label)
 - ``error/{roll,pitch,yaw}/<s>``  Scalars, estimate - reference, degrees, scored samples
 - ``error/{roll,pitch,yaw}/_unscored/<s>``  the samples the statistics skip (warm-up), faded;
   named as the scored line, so the legend has one entry for both (the viewer merges equal
@@ -73,6 +74,7 @@ from .flight import AttitudeSeries, GpsSeries
 from .metrics import AXES
 from .events import Event
 from .pipeline import ReplayResult
+from .report import spread_lines
 from .runner import REINIT_GAP_S, STEP_ROWS
 
 TIMELINE = "time"
@@ -112,6 +114,14 @@ FALLBACK_COLORS: tuple[Color, ...] = (
 ROLE_COLORS: dict[str, Color] = {
     "autopilot": AUTOPILOT_COLOR, "truth": TRUTH_COLOR, "reference": REFERENCE_COLOR,
 }
+STREAM_PREFIX = "autopilot:"  # the autopilot's other streams: "autopilot:EKF1 (EKF1)" (pipeline.stream_row)
+# muted, as the autopilot's grey
+STREAM_COLORS: tuple[Color, ...] = ((120, 100, 80), (90, 140, 160), (160, 120, 150), (110, 150, 110))
+
+
+def is_role(name: str) -> bool:
+    """The autopilot (any of its streams), the truth or another reference: drawn as references are."""
+    return name in ROLE_COLORS or name.startswith(STREAM_PREFIX)
 
 
 def assign_colors(names: Iterable[str]) -> dict[str, Color]:
@@ -119,9 +129,12 @@ def assign_colors(names: Iterable[str]) -> dict[str, Color]:
     (in the order given, skipping colours already taken)."""
     names = list(names)
     out: dict[str, Color] = {}
+    streams = [n for n in names if n.startswith(STREAM_PREFIX)]
     for n in names:
         if n in ROLE_COLORS:
             out[n] = ROLE_COLORS[n]
+        elif n in streams:
+            out[n] = STREAM_COLORS[streams.index(n) % len(STREAM_COLORS)]
         elif n in ESTIMATOR_COLORS:
             out[n] = ESTIMATOR_COLORS[n]
     free = [c for c in FALLBACK_COLORS if c not in out.values()] or list(FALLBACK_COLORS)
@@ -143,7 +156,7 @@ def _part(name: str) -> str:
 def attitude_path(axis: str, name: str) -> str:
     """The estimates under ``estimates/``, the autopilot and truth under ``reference/``: the
     viewer draws a plot's series in path order, so these come last, on top."""
-    group = "reference" if name in ROLE_COLORS else "estimates"
+    group = "reference" if is_role(name) else "estimates"
     return f"attitude/{axis}/{group}/{_part(name)}"
 
 
@@ -737,16 +750,21 @@ def _reference_key(result: ReplayResult) -> str | None:
 
 def _series(result: ReplayResult) -> list[tuple[str, str, AttitudeSeries]]:
     """(key, label, series) of every attitude shown: the reference first (when there is
-    one), then the autopilot and truth (where not the reference), then the estimates."""
+    one), then the autopilot and truth (where not the reference, nor one of the autopilot's
+    other streams), those streams, then the estimates."""
     fl = result.flight
     ref_key = _reference_key(result)
     out = []
     if ref_key is not None:
-        out.append((ref_key, f"{ref_key} ({result.reference.source}) = reference",
-                    result.reference))
+        info = result.reference_info
+        said = result.reference.source if info is None or info.algorithm == "truth" else \
+            f"{info.stream}, {info.algorithm}"
+        out.append((ref_key, f"{ref_key} ({said}) = reference", result.reference))
+    streams = result.stream_series
     for key, s in (("autopilot", fl.attitude), ("truth", fl.truth)):
-        if s is not None and len(s.t) and key != ref_key:
+        if s is not None and len(s.t) and key != ref_key and not any(s is v for v in streams.values()):
             out.append((key, f"{key} ({s.source})", s))
+    out += [(row, row, s) for row, s in streams.items() if len(s.t)]
     for name, s in result.estimates.items():
         shown = shown_estimate(s, result.comparisons.get(name), result.restarts)
         out.append((name, name + (" *" if shown is not s else ""), shown))
@@ -784,7 +802,7 @@ def summary_markdown(result: ReplayResult) -> str:
         f"- **vehicle**: {fl.vehicle or '?'} · **firmware**: {fl.firmware or '?'}",
         f"- **span**: {a:.1f}–{b:.1f} s ({b - a:.1f} s) on the autopilot clock",
         f"- **IMU**: {result.imu_source} · **reference**: "
-        f"{result.reference.source if result.reference is not None else 'none'}",
+        f"{result.reference_info.label if result.reference_info is not None else _source(result.reference)}",
         f"- **compass**: {result.mag_source or 'none'} · **declination**: {result.declination.text()}",
     ]
     if result.mag_source and not result.declination.known:
@@ -804,13 +822,16 @@ def summary_markdown(result: ReplayResult) -> str:
             lines += [f"**Not meaningful**: {why}. The scores are shown, not to be relied on or ranked.", ""]
         lines += ["| estimate | roll | pitch | yaw |", "|---|---|---|---|"]
     aligned = []
-    for name, c in result.comparisons.items():
+    for name, c in _scored(result).items():
         cells = [f"{_fmt(m.rmse)} / {_fmt(m.max)}" if m is not None else "–"
                  for m in (c.axes.get(axis) for axis in AXES)]
         mark = " \\*" if c.yaw_aligned else ""
         lines.append(f"| {name}{mark} | {' | '.join(cells)} |")
         if c.yaw_aligned:
             aligned.append(f"- {name}: " + ", ".join(f"{off:+.1f}° from {start:.0f} s" for start, off in c.yaw_offsets_deg))
+    if result.comparisons and result.reference_info is not None and result.reference_info.algorithm != "truth":
+        spread = spread_lines(result.comparisons, result.stream_comparisons, result.reference_info.algorithm)
+        lines += [""] + [f"- {line}" for line in spread] if spread else []
     if aligned:
         lines += ["", "\\* yaw drift (no heading reference): a yaw offset per span between restarts is removed from "
                       "its yaw error, and from its yaw in the plots and the 3D view:", ""] + aligned
@@ -821,9 +842,18 @@ def summary_markdown(result: ReplayResult) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _source(series: AttitudeSeries | None) -> str:
+    return series.source if series is not None else "none"
+
+
+def _scored(result: ReplayResult) -> dict:
+    """Every comparison shown: the estimators' (and the autopilot against truth), then the autopilot's other streams."""
+    return {**result.comparisons, **result.stream_comparisons}
+
+
 def _summary_events(result: ReplayResult, t_end: float) -> list[Event]:
     out = []
-    for name, c in result.comparisons.items():
+    for name, c in _scored(result).items():
         parts = []
         for axis in AXES:
             m = c.axes.get(axis)
@@ -899,8 +929,8 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     fl = result.flight
     series = _series(result)
     ref_key = _reference_key(result)
-    names = [k for k, _, _ in series] + [k for k in result.comparisons if k not in
-                                         {s[0] for s in series}]
+    scored = _scored(result)
+    names = [k for k, _, _ in series] + [k for k in scored if k not in {s[0] for s in series}]
     colors = assign_colors(names)
     gps_t, gps_ll = _gps_fix(fl.gps) if fl.gps is not None else (np.empty(0), None)
     has_gps = len(gps_t) > 0
@@ -926,8 +956,8 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     for slot, (key, label, s) in enumerate(series):
         setup_series(rec, key, color=colors[key], label=label, slot=slot,
                      ghost=ref_key is not None and key != ref_key,
-                     errors=key in result.comparisons, reference=key == ref_key)
-    for key, c in result.comparisons.items():
+                     errors=key in scored, reference=key == ref_key)
+    for key, c in scored.items():
         if key not in {s[0] for s in series}:
             setup_series(rec, key, color=colors[key], errors=True)
 
@@ -937,7 +967,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
             continue
         log_attitude_columns(rec, key, s.t, s.q, scalar_max_hz=hz, transform_max_hz=hz3d,
                              ghost_in=others if key == ref_key else ())
-    for key, c in result.comparisons.items():
+    for key, c in scored.items():
         log_error_columns(rec, key, c.t, c.error_deg, c.scored, max_hz=hz)
 
     imu_t = fl.imu[result.imu_source].t

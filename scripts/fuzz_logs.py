@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import faulthandler
+import json
 import random
 import re
 import sys
@@ -96,7 +97,7 @@ def replay_or_error(path: Path, estimators=("mahony",)) -> str:
     from mavattitude.info import render, summarize
     from mavattitude.pipeline import run_replay
     from mavattitude.readers import read_log
-    from mavattitude.report import estimator_extras, format_table, to_json_dict
+    from mavattitude.report import format_table
 
     try:
         flight = read_log(str(path))
@@ -105,8 +106,9 @@ def replay_or_error(path: Path, estimators=("mahony",)) -> str:
     except InputError:
         return "error"
     if result.reference is not None:
-        format_table(result.comparisons, result.reference.source)
-    to_json_dict(str(path), "reference", result.comparisons, estimator_extras(result))
+        format_table(result.comparisons, result.reference_info.label, streams=result.stream_comparisons,
+                     reference_algorithm=result.reference_info.algorithm)
+    json.dumps(result.metrics, allow_nan=False)  # the JSON replay writes (the autopilot's streams too)
     for name, series in result.estimates.items():
         norms = abs((series.q ** 2).sum(axis=1) - 1.0)
         if not (norms[norms == norms] < 1e-6).all():

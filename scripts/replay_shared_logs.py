@@ -2,7 +2,7 @@
 """Replay every log in ../shared/logs with `mavattitude replay` and print a Markdown table of
 roll / pitch / yaw MAE per estimator (the README's accuracy table comes from this).
 
-    python scripts/replay_shared_logs.py [--estimators mahony] [--reference autopilot|truth] [--wide] [LOGS_DIR]
+    python scripts/replay_shared_logs.py [--estimators mahony] [--reference NAME] [--wide] [LOGS_DIR]
 
 ``--wide``: one row per log, one column per estimator with "roll / pitch / yaw" MAE, and the
 best mean roll+pitch MAE of the row in bold.
@@ -26,7 +26,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("logs", nargs="?", default=str(ROOT.parent / "shared" / "logs"))
     parser.add_argument("--estimators", default="mahony")
-    parser.add_argument("--reference", default="autopilot", choices=("autopilot", "truth"))
+    parser.add_argument("--reference", default="autopilot", help="as replay's: autopilot, truth, ekf or a stream")
     parser.add_argument("--wide", action="store_true", help="one row per log, a column per estimator")
     args = parser.parse_args()
     logs = sorted(p for p in Path(args.logs).glob("*") if p.suffix in (".bin", ".tlog"))

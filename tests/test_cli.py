@@ -32,9 +32,9 @@ def rrd_verifies(path: Path) -> bool:
 def check_outputs(tmp_path: Path, estimators: list[str], reference: str) -> dict:
     metrics = json.loads((tmp_path / "m.json").read_text())
     assert set(metrics) == {"written_by", "log", "reference", "estimators", "scoring", "events", "declination_deg",
-                            "declination_source"}
+                            "declination_source", "autopilot_streams", "reference_spread_deg"}
     assert all(set(e) == {"t_s", "level", "kind", "text"} for e in metrics["events"]) and metrics["events"]
-    assert metrics["reference"] == reference
+    assert metrics["reference"]["stream"] == reference
     assert set(metrics["estimators"]) >= set(estimators)
     for name, per_axis in metrics["estimators"].items():
         assert set(AXES) <= set(per_axis)
@@ -175,7 +175,7 @@ def test_every_shared_log_replays_with_every_estimator(path, tmp_path, capsys):
     assert code == 0, err
     assert "mahony" in out and "MAE" in out
     metrics = check_outputs(tmp_path, list(ESTIMATORS),
-                            json.loads((tmp_path / "m.json").read_text())["reference"])
+                            json.loads((tmp_path / "m.json").read_text())["reference"]["stream"])
     mahony = metrics["estimators"]["mahony"]
     bound = _bound(path.name)
     assert mahony["roll"]["mae"] <= bound and mahony["pitch"]["mae"] <= bound, (

@@ -13,6 +13,8 @@ from mavattitude.quaternion import from_euler, to_euler
 from mavattitude.report import (BUCKET_KEYS, CSV_HEADER, NOT_MEANINGFUL, YAW_ALIGNED_NOTE, YAW_DRIFT,
                                 _fixed_point_csv, format_table, to_json_dict, write_csv, write_json)
 
+ATT_REF = {"stream": "ATT", "algorithm": "DCM", "choice": "autopilot"}
+
 
 def series(t, roll_deg, pitch_deg, yaw_deg, source="test") -> AttitudeSeries:
     t = np.asarray(t, dtype=float)
@@ -82,7 +84,7 @@ def test_table_marks_scores_that_are_not_meaningful(comparisons):
     ncs_roll = next(line for line in lines if line.startswith("ncs-eskf"))
     assert ncs_roll.split()[3:6] == ["0.8", "1.0", "3.2"]  # one decimal, not three
     assert "1.234" in "\n".join(lines)  # a meaningful row keeps its three
-    d = to_json_dict("flight.bin", "ATT", comparisons)["estimators"]
+    d = to_json_dict("flight.bin", ATT_REF, comparisons)["estimators"]
     assert (d["ncs-eskf"]["meaningful"], d["ncs-eskf"]["why"]) == (False, why)
     assert (d["mahony"]["meaningful"], d["mahony"]["why"]) == (True, None)
 
@@ -98,9 +100,9 @@ def test_table_without_alignment_has_no_footnote(comparisons):
 
 
 def test_json_schema(comparisons):
-    d = to_json_dict("flight.bin", "ATT", comparisons)
+    d = to_json_dict("flight.bin", ATT_REF, comparisons)
     assert set(d) == {"log", "reference", "estimators"}
-    assert d["log"] == "flight.bin" and d["reference"] == "ATT"
+    assert d["log"] == "flight.bin" and d["reference"] == ATT_REF
     assert list(d["estimators"]) == ["mahony", "ncs-eskf"]
     base = {"n", "mae", "rmse", "mse", "r2", "max", "sigma1", "sigma3", "buckets"}
     for name, axes in d["estimators"].items():
@@ -123,12 +125,12 @@ def test_json_schema(comparisons):
 
 
 def test_json_is_valid_and_written(tmp_path, comparisons):
-    path = write_json(tmp_path / "out" / "summary.json", "flight.bin", "ATT", comparisons)
+    path = write_json(tmp_path / "out" / "summary.json", "flight.bin", ATT_REF, comparisons)
     text = path.read_text(encoding="utf-8")
     assert "NaN" not in text
     loaded = json.loads(text)
     assert loaded.pop("written_by") == f"mavattitude {mavattitude.__version__}"  # first: outputs.is_kind knows ours
-    assert loaded == to_json_dict("flight.bin", "ATT", comparisons)
+    assert loaded == to_json_dict("flight.bin", ATT_REF, comparisons)
 
 
 def test_json_from_a_real_comparison(tmp_path):
@@ -136,7 +138,7 @@ def test_json_from_a_real_comparison(tmp_path):
     ref = series(t, 10 * np.sin(t), 5 * np.cos(t), 20 * np.sin(0.1 * t), "ATT")
     est = series(t, 10 * np.sin(t) + 1.5, 5 * np.cos(t), 20 * np.sin(0.1 * t) + 40, "ncs-eskf")
     c = compare(ref, est, warmup_s=5.0, align_yaw=True)
-    d = json.loads(json.dumps(to_json_dict("x.tlog", "ATT", {"ncs-eskf": c}), allow_nan=False))
+    d = json.loads(json.dumps(to_json_dict("x.tlog", ATT_REF, {"ncs-eskf": c}), allow_nan=False))
     m = d["estimators"]["ncs-eskf"]
     assert m["roll"]["mae"] == pytest.approx(1.5)
     assert m["roll"]["buckets"]["1_2"] == pytest.approx(1.0)
