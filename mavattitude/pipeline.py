@@ -12,7 +12,7 @@ from . import aiding as aid
 from . import declination as decl
 from . import quaternion as quat
 from . import estimators as est
-from .errors import InputError
+from .errors import InputError, UsageError
 from .events import Event
 from .flight import GRAVITY, AttitudeSeries, Flight
 from .imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful
@@ -413,8 +413,8 @@ class ReplaySettings:
         if self.segment is not None and not (isinstance(self.segment, int) and not isinstance(self.segment, bool)
                                              and self.segment >= 0):
             raise UsageError(f"--segment {self.segment!r}: expected a clock segment number, 0 or more")
-        if self.reference not in ("autopilot", "truth"):
-            raise UsageError(f"--reference {self.reference!r}: use 'autopilot' or 'truth'")
+        if not (isinstance(self.reference, str) and self.reference.strip()):  # a stream's name is checked per log
+            raise UsageError(f"--reference {self.reference!r}: use autopilot, truth, ekf or a stream 'info' lists")
         build(list(self.names), self.file_values, self.assignments, source=self.params_source)
 
 

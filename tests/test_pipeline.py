@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mavattitude import quaternion as quat
-from mavattitude.errors import InputError, UsageError
+from mavattitude.errors import InputError
 from mavattitude.flight import ImuSeries, MagSeries
 from mavattitude.pipeline import run_replay
 from mavattitude.readers import read_log
@@ -55,7 +55,7 @@ def test_reference_truth_adds_the_autopilot_row(sim_logs):
     assert set(result.comparisons) == {"mahony", "autopilot"}
     assert result.reference.source == "SIMSTATE"
     assert result.comparisons["autopilot"].axes["roll"].mae < 0.5
-    with pytest.raises(UsageError, match="unknown reference"):
+    with pytest.raises(InputError, match="has no attitude stream 'nope'"):
         run_replay(flight, ["mahony"], reference="nope")
     no_truth = replace(flight, truth=None)
     with pytest.raises(InputError, match="no ground truth"):
