@@ -73,7 +73,7 @@ def spread(flight, warmup_s: float) -> list[dict]:
 def print_flags(paths: list[Path]) -> None:
     """The disagreement check's measurements and flags on each log (--flags)."""
     limits = (5.0, refcheck.DISAGREE_DEG, 20.0)
-    print(f"| log | reference | other | median ° | 99th percentile ° | "
+    print("| log | reference | other | median ° | 99th percentile ° | "
           + " | ".join(f"longest > {limit:g}° (s)" for limit in limits) + " |")
     print("|---|---|---|---|---|" + "---|" * len(limits))
     flags = []

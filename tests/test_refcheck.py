@@ -5,7 +5,6 @@ import math
 from dataclasses import replace
 
 import numpy as np
-import pytest
 
 from conftest import read_shared
 from mavattitude import quaternion as quat
