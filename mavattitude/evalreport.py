@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from .outputs import SVG_MARK, WRITTEN_BY, json_text
-from .rankstats import FAMILIES, rankings
+from .rankstats import FAMILIES, format_p, rankings
 from .report import BUCKET_KEYS
 
 AXES = ("roll", "pitch", "yaw")
@@ -278,14 +278,16 @@ def reference_sections(summary: dict) -> list[str]:
             continue
         est = g["estimators"]
         order = sorted(est, key=lambda n: (est[n]["median"] is None, est[n]["median"] or 0.0))
-        lines += ["", f"### {GROUP_TITLES[group]}: {g['logs']} log{'s' if g['logs'] != 1 else ''}", "",
+        spread = "" if g["median_spread_deg"] is None else \
+            f"; the autopilot's own spread: median {g['median_spread_deg']:.2f}° over {g['logs_with_spread']} of them"
+        lines += ["", f"### {GROUP_TITLES[group]}: {g['logs']} log{'s' if g['logs'] != 1 else ''}{spread}", "",
                   f"| estimator | logs | median | wins (lead > spread) | wins (no spread, lead > 0) "
                   f"| lower than {baseline} | median ratio [95 % interval] | sign test p |",
                   "|---|---|---|---|---|---|---|---|"]
         for name in order:
             e, v = est[name], est[name]["vs_baseline"]
             versus = ("(baseline)", "-", "-") if v is None else \
-                (f"{v['lower']} of {v['logs']}", _ratio(v), "-" if not v["logs"] else f"{v['p']:.3g}")
+                (f"{v['lower']} of {v['logs']}", _ratio(v), "-" if not v["logs"] else format_p(v["p"]))
             lines.append(f"| {name} | {e['logs']} | {_f(e['median'])} | {e['wins']['over_spread']} "
                          f"| {e['wins']['no_spread']} | {' | '.join(versus)} |")
         lines += [""] + [f"- {line}" for line in g["plain"]]

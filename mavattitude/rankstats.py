@@ -79,15 +79,18 @@ def bootstrap_median_interval(values, resamples: int = RESAMPLES, seed: int = SE
 
 def against_baseline(by_log: dict[str, dict[str, float]], name: str, baseline: str) -> dict:
     """``name`` against ``baseline`` on the logs both were scored on (``by_log``: log -> estimator
-    -> tilt score): logs, lower/higher/tied counts, median ratio, its interval, sign-test p."""
+    -> tilt score): logs, lower/higher/tied counts, median ratio, its interval, sign-test p, and
+    the median difference (estimator - baseline, °)."""
     pairs = [(s[name], s[baseline]) for s in by_log.values() if name in s and baseline in s and s[baseline] > 0]
     better = sum(a < b for a, b in pairs)
     worse = sum(a > b for a, b in pairs)
     out = {"logs": len(pairs), "lower": better, "higher": worse, "ties": len(pairs) - better - worse,
-           "median_ratio": None, "interval": None, "p": float(f"{sign_test_p(better, worse):.4g}")}
+           "median_ratio": None, "interval": None, "p": float(f"{sign_test_p(better, worse):.4g}"),
+           "median_difference_deg": None}
     if pairs:
         ratios = np.array([a / b for a, b in pairs])
         out["median_ratio"] = _round(np.median(ratios))
+        out["median_difference_deg"] = _round(np.median([a - b for a, b in pairs]))
         out["interval"] = [_round(x) for x in bootstrap_median_interval(ratios)]
     return out
 
@@ -122,6 +125,7 @@ def rankings(records: list[dict], by_log: dict[str, dict[str, float]], names: li
     median and wins, its comparison with the baseline, and the plain-language lines."""
     family = {r["log"]: reference_family(reference_algorithm(r), reference) for r in records}
     spreads = {r["log"]: reference_spread(r) for r in records}
+    by_log = {log: s for log, s in by_log.items() if any(n in s for n in names)}
     groups = {"all": by_log}
     for f in FAMILIES:
         logs = {log: s for log, s in by_log.items() if family.get(log) == f}
@@ -136,7 +140,9 @@ def rankings(records: list[dict], by_log: dict[str, dict[str, float]], names: li
             estimators[name] = {"logs": len(values), "median": _round(np.median(values)) if values else None,
                                 "wins": wins["estimators"][name],
                                 "vs_baseline": against_baseline(logs, name, baseline) if name != baseline else None}
+        spread_values = [spreads[log] for log in logs if spreads.get(log) is not None]
         entry = {"logs": len(logs), "within_spread": wins["within_spread"],
+                 "median_spread_deg": _round(np.median(spread_values)) if spread_values else None,
                  "logs_with_spread": wins["logs_with_spread"], "logs_without_spread": wins["logs_without_spread"],
                  "estimators": estimators}
         entry["plain"] = plain_lines(entry, baseline)
@@ -145,18 +151,18 @@ def rankings(records: list[dict], by_log: dict[str, dict[str, float]], names: li
 
 
 def plain_lines(group: dict, baseline: str) -> list[str]:
-    """What the group's data supports and what it does not, one line per estimator, then how the
-    wins were counted."""
+    """What the group's data supports and what it does not, one line per estimator (lowest median
+    ratio first), then how the wins were counted."""
     lines = []
-    for name, e in group["estimators"].items():
-        v = e["vs_baseline"]
-        if v is None or not v["logs"]:
-            continue
+    compared = [(e["vs_baseline"], name) for name, e in group["estimators"].items()
+                if e["vs_baseline"] is not None and e["vs_baseline"]["logs"]]
+    spread = group["median_spread_deg"]
+    for v, name in sorted(compared, key=lambda c: c[0]["median_ratio"]):
         low, high = v["interval"]
         tied = f" ({v['ties']} tied)" if v["ties"] else ""
         said = (f"{name} is lower than {baseline} on {v['lower']} of {v['logs']} logs{tied}, "
                 f"median ratio {v['median_ratio']:.2f} "
-                f"[{low:.2f}, {high:.2f}], p = {_p(v['p'])}: ")
+                f"[{low:.2f}, {high:.2f}], p = {format_p(v['p'])}: ")
         if v["lower"] + v["higher"] < 6:
             said += (f"too few logs for the sign test to show anything (with {v['lower'] + v['higher']} untied "
                      f"logs p cannot fall below {LEVEL:g})")
@@ -166,20 +172,27 @@ def plain_lines(group: dict, baseline: str) -> list[str]:
             direction = "lower" if high < 1.0 else "higher"
             if v["p"] < LEVEL:
                 said += f"{direction} than {baseline} on these logs (the interval excludes 1, p < {LEVEL:g})"
+                if spread is not None and abs(v["median_difference_deg"]) < spread:
+                    said += (f", by a median {abs(v['median_difference_deg']):.2f}°, inside the autopilot's own "
+                             f"spread on these logs (median {spread:.2f}°)")
             else:
                 said += (f"the interval excludes 1 but the sign test does not show it {direction} on most logs "
                          f"(p ≥ {LEVEL:g})")
         lines.append(said)
     counted = (f"a win is counted where the best estimator leads the second best by more than the log's reference "
-               f"spread ({group['logs_with_spread']} logs have one; on {group['within_spread']} of them the lead "
+               f"spread ({_logs(group['logs_with_spread'])} have one; on {group['within_spread']} of them the lead "
                "is inside it and nobody wins)")
     if group["logs_without_spread"]:
-        counted += (f"; on the {group['logs_without_spread']} logs with no reference spread (no other autopilot "
+        counted += (f"; on the {_logs(group['logs_without_spread'])} with no reference spread (no other autopilot "
                     "estimate) any lead > 0 wins, counted apart")
     return lines + [counted[0].upper() + counted[1:] + "."]
 
 
-def _p(p: float) -> str:
+def _logs(n: int) -> str:
+    return f"{n} log{'s' if n != 1 else ''}"
+
+
+def format_p(p: float) -> str:
     return f"{p:.3f}" if p >= 0.001 else f"{p:.1e}"
 
 

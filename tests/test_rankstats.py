@@ -118,3 +118,14 @@ def test_few_logs_and_logs_without_a_spread_are_said_plainly():
                              "below 0.05)")
     assert plain[-1].endswith("on the 4 logs with no reference spread (no other autopilot estimate) any lead > 0 "
                               "wins, counted apart.")
+
+
+def test_a_shown_difference_inside_the_autopilots_spread_says_so():
+    records = [record(f"s{i}", {"mahony": 2.0, "cpf-ekf": 1.95 - 0.001 * i}, "EKF3", 1.0) for i in range(10)]
+    group = summary_of(records)["by_reference"]["EKF"]
+    assert group["median_spread_deg"] == 1.0
+    assert group["plain"][0].endswith("lower than mahony on these logs (the interval excludes 1, p < 0.05), by a "
+                                      "median 0.05°, inside the autopilot's own spread on these logs (median 1.00°)")
+    text = er.report_markdown(summary_of(records), "mavattitude evaluate", None)
+    assert "### EKF-reference logs (EKF1, EKF2, EKF3, PX4 EKF2): 10 logs; the autopilot's own spread: median 1.00° " \
+           "over 10 of them" in text
