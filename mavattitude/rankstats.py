@@ -179,9 +179,10 @@ def plain_lines(group: dict, baseline: str) -> list[str]:
                 said += (f"the interval excludes 1 but the sign test does not show it {direction} on most logs "
                          f"(p ≥ {LEVEL:g})")
         lines.append(said)
+    having = group["logs_with_spread"]
     counted = (f"a win is counted where the best estimator leads the second best by more than the log's reference "
-               f"spread ({_logs(group['logs_with_spread'])} have one; on {group['within_spread']} of them the lead "
-               "is inside it and nobody wins)")
+               f"spread ({_logs(having)} {'has' if having == 1 else 'have'} one; on {group['within_spread']} of "
+               "them the lead is inside it and nobody wins)")
     if group["logs_without_spread"]:
         counted += (f"; on the {_logs(group['logs_without_spread'])} with no reference spread (no other autopilot "
                     "estimate) any lead > 0 wins, counted apart")
