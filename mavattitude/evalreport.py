@@ -19,6 +19,7 @@ import numpy as np
 
 from .outputs import SVG_MARK, WRITTEN_BY, json_text
 from .rankstats import FAMILIES, format_p, rankings
+from .refcheck import DISAGREE_DEG, DISAGREE_MIN_S
 from .report import BUCKET_KEYS
 
 AXES = ("roll", "pitch", "yaw")
@@ -240,7 +241,9 @@ def report_markdown(summary: dict, command: str, figure: str | None) -> str:
         lines.append(f"| {name} | {worst or '-'} |")
     if summary["reference_suspect"]:
         lines += ["", "## References not trusted", "",
-                  "Spans where the log's own IMU says the autopilot's attitude cannot be right; they are "
+                  "Spans where the log's own IMU says the autopilot's attitude cannot be right, or where the "
+                  f"autopilot's own estimators disagree in tilt by more than {DISAGREE_DEG:g}° for "
+                  f"{DISAGREE_MIN_S:g} s or longer; they are "
                   "not scored (the rest of the log is). A note on the whole log says what was done instead.", ""]
         for entry in summary["reference_suspect"]:
             said = [f"{s['start_s']:.1f}-{s['end_s']:.1f} s: {s['detail']}" for s in entry["spans"]]

@@ -1,4 +1,5 @@
-"""Where the autopilot's own attitude cannot be right, judged by the log's own IMU.
+"""Where the autopilot's own attitude cannot be right, judged by the log's own IMU and by the
+autopilot's other estimators.
 
 A real log's reference is the autopilot's estimate, and it has faults of its own. Four checks:
 
