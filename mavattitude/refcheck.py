@@ -19,14 +19,15 @@ A real log's reference is the autopilot's estimate, and it has faults of its own
   of ``Flight.attitudes`` that is not a copy of it, ``readers.attitudes.name_attitudes``) differ
   in tilt by more than ``DISAGREE_DEG`` for ``DISAGREE_MIN_S`` or longer: at most one of them is
   right, and nothing in the log says which. Measured (``scripts/reference_spread.py --flags``)
-  on the 60 pairs of the shared logs, the tilt angle between the two: modern DCM/EKF2/EKF3 pairs
-  differ by a median 0.1-2.3°, their 99th percentile under 6.1° but for a crash, and stay above
-  10° for at most 4.6 s (SITL vibration: 4.6 s; the 4.x real copters: never); the known bad
-  spans stay above 10° for one to six minutes (the 88° log 389 s, gps-flight-20141009-31 122 s,
-  the plane roverfolder log 60 s, all above 20° nearly throughout). 10° is ten times the modern
-  spread and 10 s twice the longest modern transient. Also flagged at that setting: three
-  2014 DCM-vs-EKF1 logs for 12-15 s, a plane's crash (17 s) and the SITL quadplane's AHRS3
-  (30 s). Dips below 10° shorter than ``DISAGREE_BRIDGE_S`` do not end a span.
+  on the shared logs' 60 pairs, the tilt angle between the two: modern DCM/EKF2/EKF3 pairs differ
+  by a median 0.1-2.3°, their 99th percentile under 6.1° but for a crash, and stay above 10° for
+  at most 4.6 s (SITL vibration; the 4.x real copters: never); the known bad logs stay above 10°
+  for minutes (the 88° log 862 s, nearly all of it; gps-flight-20141009-31 202 s; the plane
+  roverfolder log 60 s, above 20° nearly throughout). 10° is ten times the modern spread and
+  10 s twice the longest modern transient. Also flagged at that setting: plane-3.1-flight-329
+  (14 s), a plane's crash (17 s) and the SITL quadplane's AHRS3 (EKF2, 93 s). The time counted
+  is the time above ``DISAGREE_DEG``; a dip below it shorter than ``DISAGREE_BRIDGE_S``, or a
+  gap (nothing there says the two agree), does not end a span (``disagreeing_spans``).
 - **repeated times**: reference samples that repeat the time of the one before (the reader
   keeps the first of each time and drops the rest): not a span but a note on the whole log
   (``LogNote``), saying what was done; what is left is in order and scored.
@@ -104,13 +105,12 @@ def autopilot_disagreement(ref: AttitudeSeries, flight: Flight) -> list[Suspect]
     out = []
     for other in compared_streams(ref, named):
         key = other.key
-        t, apart = tilt_apart_deg(ref, flight.attitudes[key])
-        for a, b in _bridged_runs(t, apart > DISAGREE_DEG):
-            if t[b - 1] - t[a] >= DISAGREE_MIN_S:
-                out.append(Suspect("autopilot disagrees", float(t[a]), float(t[b - 1]),
-                                   f"{ref.source} ({algorithm}) and {key} ({other.algorithm}) "
-                                   f"differ in tilt by more than {DISAGREE_DEG:g}° for {t[b - 1] - t[a]:.0f} s "
-                                   f"(median {np.nanmedian(apart[a:b]):.0f}°, up to {np.nanmax(apart[a:b]):.0f}°)"))
+        for start, end, seconds, values in disagreeing_spans(*tilt_apart_deg(ref, flight.attitudes[key])):
+            if seconds >= DISAGREE_MIN_S:
+                out.append(Suspect("autopilot disagrees", start, end,
+                                   f"{ref.source} ({algorithm}) and {key} ({other.algorithm}) differ in tilt by "
+                                   f"more than {DISAGREE_DEG:g}° for {seconds:.0f} s (median "
+                                   f"{np.median(values):.0f}°, up to {np.max(values):.0f}°)"))
     return sorted(out, key=lambda s: s.start)
 
 
@@ -142,22 +142,25 @@ def tilt_apart_deg(ref: AttitudeSeries, other: AttitudeSeries) -> tuple[np.ndarr
         return t, np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
 
 
-def _bridged_runs(t: np.ndarray, mask: np.ndarray) -> list[tuple[int, int]]:
-    """[start, end) of each run of True, a run of False shorter than DISAGREE_BRIDGE_S between two
-    runs joined into them; a gap of ``t`` over DISAGREE_MAX_GAP_S ends a run."""
-    runs = []
-    for a, b in _runs(mask):
-        if runs and t[a] - t[runs[-1][1] - 1] < DISAGREE_BRIDGE_S \
-                and np.all(np.diff(t[runs[-1][1] - 1:a + 1]) <= DISAGREE_MAX_GAP_S):
+def disagreeing_spans(t: np.ndarray, apart: np.ndarray, limit: float = DISAGREE_DEG) -> list[tuple]:
+    """(start, end, seconds, angles) of each span where ``apart`` (°, NaN where not known) is above
+    ``limit``: a stretch below it shorter than DISAGREE_BRIDGE_S does not end a span, nor does a
+    stretch where it is not known (a gap: nothing there says the two agree). ``seconds`` counts
+    the time above ``limit`` alone, not the gaps; ``angles`` the known ones inside the span."""
+    known = np.isfinite(apart)
+    t, apart = t[known], apart[known]
+    runs: list[tuple[int, int]] = []
+    for a, b in _runs(apart > limit):
+        if runs and t[a - 1] - t[runs[-1][1]] < DISAGREE_BRIDGE_S:  # the samples below: t[prev end .. a - 1]
             runs[-1] = (runs[-1][0], b)
         else:
             runs.append((a, b))
-    split = []
-    for a, b in runs:  # a gap in the reference's own samples ends a run
-        cuts = a + 1 + np.flatnonzero(np.diff(t[a:b]) > DISAGREE_MAX_GAP_S)
-        edges = [a, *cuts.tolist(), b]
-        split += list(zip(edges[:-1], edges[1:]))
-    return split
+    out = []
+    for a, b in runs:
+        steps = np.diff(t[a:b])
+        above = np.diff(t[a:b])[(apart[a:b - 1] > limit) & (steps <= DISAGREE_MAX_GAP_S)]
+        out.append((float(t[a]), float(t[b - 1]), float(above.sum()), apart[a:b]))
+    return out
 
 
 def whole_log_notes(ref: AttitudeSeries, repeated: int = 0) -> list[LogNote]:

@@ -14,7 +14,8 @@ the primary's samples the other stream equals to the log's resolution (0.02°): 
 
 ``--flags``: instead, refcheck's "autopilot disagrees" check on every log: per pair it compares
 (copies left out), the tilt angle between the two (median, 99th percentile) and the longest span
-above 5°, 10° and 20° (dips shorter than refcheck.DISAGREE_BRIDGE_S bridged), then the spans it flags.
+above 5°, 10° and 20° (refcheck.disagreeing_spans: the seconds above the limit, dips shorter than
+refcheck.DISAGREE_BRIDGE_S and gaps bridged), then the spans it flags.
 """
 from __future__ import annotations
 
@@ -91,7 +92,7 @@ def print_flags(paths: list[Path]) -> None:
             t, apart = refcheck.tilt_apart_deg(ref, flight.attitudes[other.key])
             if not np.isfinite(apart).any():
                 continue
-            longest = [max((t[b - 1] - t[a] for a, b in refcheck._bridged_runs(t, apart > limit)), default=0.0)
+            longest = [max((span[2] for span in refcheck.disagreeing_spans(t, apart, limit)), default=0.0)
                        for limit in limits]
             print(f"| {path.name} | {ref.source} ({named[0].algorithm}) | {other.key} ({other.algorithm}) | "
                   f"{np.nanmedian(apart):.2f} | {np.nanpercentile(apart, 99):.1f} | "
