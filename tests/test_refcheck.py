@@ -82,3 +82,16 @@ def test_replay_leaves_the_disagreement_unscored(tmp_path):
     assert "AHR2" in spans[0]["detail"] or "EKF1" in spans[0]["detail"]
     assert result.comparisons["mahony"].n_excluded > 0
     assert any("reference not trusted" in e.text and "differ in tilt" in e.text for e in result.events)
+
+
+def test_a_reference_not_trusted_anywhere_says_so_when_nothing_is_scored(tmp_path):
+    from mavattitude.pipeline import run_replay
+    from mavattitude.report import nothing_scored
+
+    sim = simulate("figure8", 40.0, seed=3, imu_rate=50.0, params=SensorParams(dcm_bias=(0.01, 0.0, 0.0)))
+    off = quat.from_euler(np.full(len(sim.t), math.radians(20.0)), 0 * sim.t, 0 * sim.t)
+    sim = replace(sim, ekf_q=quat.multiply(sim.ekf_q, off))  # the EKF 20° from ATT (DCM) all along
+    result = run_replay(read_log(write_log(sim, tmp_path / "apart.bin")), ["mahony"])
+    assert nothing_scored(result.comparisons, 10.0) == (
+        "nothing scored: the reference is not trusted anywhere the estimates overlap it after the 10 s warm-up "
+        "(the 'reference not trusted' warnings say where and why)")
