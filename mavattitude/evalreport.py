@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from .outputs import SVG_MARK, WRITTEN_BY, json_text
-from .rankstats import FAMILIES, format_p, rankings
+from .rankstats import FAMILIES, RESAMPLES, format_p, logs_text, rankings
 from .refcheck import DISAGREE_DEG, DISAGREE_MIN_S
 from .report import BUCKET_KEYS
 
@@ -270,9 +270,9 @@ def reference_sections(summary: dict) -> list[str]:
     lines = ["", "## Rankings per reference algorithm", "",
              "The reference is one of the autopilot's estimators, and the ranking depends on which: the logs "
              "are ranked apart by the family of their reference, and across all. Against "
-             f"`{baseline}`: the median over logs of the ratio of tilt scores on the same log, its bootstrap 95 % "
-             "interval (logs resampled with replacement, 2,000 times, seeded) and a two-sided sign test on the "
-             "logs where the estimator is lower (ties dropped). A win: the best estimator's lead over the second "
+             f"`{baseline}`: the median over logs of the ratio of tilt scores on the same log, its bootstrap "
+             f"95 % interval (logs resampled with replacement, {RESAMPLES:,} times, seeded) and a two-sided sign "
+             "test on the logs where the estimator is lower (ties dropped). A win: the best estimator's lead over the second "
              "best exceeds the log's reference spread (the smallest tilt error of the autopilot's other "
              "estimators against the reference)."]
     for group in ("all", *FAMILIES):
@@ -281,9 +281,10 @@ def reference_sections(summary: dict) -> list[str]:
             continue
         est = g["estimators"]
         order = sorted(est, key=lambda n: (est[n]["median"] is None, est[n]["median"] or 0.0))
-        spread = "" if g["median_spread_deg"] is None else \
-            f"; the autopilot's own spread: median {g['median_spread_deg']:.2f}° over {g['logs_with_spread']} of them"
-        lines += ["", f"### {GROUP_TITLES[group]}: {g['logs']} log{'s' if g['logs'] != 1 else ''}{spread}", "",
+        spread = "" if g["median_spread_deg"] is None else (f"; the autopilot's own spread: median "
+                                                            f"{g['median_spread_deg']:.2f}° over "
+                                                            f"{g['logs_with_spread']} of them")
+        lines += ["", f"### {GROUP_TITLES[group]}: {logs_text(g['logs'])}{spread}", "",
                   f"| estimator | logs | median | wins (lead > spread) | wins (no spread, lead > 0) "
                   f"| lower than {baseline} | median ratio [95 % interval] | sign test p |",
                   "|---|---|---|---|---|---|---|---|"]
@@ -319,7 +320,7 @@ def ranking_text(summary: dict) -> str:
     for group, g in (summary.get("by_reference") or {}).items():
         if group != "all" and len(summary["by_reference"]) == 2:
             continue  # one family: the same logs as "all"
-        lines.append(f"{GROUP_TITLES[group]} ({g['logs']} logs):")
+        lines.append(f"{GROUP_TITLES[group]} ({logs_text(g['logs'])}):")
         lines += [f"  {line}" for line in g["plain"]]
     left_out = summary.get("not_meaningful", [])
     if left_out:

@@ -181,15 +181,15 @@ def plain_lines(group: dict, baseline: str) -> list[str]:
         lines.append(said)
     having = group["logs_with_spread"]
     counted = (f"a win is counted where the best estimator leads the second best by more than the log's reference "
-               f"spread ({_logs(having)} {'has' if having == 1 else 'have'} one; on {group['within_spread']} of "
+               f"spread ({logs_text(having)} {'has' if having == 1 else 'have'} one; on {group['within_spread']} of "
                "them the lead is inside it and nobody wins)")
     if group["logs_without_spread"]:
-        counted += (f"; on the {_logs(group['logs_without_spread'])} with no reference spread (no other autopilot "
+        counted += (f"; on the {logs_text(group['logs_without_spread'])} with no reference spread (no other autopilot "
                     "estimate) any lead > 0 wins, counted apart")
     return lines + [counted[0].upper() + counted[1:] + "."]
 
 
-def _logs(n: int) -> str:
+def logs_text(n: int) -> str:
     return f"{n} log{'s' if n != 1 else ''}"
 
 
