@@ -272,9 +272,9 @@ def reference_sections(summary: dict) -> list[str]:
              "are ranked apart by the family of their reference, and across all. Against "
              f"`{baseline}`: the median over logs of the ratio of tilt scores on the same log, its bootstrap "
              f"95 % interval (logs resampled with replacement, {RESAMPLES:,} times, seeded) and a two-sided sign "
-             "test on the logs where the estimator is lower (ties dropped). A win: the best estimator's lead over the second "
-             "best exceeds the log's reference spread (the smallest tilt error of the autopilot's other "
-             "estimators against the reference)."]
+             "test on the logs where the estimator is lower (ties dropped). A win: the best estimator's lead "
+             "over the second best exceeds the log's reference spread (the smallest tilt error of the "
+             "autopilot's other estimators against the reference)."]
     for group in ("all", *FAMILIES):
         g = groups.get(group)
         if not g:
