@@ -5,7 +5,9 @@ A log's score for an estimator is its tilt error: the mean of its roll and pitch
 against the reference. Yaw is left out of the ranking: without a compass it is the gyro's
 alone and aligned at the start (drift, not a heading), and with one it depends on the
 declination the log gives. A log whose scores are not meaningful (``imucheck``: an IMU too
-slow to follow the vehicle) is left out of every ranking and listed with the reason.
+slow to follow the vehicle) is left out of every ranking and listed with the reason. The
+rankings per reference family, the comparison with the baseline (interval, sign test) and the
+wins counted above the reference's spread are ``rankstats``'.
 """
 from __future__ import annotations
 
@@ -16,6 +18,8 @@ import math
 import numpy as np
 
 from .outputs import SVG_MARK, WRITTEN_BY, json_text
+from .rankstats import FAMILIES, RESAMPLES, format_p, logs_text, rankings
+from .refcheck import DISAGREE_DEG, DISAGREE_MIN_S
 from .report import BUCKET_KEYS
 
 AXES = ("roll", "pitch", "yaw")
@@ -112,8 +116,9 @@ def write_parquet(rows: list[dict], path) -> None:
 
 def summarize(records: list[dict], names: list[str], baseline: str, reference: str) -> dict:
     """Per estimator: median, mean and 90th percentile of the tilt score over the logs, the
-    geometric mean of its ratio to ``baseline``, wins (best on a log), mean rank, the logs
-    where it is ≤ 0.8× and > 2× the baseline; the paper-001 check; the failures."""
+    geometric mean of its ratio to ``baseline``, wins (best on a log, by any lead), mean rank, the
+    logs where it is ≤ 0.8× and > 2× the baseline; the rankings per reference family
+    (``rankstats.rankings``); the paper-001 check; the failures."""
     by_log = scores(records)
     estimators = {}
     ranks = {name: [] for name in names}
@@ -155,6 +160,7 @@ def summarize(records: list[dict], names: list[str], baseline: str, reference: s
         "references": [{"log": r["log"], "stream": r.get("reference_stream"), "algorithm": r.get("reference_algorithm"),
                         "spread_deg": r.get("reference_spread_deg")} for r in records if r["status"] == "ok"],
         "estimators": estimators,
+        "by_reference": rankings(records, by_log, names, baseline, reference),
     }
     if all(n in names for n in PAPER_001_CHAIN):
         summary["paper_001_ranking"] = paper_001_check(by_log)
@@ -206,7 +212,7 @@ def report_markdown(summary: dict, command: str, figure: str | None) -> str:
         f"warm-up; ratios are to `{summary['baseline']}` on the same log. Yaw is not ranked: an estimator "
         "without a heading reference gives the gyro's drift, not a heading.", "",
         "## Ranking", "",
-        "| estimator | logs | median | mean | p90 | × baseline (geo-mean) | wins | mean rank "
+        "| estimator | logs | median | mean | p90 | × baseline (geo-mean) | best on log | mean rank "
         "| ≤ 0.8× baseline | > 2× baseline |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
@@ -215,6 +221,9 @@ def report_markdown(summary: dict, command: str, figure: str | None) -> str:
         lines.append(f"| {name} | {e['logs']} | {_f(e['median'])} | {_f(e['mean'])} | {_f(e['p90'])} "
                      f"| {_f(e['ratio_to_baseline_geomean'])} | {e['wins']} | {_f(e['mean_rank'], 2)} "
                      f"| {e['logs_at_most_0.8x_baseline']} | {e['logs_over_2x_baseline']} |")
+    lines += ["", "\"Best on log\" counts any lead; the rankings below count a win only above the log's "
+              "reference spread."]
+    lines += reference_sections(summary)
     if figure:
         lines += ["", f"![tilt error per estimator across logs]({figure})", "",
                   "Each dot is a log (its tilt score, log scale); the box spans the middle half, the bar "
@@ -247,7 +256,9 @@ def report_markdown(summary: dict, command: str, figure: str | None) -> str:
                   for e in summary["references"]]
     if summary["reference_suspect"]:
         lines += ["", "## References not trusted", "",
-                  "Spans where the log's own IMU says the autopilot's attitude cannot be right; they are "
+                  "Spans where the log's own IMU says the autopilot's attitude cannot be right, or where the "
+                  f"autopilot's own estimators disagree in tilt by more than {DISAGREE_DEG:g}° for "
+                  f"{DISAGREE_MIN_S:g} s or longer; they are "
                   "not scored (the rest of the log is). A note on the whole log says what was done instead.", ""]
         for entry in summary["reference_suspect"]:
             said = [f"{s['start_s']:.1f}-{s['end_s']:.1f} s: {s['detail']}" for s in entry["spans"]]
@@ -272,6 +283,51 @@ def references_said(references: list[dict]) -> str:
     return ", ".join(f"{said} {n} log{'s' if n != 1 else ''}" for said, n in counts.items())
 
 
+GROUP_TITLES = {"all": "All logs", "DCM": "DCM-reference logs", "EKF": "EKF-reference logs (EKF1, EKF2, EKF3, "
+                "PX4 EKF2)", "truth": "Ground-truth reference", "other": "Other references (PX4 Q, unknown)"}
+
+
+def reference_sections(summary: dict) -> list[str]:
+    """The report's rankings per reference family: a table and the plain-language lines each."""
+    groups = summary.get("by_reference") or {}
+    baseline = summary["baseline"]
+    lines = ["", "## Rankings per reference algorithm", "",
+             "The reference is one of the autopilot's estimators, and the ranking depends on which: the logs "
+             "are ranked apart by the family of their reference, and across all. Against "
+             f"`{baseline}`: the median over logs of the ratio of tilt scores on the same log, its bootstrap "
+             f"95 % interval (logs resampled with replacement, {RESAMPLES:,} times, seeded) and a two-sided sign "
+             "test on the logs where the estimator is lower (ties dropped). A win: the best estimator's lead "
+             "over the second best exceeds the log's reference spread (the smallest tilt error of the "
+             "autopilot's other estimators against the reference)."]
+    for group in ("all", *FAMILIES):
+        g = groups.get(group)
+        if not g:
+            continue
+        est = g["estimators"]
+        order = sorted(est, key=lambda n: (est[n]["median"] is None, est[n]["median"] or 0.0))
+        spread = "" if g["median_spread_deg"] is None else (f"; the autopilot's own spread: median "
+                                                            f"{g['median_spread_deg']:.2f}° over "
+                                                            f"{g['logs_with_spread']} of them")
+        lines += ["", f"### {GROUP_TITLES[group]}: {logs_text(g['logs'])}{spread}", "",
+                  f"| estimator | logs | median | wins (lead > spread) | wins (no spread, lead > 0) "
+                  f"| lower than {baseline} | median ratio [95 % interval] | sign test p |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for name in order:
+            e, v = est[name], est[name]["vs_baseline"]
+            versus = ("(baseline)", "-", "-") if v is None else \
+                (f"{v['lower']} of {v['logs']}", _ratio(v), "-" if not v["logs"] else format_p(v["p"]))
+            lines.append(f"| {name} | {e['logs']} | {_f(e['median'])} | {e['wins']['over_spread']} "
+                         f"| {e['wins']['no_spread']} | {' | '.join(versus)} |")
+        lines += [""] + [f"- {line}" for line in g["plain"]]
+    return lines
+
+
+def _ratio(v: dict) -> str:
+    if v["median_ratio"] is None:
+        return "-"
+    return f"{v['median_ratio']:.2f} [{v['interval'][0]:.2f}, {v['interval'][1]:.2f}]"
+
+
 def ranking_text(summary: dict) -> str:
     """The ranking for the terminal."""
     est = summary["estimators"]
@@ -279,7 +335,7 @@ def ranking_text(summary: dict) -> str:
     lines = [f"tilt error (mean of roll and pitch MAE, °) against the {summary['reference']} reference, "
              f"over {summary['scored']} logs; ratio to {summary['baseline']}",
              f"{'estimator':12s} {'logs':>5s} {'median':>7s} {'mean':>7s} {'p90':>7s} {'×base':>6s} "
-             f"{'wins':>5s} {'rank':>5s} {'≤0.8×':>6s} {'>2×':>4s}"]
+             f"{'best':>5s} {'rank':>5s} {'≤0.8×':>6s} {'>2×':>4s}"]
     for n in order:
         e = est[n]
         lines.append(f"{n:12s} {e['logs']:5d} {_f(e['median']):>7s} {_f(e['mean']):>7s} {_f(e['p90']):>7s} "
@@ -287,6 +343,11 @@ def ranking_text(summary: dict) -> str:
                      f"{e['logs_at_most_0.8x_baseline']:6d} {e['logs_over_2x_baseline']:4d}")
     if summary.get("references"):
         lines.append(f"reference per log: {references_said(summary['references'])} (report.md lists each)")
+    for group, g in (summary.get("by_reference") or {}).items():
+        if group != "all" and len(summary["by_reference"]) == 2:
+            continue  # one family: the same logs as "all"
+        lines.append(f"{GROUP_TITLES[group]} ({logs_text(g['logs'])}):")
+        lines += [f"  {line}" for line in g["plain"]]
     left_out = summary.get("not_meaningful", [])
     if left_out:
         named = "; ".join(f"{_short(n['log'])}: {n['why']}" for n in left_out[:3])

@@ -19,7 +19,7 @@ from .imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful
 from .metrics import Comparison, compare
 from .params import build, log_defaults
 from .phase import PhaseSeries
-from .refcheck import check_reference, excluded_spans, whole_log_notes
+from .refcheck import autopilot_disagreement, check_reference, excluded_spans, whole_log_notes
 from .readers import best_imu_source, imu_rate, mag_for_imu
 from .readers.attitudes import SECONDARY_KEYS, NamedAttitude, name_attitudes
 from .runner import REINIT_GAP_S, Runner
@@ -344,6 +344,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
         phase = runner.phase_series()
         suspects = check_reference(ref, flight.imu[runner.imu_source], applied_trim,
                                    phase.on_clock if phase is not None else None, flight.gps)
+        suspects = sorted(suspects + autopilot_disagreement(ref, flight), key=lambda s: s.start)
         notes = whole_log_notes(ref, flight.repeated.get(ref.source, 0))
         events += [Event(s.start, "warn", f"reference not trusted {s.start:.1f}-{s.end:.1f} s: {s.detail} "
                          "(not scored there)", kind=f"reference not trusted ({s.kind}), not scored there")

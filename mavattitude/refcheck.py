@@ -1,6 +1,7 @@
-"""Where the autopilot's own attitude cannot be right, judged by the log's own IMU.
+"""Where the autopilot's own attitude cannot be right, judged by the log's own IMU and by the
+autopilot's other estimators.
 
-A real log's reference is the autopilot's estimate, and it has faults of its own. Three checks:
+A real log's reference is the autopilot's estimate, and it has faults of its own. Four checks:
 
 - **tilt at rest**: on the ground and still (rotating slower than ``REST_RATE``, the
   accelerometer's 1 s mean within ``REST_ACCEL`` of g, and slower than ``REST_SPEED`` where
@@ -14,6 +15,19 @@ A real log's reference is the autopilot's estimate, and it has faults of its own
   jumped (a crash that saturated its estimate, a lane switch, a reset). Yaw is not judged: an
   EKF's yaw resets to its compass or GPS are its own business, and yaw is not ranked.
   The span flagged runs from the jump to ``JUMP_HOLD_S`` after it.
+- **autopilot disagrees**: the autopilot's own estimators (the reference and each other stream
+  of ``Flight.attitudes`` that is not a copy of it, ``readers.attitudes.name_attitudes``) differ
+  in tilt by more than ``DISAGREE_DEG`` for ``DISAGREE_MIN_S`` or longer: at most one of them is
+  right, and nothing in the log says which. Measured (``scripts/reference_spread.py --flags``)
+  on the shared logs' 60 pairs, the tilt angle between the two: modern DCM/EKF2/EKF3 pairs differ
+  by a median 0.1-2.3°, their 99th percentile under 6.1° but for a crash, and stay above 10° for
+  at most 4.6 s (SITL vibration; the 4.x real copters: never); the known bad logs stay above 10°
+  for minutes (the 88° log 862 s, nearly all of it; gps-flight-20141009-31 202 s; the plane
+  roverfolder log 60 s, above 20° nearly throughout). 10° is ten times the modern spread and
+  10 s twice the longest modern transient. Also flagged at that setting: plane-3.1-flight-329
+  (14 s), a plane's crash (17 s) and the SITL quadplane's AHRS3 (EKF2, 93 s). The time counted
+  is the time above ``DISAGREE_DEG``; a dip below it shorter than ``DISAGREE_BRIDGE_S``, or a
+  gap (nothing there says the two agree), does not end a span (``disagreeing_spans``).
 - **repeated times**: reference samples that repeat the time of the one before (the reader
   keeps the first of each time and drops the rest): not a span but a note on the whole log
   (``LogNote``), saying what was done; what is left is in order and scored.
@@ -28,7 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import quaternion as quat
-from .flight import GRAVITY, AttitudeSeries, GpsSeries, ImuSeries
+from .flight import GRAVITY, AttitudeSeries, Flight, GpsSeries, ImuSeries
+from .readers.attitudes import MOST as SAME_SHARE, name_attitudes
 
 TILT_AT_REST_DEG = 5.0
 REST_RATE = 0.05  # rad/s, mean over 1 s
@@ -38,13 +53,17 @@ MIN_REST_SPAN_S = 2.0
 JUMP_MARGIN_DEG = 20.0
 JUMP_HOLD_S = 5.0
 MAX_JUMP_STEP_S = 2.0  # reference samples further apart are a gap, not a jump
+DISAGREE_DEG = 10.0
+DISAGREE_MIN_S = 10.0
+DISAGREE_BRIDGE_S = 2.0
+DISAGREE_MAX_GAP_S = 1.0  # no comparison across a stream's samples further apart than this
 REPEATED_SHARE = 0.005  # flag the log when more reference samples than this repeat a time
 
 
 @dataclass
 class Suspect:
     """A stretch of reference that is not to be trusted, and not scored: [start, end] s."""
-    kind: str  # "tilt at rest", "tilt jump"
+    kind: str  # "tilt at rest", "tilt jump", "autopilot disagrees"
     start: float
     end: float
     detail: str
@@ -73,6 +92,75 @@ def check_reference(ref: AttitudeSeries, imu: ImuSeries, trim, in_air_at=None,
         suspects += _tilt_at_rest(ref, imu, trim, in_air_at, gps)
     suspects += _tilt_jumps(ref, imu)
     return sorted(suspects, key=lambda s: s.start)
+
+
+def autopilot_disagreement(ref: AttitudeSeries, flight: Flight) -> list[Suspect]:
+    """Where ``ref`` and another of the autopilot's estimators (``flight.attitudes``, copies of
+    ``ref`` or of a stream already compared left out) differ in tilt by more than DISAGREE_DEG for
+    DISAGREE_MIN_S or longer, one Suspect per span and stream, in time order."""
+    if ref.source not in flight.attitudes or len(flight.attitudes) < 2:
+        return []
+    named = name_attitudes(flight)
+    algorithm = next(n.algorithm for n in named if n.key == ref.source)
+    out = []
+    for other in compared_streams(ref, named):
+        key = other.key
+        for start, end, seconds, values in disagreeing_spans(*tilt_apart_deg(ref, flight.attitudes[key])):
+            if seconds >= DISAGREE_MIN_S:
+                out.append(Suspect("autopilot disagrees", start, end,
+                                   f"{ref.source} ({algorithm}) and {key} ({other.algorithm}) differ in tilt by "
+                                   f"more than {DISAGREE_DEG:g}° for {seconds:.0f} s (median "
+                                   f"{np.median(values):.0f}°, up to {np.max(values):.0f}°)"))
+    return sorted(out, key=lambda s: s.start)
+
+
+def compared_streams(ref: AttitudeSeries, named: list) -> list:
+    """The streams of ``named`` (``name_attitudes``) that give a second opinion on ``ref``: not
+    ``ref`` itself, nor a copy of it or of one already taken (ATT = XKF1[0], AHR2 = EKF1)."""
+    by_key = {n.key: n for n in named}
+    taken, out = [ref.source], []
+    for other in named:
+        if any(max(other.equals.get(k, 0.0), by_key[k].equals.get(other.key, 0.0)) > SAME_SHARE
+               for k in taken if k in by_key) or other.key == ref.source:
+            continue
+        taken.append(other.key)
+        out.append(other)
+    return out
+
+
+def tilt_apart_deg(ref: AttitudeSeries, other: AttitudeSeries) -> tuple[np.ndarray, np.ndarray]:
+    """(t, angle) on ``ref``'s clock: the angle between the two streams' down directions in the body
+    (their tilt difference, yaw aside), NaN where either stream has a gap over DISAGREE_MAX_GAP_S."""
+    t = ref.t
+    q_other = quat.interpolate(other.t, other.q, t)
+    after = np.clip(np.searchsorted(other.t, t), 1, max(len(other.t) - 1, 1))
+    if len(other.t) >= 2:
+        q_other[other.t[after] - other.t[after - 1] > DISAGREE_MAX_GAP_S] = np.nan
+    down = np.array([0.0, 0.0, 1.0])
+    with np.errstate(invalid="ignore"):
+        cosine = (quat.rotate(quat.conjugate(ref.q), down) * quat.rotate(quat.conjugate(q_other), down)).sum(axis=1)
+        return t, np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
+
+
+def disagreeing_spans(t: np.ndarray, apart: np.ndarray, limit: float = DISAGREE_DEG) -> list[tuple]:
+    """(start, end, seconds, angles) of each span where ``apart`` (°, NaN where not known) is above
+    ``limit``: a stretch below it shorter than DISAGREE_BRIDGE_S does not end a span, nor does a
+    stretch where it is not known (a gap: nothing there says the two agree). ``seconds`` counts
+    the time above ``limit`` alone, not the gaps; ``angles`` the known ones inside the span."""
+    known = np.isfinite(apart)
+    t, apart = t[known], apart[known]
+    runs: list[tuple[int, int]] = []
+    for a, b in _runs(apart > limit):
+        if runs and t[a - 1] - t[runs[-1][1]] < DISAGREE_BRIDGE_S:  # the samples below: t[prev end .. a - 1]
+            runs[-1] = (runs[-1][0], b)
+        else:
+            runs.append((a, b))
+    out = []
+    for a, b in runs:
+        steps = np.diff(t[a:b])
+        above = np.diff(t[a:b])[(apart[a:b - 1] > limit) & (steps <= DISAGREE_MAX_GAP_S)]
+        out.append((float(t[a]), float(t[b - 1]), float(above.sum()), apart[a:b]))
+    return out
 
 
 def whole_log_notes(ref: AttitudeSeries, repeated: int = 0) -> list[LogNote]:

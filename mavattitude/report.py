@@ -223,12 +223,16 @@ def estimator_extras(result) -> dict[str, dict]:
 
 def nothing_scored(comparisons: dict[str, Comparison], warmup_s: float) -> str | None:
     """Why no sample was scored, when none was: a log (or session) about as short as the
-    warm-up, or an estimate that never overlaps the reference. None when something was."""
+    warm-up, an estimate that never overlaps the reference, or a reference not trusted
+    anywhere after the warm-up (``refcheck``). None when something was."""
     if not comparisons or any(a is not None for c in comparisons.values() for a in c.axes.values()):
         return None
     spans = [c.overlap_s for c in comparisons.values() if c.overlap_s is not None]
     if not spans:
         return "nothing scored: the estimates and the reference never overlap in time"
+    if max(spans) > warmup_s and any(c.n_excluded for c in comparisons.values()):
+        return (f"nothing scored: the reference is not trusted anywhere the estimates overlap it after the "
+                f"{warmup_s:g} s warm-up (the 'reference not trusted' warnings say where and why)")
     return (f"nothing scored: the estimates overlap the reference for {max(spans):.1f} s, no more than the "
             f"{warmup_s:g} s warm-up (use a shorter --warmup)")
 

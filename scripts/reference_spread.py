@@ -2,7 +2,7 @@
 """How far the autopilot's own estimators are apart: for every shared log, the primary attitude
 (the "autopilot" reference) against each other stream the log holds (issue 24, part 5's data).
 
-    python scripts/reference_spread.py [LOGS_DIR ...] [--warmup S]
+    python scripts/reference_spread.py [LOGS_DIR ...] [--warmup S] [--flags]
 
 Per pair: the roll and pitch MAE and mean offset (other - primary, degrees), and for sustained
 disagreement the longest span (s) where roll or pitch differ by more than 3°, 5° and 10°. The
@@ -11,6 +11,11 @@ extrapolation, nothing across a gap over ``MAX_GAP_S``), after ``--warmup`` seco
 the whole log, the EKF's start included). Then the board trim (AHRS_TRIM_X/Y) beside the mean
 offset of the EKF1 logs, and the median MAE per kind of pair. "equal to primary": the share of
 the primary's samples the other stream equals to the log's resolution (0.02°): 100 % is a copy.
+
+``--flags``: instead, refcheck's "autopilot disagrees" check on every log: per pair it compares
+(copies left out), the tilt angle between the two (median, 99th percentile) and the longest span
+above 5°, 10° and 20° (refcheck.disagreeing_spans: the seconds above the limit, dips shorter than
+refcheck.DISAGREE_BRIDGE_S and gaps bridged), then the spans it flags.
 """
 from __future__ import annotations
 
@@ -23,6 +28,7 @@ import numpy as np
 from mavattitude import load
 from mavattitude.errors import InputError
 from mavattitude.metrics import compare
+from mavattitude import refcheck
 from mavattitude.readers.attitudes import name_attitudes
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,15 +71,54 @@ def spread(flight, warmup_s: float) -> list[dict]:
     return rows
 
 
+def print_flags(paths: list[Path]) -> None:
+    """The disagreement check's measurements and flags on each log (--flags)."""
+    limits = (5.0, refcheck.DISAGREE_DEG, 20.0)
+    print("| log | reference | other | median ° | 99th percentile ° | "
+          + " | ".join(f"longest > {limit:g}° (s)" for limit in limits) + " |")
+    print("|---|---|---|---|---|" + "---|" * len(limits))
+    flags = []
+    for path in paths:
+        try:
+            flight = load(path)
+        except InputError as exc:
+            print(f"| {path.name} | {exc} |")
+            continue
+        ref = flight.attitude
+        if ref is None:
+            continue
+        named = name_attitudes(flight)
+        for other in refcheck.compared_streams(ref, named):
+            t, apart = refcheck.tilt_apart_deg(ref, flight.attitudes[other.key])
+            if not np.isfinite(apart).any():
+                continue
+            longest = [max((span[2] for span in refcheck.disagreeing_spans(t, apart, limit)), default=0.0)
+                       for limit in limits]
+            print(f"| {path.name} | {ref.source} ({named[0].algorithm}) | {other.key} ({other.algorithm}) | "
+                  f"{np.nanmedian(apart):.2f} | {np.nanpercentile(apart, 99):.1f} | "
+                  + " | ".join(f"{s:.1f}" for s in longest) + " |")
+        flags += [(path.name, s) for s in refcheck.autopilot_disagreement(ref, flight)]
+    print(f"\nFlagged (> {refcheck.DISAGREE_DEG:g}° for {refcheck.DISAGREE_MIN_S:g} s or longer): "
+          f"{len(flags)} spans on {len({name for name, _ in flags})} logs\n")
+    print("| log | start s | end s | detail |")
+    print("|---|---|---|---|")
+    for name, s in flags:
+        print(f"| {name} | {s.start:.1f} | {s.end:.1f} | {s.detail} |")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", nargs="*", default=[str(LOGS), str(LOGS / "corpus"), str(LOGS / "ulog")])
     parser.add_argument("--warmup", type=float, default=0.0, help="seconds left out at the start (default 0)")
+    parser.add_argument("--flags", action="store_true", help="what refcheck's 'autopilot disagrees' check flags")
     args = parser.parse_args()
     paths = [p for folder in args.folders for p in sorted(Path(folder).iterdir()) if p.suffix.lower() in SUFFIXES]
     if not paths:
         print(f"no logs in {', '.join(args.folders)}", file=sys.stderr)
         return 1
+    if args.flags:
+        print_flags(paths)
+        return 0
     spans = " | ".join(f"> {limit:g}° (s)" for limit in THRESHOLDS_DEG)
     print(f"| log | primary | other | equal to primary | roll / pitch MAE ° | mean offset roll / pitch ° | "
           f"longest {spans} |")

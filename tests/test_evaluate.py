@@ -203,6 +203,13 @@ def test_shared_logs_all_estimators(tmp_path):
     # the telemetry logs whose IMU arrives at 1 and 4 Hz are left out of the ranking
     assert sorted(Path(n["log"]).name for n in summary["not_meaningful"]) == [
         "copter-4.1-flight.tlog", "sitl-quadplane-vtol.tlog"]
-    # every log has scores but those no longer than the warm-up (the 6 s PX4 ULog on the ground)
-    short = [r for r in records(out).values() if r["facts"]["duration_s"] <= 10.0]
-    assert summary["paper_001_ranking"]["logs"] == summary["scored"] - len(short)
+    # every log has scores but those no longer than the warm-up (the 6 s PX4 ULog on the ground) and
+    # those whose ATT (DCM) is far from their EKF1 all along: the 88° log, the plane roverfolder log (50°)
+    got = records(out)
+    short = [r for r in got.values() if r["facts"]["duration_s"] <= 10.0]
+    disowned = [name for name, r in got.items()
+                if any(s["kind"] == "autopilot disagrees" for s in r["suspects"])
+                and all(er.tilt_score(m) is None for m in r["metrics"].values())]
+    assert sorted(disowned) == ["real-copter-3.3dev-erlepxf-dcm-long-erle-20140923-51.bin",
+                                "real-plane-3.0.4b3-erlepxf-dcm-erle-roverfolder-20140802-10.bin"]
+    assert summary["paper_001_ranking"]["logs"] == summary["scored"] - len(short) - len(disowned)
