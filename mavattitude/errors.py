@@ -12,3 +12,20 @@ class InputError(Exception):
 
 class UsageError(Exception):
     """The command line asks for something that cannot be done (exit 2)."""
+
+
+def is_interrupt(exc: BaseException | None) -> bool:
+    """Whether ``exc`` is a stop signal's KeyboardInterrupt, also as numba's compiled code
+    returns it: a signal handled while a kernel runs leaves the exception set under its
+    result, and CPython reports a SystemError ("returned a result with an exception set")
+    caused by the KeyboardInterrupt."""
+    if isinstance(exc, KeyboardInterrupt):
+        return True
+    return isinstance(exc, SystemError) and is_interrupt(exc.__cause__ or exc.__context__)
+
+
+def reraise_interrupt(exc: BaseException) -> None:
+    """For a catch-all (``except Exception``) around compiled code: raise KeyboardInterrupt if
+    ``exc`` is an interrupt, so that a Ctrl-C is never taken for a log's fault or result."""
+    if is_interrupt(exc):
+        raise KeyboardInterrupt from exc

@@ -120,7 +120,10 @@ def _noticing_interrupts():
 
     def handler(signum, frame):
         seen.append(signum)
-        raise KeyboardInterrupt
+        if callable(previous):
+            previous(signum, frame)  # the program's own handling (the command's: see signals.py)
+        else:
+            raise KeyboardInterrupt
 
     def unraisable(report):
         if isinstance(report.exc_value, KeyboardInterrupt):
