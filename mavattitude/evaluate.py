@@ -329,16 +329,11 @@ def _start_worker(parent: int) -> None:
     parent alone acts on it (and ends the pool), so no worker takes it for a log's failure.
     A worker whose parent died without ending it (SIGKILL, a crash) ends as well."""
     import signal
-    import threading
+
+    from .signals import end_with_parent
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_watch_parent, args=(parent,), name="watch-parent", daemon=True).start()
-
-
-def _watch_parent(parent: int) -> None:
-    while os.getppid() == parent:  # an orphan is adopted by another process
-        time.sleep(1.0)
-    os._exit(1)
+    end_with_parent(parent)
 
 
 def _end_workers(pool) -> None:

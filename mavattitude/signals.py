@@ -22,6 +22,7 @@ import os
 import signal
 import sys
 import threading
+import time
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 SIGNAL_NAMES = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated (SIGTERM)"}
@@ -79,3 +80,14 @@ def exit_code() -> int:
 def message() -> str:
     """The one line a stopped command prints: 'interrupted' or 'terminated (SIGTERM)'."""
     return SIGNAL_NAMES[received() or signal.SIGINT]
+
+
+def end_with_parent(parent: int) -> None:
+    """In a helper process (an evaluate worker, a compiling process): end it once its parent
+    ``parent`` (a pid) is gone, whether that ended by a signal, a crash or SIGKILL, rather
+    than let it work on for nobody. A thread checks once a second."""
+    def watch() -> None:
+        while os.getppid() == parent:  # an orphan is adopted by another process
+            time.sleep(1.0)
+        os._exit(1)
+    threading.Thread(target=watch, name="end-with-parent", daemon=True).start()

@@ -5,12 +5,16 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+import signal
+import subprocess
+import sys
+import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
 
-from conftest import SAMPLE_LOGS, SHARED_LOGS
+from conftest import SAMPLE_LOGS, SHARED_LOGS, kernel_interrupt, process_group
 from mavattitude import evalreport as er
 from mavattitude.cli import main
 from mavattitude.evaluate import find_logs, record_name
@@ -191,18 +195,10 @@ def test_shared_logs_all_estimators(tmp_path):
 # ---------------------------------------------------------------- stop signals
 
 
-def _kernel_interrupt(*args, **kwargs):
-    """What numba's dispatcher returns when a Ctrl-C is handled while it calls a kernel."""
-    try:
-        raise KeyboardInterrupt
-    except KeyboardInterrupt as exc:
-        raise SystemError("CPUDispatcher(<function cpf_ekf_run>) returned a result with an exception set") from exc
-
-
 def test_an_interrupt_inside_a_kernel_is_never_a_logs_result(logs, tmp_path, capsys, monkeypatch):
     from mavattitude import evaluate as ev
 
-    monkeypatch.setattr(ev, "_replay", _kernel_interrupt)
+    monkeypatch.setattr(ev, "_replay", kernel_interrupt)
     with pytest.raises(KeyboardInterrupt):
         ev.evaluate_log(str(logs / "static.bin"), None)
     out = tmp_path / "eval"
@@ -232,19 +228,6 @@ def test_an_internal_error_is_tried_again_on_resume(logs, tmp_path, capsys, monk
     assert records(out)["static.bin"]["status"] == "ok"
 
 
-def _process_group(pgid: int) -> list[int]:
-    """The live processes of a process group (Linux /proc)."""
-    pids = []
-    for entry in Path("/proc").iterdir():
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):
-            continue
-        if int(fields[2]) == pgid and fields[0] != "Z":
-            pids.append(int(entry.name))
-    return pids
-
-
 @pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux's /proc")
 @pytest.mark.parametrize("signum, code", [("SIGTERM", 143), ("SIGINT", 130), ("SIGKILL", -9)])
@@ -252,11 +235,6 @@ def test_a_stopped_evaluate_leaves_no_worker_and_no_temporary_file(tmp_path, sig
     """Sent to the parent alone (a service manager, kill), not the whole group as a terminal's
     Ctrl-C is: the workers end too, replaying nothing for nobody; even when the parent is
     killed outright, they notice within a second."""
-    import signal
-    import subprocess
-    import sys
-    import time
-
     if not (SHARED_LOGS / "sitl-copter-4.7-400hz.bin").exists():
         pytest.skip(f"real logs not found at {SHARED_LOGS}")
     logs = [SHARED_LOGS / "sitl-copter-4.7-400hz.bin", *sorted(SHARED_LOGS.glob("*.tlog"))]
@@ -265,7 +243,7 @@ def test_a_stopped_evaluate_leaves_no_worker_and_no_temporary_file(tmp_path, sig
                              "-j", "2", "--out", str(out)], cwd=tmp_path, text=True, start_new_session=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 120
-    while len(_process_group(proc.pid)) < 3:  # the parent and its two workers
+    while len(process_group(proc.pid)) < 3:  # the parent and its two workers
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
         time.sleep(0.1)
     time.sleep(2.0)  # replaying
@@ -275,6 +253,7 @@ def test_a_stopped_evaluate_leaves_no_worker_and_no_temporary_file(tmp_path, sig
     if code > 0:
         assert "Traceback" not in err and err.strip().splitlines()[-1].split()[0] in ("interrupted", "terminated")
         assert not [p.name for p in out.rglob(".*")]  # no .partial output
-    while _process_group(proc.pid) and time.monotonic() < deadline:
+    deadline = time.monotonic() + 5.0  # not after their logs
+    while process_group(proc.pid) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert _process_group(proc.pid) == []
+    assert process_group(proc.pid) == []

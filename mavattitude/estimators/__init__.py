@@ -179,9 +179,11 @@ def precompile(names: list[str]) -> Compiling:
         k = loads.index(min(loads))
         shares[k].append(name)
         loads[k] += COMPILE_SECONDS[name]
-    code = "import sys; from mavattitude.estimators import compile_kernels; compile_kernels(sys.argv[1:])"
-    return Compiling(subprocess.Popen([sys.executable, "-c", code, *share], stdout=subprocess.DEVNULL,
-                                      stderr=subprocess.DEVNULL) for share in shares)
+    # a compiling process ends with its parent (a SIGTERM may end that before it waits for them)
+    code = ("import sys; from mavattitude.signals import end_with_parent; end_with_parent(int(sys.argv[1])); "
+            "from mavattitude.estimators import compile_kernels; compile_kernels(sys.argv[2:])")
+    return Compiling(subprocess.Popen([sys.executable, "-c", code, str(os.getpid()), *share],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for share in shares)
 
 
 def compile_kernels(names: list[str]) -> None:
