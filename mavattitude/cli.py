@@ -852,9 +852,9 @@ def main(argv=None) -> int:
             signals.ignore()  # done: the interpreter's exit is not cut short
         else:
             signals.restore(previous)  # a caller's own handlers back
-    if program and signals.received() is not None:
-        # stopped wherever it was (an import, a compile, Rerun's start): the interpreter's exit
-        # can crash on what was left half done (SIGSEGV seen); end here, everything closed
+    if program and code == signals.exit_code():
+        # stopped wherever it was (an import, LLVM mid-compile, Rerun's start): the interpreter's
+        # exit can crash on what was left half done (SIGSEGV seen); end here, everything closed
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)
@@ -872,7 +872,8 @@ def _main(argv) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    from .estimators import compile_interrupted, load_plugins
+    from .estimators import load_plugins
+    signals.hold_during_kernel_loads()
     for problem in load_plugins():
         _warn(problem)
     code = _run(args)
@@ -883,9 +884,7 @@ def _main(argv) -> int:
         closed = False
     if not closed:
         print("mavattitude: the Rerun viewer stopped answering; closed without it", file=sys.stderr)
-    if not closed or (code == signals.exit_code() and compile_interrupted()):
-        # Rerun's exit handler would wait for that viewer forever; LLVM stopped mid-compile can
-        # crash the interpreter's exit (SIGSEGV seen): end here, everything written and closed
+        # Rerun's exit handler would wait for that viewer forever: end here, everything written and closed
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)

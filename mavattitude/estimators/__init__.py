@@ -99,15 +99,6 @@ COMPILE_SECONDS = {"mahony": 2.0, "mahony-ekf": 4.0, "ekf": 4.0, "eskf": 2.5, "n
                    "cpf-ekf": 9.5}
 
 
-_interrupted: list[bool] = []  # a compile was interrupted in this process (see compile_interrupted)
-
-
-def compile_interrupted() -> bool:
-    """Whether a Ctrl-C stopped a compile here. LLVM, stopped mid-compile, can crash the
-    interpreter's own exit (SIGSEGV seen): such a process should end with ``os._exit``."""
-    return bool(_interrupted)
-
-
 @contextmanager
 def _noticing_interrupts():
     """A Ctrl-C while numba compiles can land in one of LLVM's callbacks, where Python can only
@@ -138,7 +129,6 @@ def _noticing_interrupts():
         signal.signal(signal.SIGINT, previous)
         sys.unraisablehook = previous_hook
     if seen:
-        _interrupted.append(True)
         raise KeyboardInterrupt
 
 
@@ -156,7 +146,6 @@ class Compiling:
                 p.wait()  # a worker that failed leaves its kernels to compile here, on first use
         processes, self.processes = self.processes, []
         if any(p.returncode == -signal.SIGINT for p in processes):
-            _interrupted.append(True)
             raise KeyboardInterrupt  # Ctrl-C at a terminal reaches the workers too
 
 
