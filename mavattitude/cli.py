@@ -873,7 +873,6 @@ def _main(argv) -> int:
         parser.print_help()
         return 2
     from .estimators import load_plugins
-    signals.hold_during_kernel_loads()
     for problem in load_plugins():
         _warn(problem)
     code = _run(args)

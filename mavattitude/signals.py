@@ -23,36 +23,42 @@ import signal
 import sys
 import threading
 import time
-from contextlib import contextmanager
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 SIGNAL_NAMES = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated (SIGTERM)"}
+RESEND_S = 0.02  # s: a first signal that landed in numba's own code is sent again after this
 _received: list[int] = []  # the stop signals since ``install``, in order
-_holding = 0  # ``held`` blocks running
-_due = False  # a first signal came during a ``held`` block: raised as it ends
 
 
 def _stop(signum, frame) -> None:
-    global _due
+    if not _received and _in_numba(frame):
+        # Raised there, it would unwind numba's C code halfway through a compiled call: the call
+        # came back as a SystemError, or with a half-built result that crashed the process
+        # (SIGSEGV, 2 of 50 Ctrl-C at random moments of a replay). Sent again until it lands in
+        # other code: at the latest when the call returns (compiled code does not see signals).
+        threading.Timer(RESEND_S, os.kill, (os.getpid(), signum)).start()
+        return
     _received.append(signum)
+    if len(_received) == 1:
+        raise KeyboardInterrupt
     if len(_received) >= 3:
         print(SIGNAL_NAMES[_received[0]], file=sys.stderr, flush=True)
         os._exit(exit_code())
-    if len(_received) == 1:
-        if _holding:
-            _due = True
-        else:
-            raise KeyboardInterrupt
+
+
+def _in_numba(frame) -> bool:
+    """Whether ``frame`` runs numba's or llvmlite's own Python code (typing a call's arguments,
+    boxing its results, loading or compiling a kernel), called from inside a compiled call."""
+    parts = frame.f_code.co_filename.split(os.sep) if frame is not None else ()
+    return "numba" in parts or "llvmlite" in parts
 
 
 def install() -> dict:
     """Handle SIGINT and SIGTERM as above (from the main thread only: the others get no
     signals); returns the handlers replaced, for ``restore``."""
-    global _due
     if threading.current_thread() is not threading.main_thread():
         return {}
     _received.clear()
-    _due = False
     return {sig: signal.signal(sig, _stop) for sig in STOP_SIGNALS}
 
 
@@ -60,38 +66,6 @@ def restore(previous: dict) -> None:
     for sig, handler in previous.items():
         if handler is not None:  # None: one set outside Python, which Python cannot set again
             signal.signal(sig, handler)
-
-
-@contextmanager
-def held():
-    """A first stop signal waits till the block is done, then raises. For short native work that
-    must not be left half done: numba linking a cached kernel into LLVM, stopped there, crashed
-    the process (SIGSEGV, 2 of 50 Ctrl-C at random moments of a replay)."""
-    global _holding, _due
-    _holding += 1
-    try:
-        yield
-    finally:
-        _holding -= 1
-        if _due and not _holding:
-            _due = False
-            raise KeyboardInterrupt  # the stop comes first, whatever the block raised
-
-
-def hold_during_kernel_loads() -> None:
-    """Load every cached numba kernel ``held`` (numba loads each on its first call, in the middle
-    of a replay): for the command only, a library user's process is left as it is."""
-    from numba.core.caching import Cache
-
-    load = Cache.load_overload
-    if getattr(load, "held", False):
-        return
-
-    def load_held(self, sig, target_context):
-        with held():
-            return load(self, sig, target_context)
-    load_held.held = True
-    Cache.load_overload = load_held
 
 
 def ignore() -> None:

@@ -129,7 +129,15 @@ def _noticing_interrupts():
         signal.signal(signal.SIGINT, previous)
         sys.unraisablehook = previous_hook
     if seen:
-        raise KeyboardInterrupt
+        _raise_interrupt(previous)
+
+
+def _raise_interrupt(handler) -> None:
+    """Raise KeyboardInterrupt through ``handler``, the program's SIGINT handler, if it is a
+    function: the command's counts it as its first stop signal (see signals.py)."""
+    if callable(handler):
+        handler(signal.SIGINT, None)
+    raise KeyboardInterrupt
 
 
 class Compiling:
@@ -146,7 +154,7 @@ class Compiling:
                 p.wait()  # a worker that failed leaves its kernels to compile here, on first use
         processes, self.processes = self.processes, []
         if any(p.returncode == -signal.SIGINT for p in processes):
-            raise KeyboardInterrupt  # Ctrl-C at a terminal reaches the workers too
+            _raise_interrupt(signal.getsignal(signal.SIGINT))  # Ctrl-C at a terminal reaches the workers too
 
 
 def precompile(names: list[str]) -> Compiling:
