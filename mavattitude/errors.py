@@ -1,4 +1,5 @@
-"""Errors the CLI turns into one line on stderr and a non-zero exit."""
+"""Errors the CLI turns into one line on stderr and a non-zero exit, and how an interrupt looks
+when numba's compiled code returns it."""
 
 
 class InputError(Exception):

@@ -6,6 +6,10 @@ on the way out cleans up: temporary outputs removed (``outputs.Outputs``), worke
 ended (``evaluate.Workers``). The command then says so in one line and exits with 128 + the
 signal's number, as a shell reports a process killed by it: 130 for Ctrl-C, 143 for SIGTERM.
 
+Raised inside numba's own Python code (which its compiled calls run: typing arguments, boxing
+results, loading a kernel), it would leave the call half done; a first signal landing there is
+sent again 20 ms later, until it lands in other code.
+
 A second signal while that happens is noted, not raised: a Ctrl-C pressed twice must not cut
 the cleanup short (``.partial`` files left), nor end the process by SIGINT, which CPython does
 when a KeyboardInterrupt escapes the program. A third ends the process at once
@@ -47,10 +51,14 @@ def _stop(signum, frame) -> None:
 
 
 def _in_numba(frame) -> bool:
-    """Whether ``frame`` runs numba's or llvmlite's own Python code (typing a call's arguments,
-    boxing its results, loading or compiling a kernel), called from inside a compiled call."""
-    parts = frame.f_code.co_filename.split(os.sep) if frame is not None else ()
-    return "numba" in parts or "llvmlite" in parts
+    """Whether ``frame`` is within numba's or llvmlite's own Python code (typing a call's
+    arguments, boxing its results, loading or compiling a kernel), itself or a caller of it."""
+    while frame is not None:
+        parts = frame.f_code.co_filename.split(os.sep)
+        if "numba" in parts or "llvmlite" in parts:
+            return True
+        frame = frame.f_back
+    return False
 
 
 def install() -> dict:
