@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import UsageError
+from .errors import UsageError, reraise_interrupt
 from .flight import GRAVITY, MagSeries
 from .outputs import json_text
 
@@ -230,6 +230,7 @@ def run_bench(names: list[str], scenario: str = "figure8", duration: float = 360
         try:
             warm_s = warm(name, data)
         except Exception as exc:  # one broken estimator must not hide the others' numbers
+            reraise_interrupt(exc)  # a Ctrl-C in its kernel is no fault of it
             _say(f"warning: {name} failed: {type(exc).__name__}: {exc}")
             rows.append(dict(estimator=name, mag=None, error=f"{type(exc).__name__}: {exc}"))
             continue
@@ -240,6 +241,7 @@ def run_bench(names: list[str], scenario: str = "figure8", duration: float = 360
             try:
                 seconds = time_estimator(name, data, use_mag, repeat)
             except Exception as exc:
+                reraise_interrupt(exc)
                 _say(f"warning: {name} ({label}) failed: {type(exc).__name__}: {exc}")
                 rows.append(dict(estimator=name, mag=use_mag, error=f"{type(exc).__name__}: {exc}"))
                 continue

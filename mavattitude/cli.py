@@ -24,8 +24,8 @@ import textwrap
 import time
 from pathlib import Path
 
-from . import __version__
-from .errors import InputError, UsageError
+from . import __version__, signals
+from .errors import InputError, UsageError, is_interrupt
 from .outputs import Outputs, json_text
 
 DESCRIPTION = """\
@@ -342,7 +342,7 @@ def _view(result, rec, sink) -> None:
             while True:
                 time.sleep(1)
         except KeyboardInterrupt:
-            pass
+            signals.rearm()  # that one only ended the serving; the next stops the command
     close_sink(rec, sink)
     if sink.kind == "rrd":  # put in place with the other outputs, when the command ends
         print(f"Rerun recording written to {sink.file.path}; open it with: rerun {sink.file.path}")
@@ -933,6 +933,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    program = argv is None  # the process's own command line, not a caller's (a test, a script)
+    previous = signals.install()  # first: a stop signal during the imports below is one line too
+    try:
+        code = _main(argv)
+    except KeyboardInterrupt:  # before the command started, or as it ended
+        code = _interrupted()
+    finally:
+        if program:
+            signals.ignore()  # done: the interpreter's exit is not cut short
+        else:
+            signals.restore(previous)  # a caller's own handlers back
+    if program and code == signals.exit_code():
+        # stopped wherever it was (an import, LLVM mid-compile, Rerun's start): the interpreter's
+        # exit can crash on what was left half done (SIGSEGV seen); end here, everything closed
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def _main(argv) -> int:
     # Rerun's own log lines would repeat, in Rust's format, what our one-line errors say.
     os.environ.setdefault("RUST_LOG", "off")
     parser = build_parser()
@@ -943,7 +964,7 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    from .estimators import compile_interrupted, load_plugins
+    from .estimators import load_plugins
     for problem in load_plugins():
         _warn(problem)
     code = _run(args)
@@ -954,19 +975,30 @@ def main(argv=None) -> int:
         closed = False
     if not closed:
         print("mavattitude: the Rerun viewer stopped answering; closed without it", file=sys.stderr)
-    if not closed or (code == 130 and compile_interrupted()):
-        # Rerun's exit handler would wait for that viewer forever; LLVM stopped mid-compile can
-        # crash the interpreter's exit (SIGSEGV): end here, everything written and closed
+        # Rerun's exit handler would wait for that viewer forever: end here, everything written and closed
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)
     return code
 
 
+def _interrupted() -> int:
+    """A stop signal's one line ('interrupted') and exit status (130; 143 for SIGTERM)."""
+    print(signals.message(), file=sys.stderr)
+    return signals.exit_code()
+
+
 def _run(args) -> int:
     """Run the command; every error becomes one line on stderr and its exit status."""
     try:
-        return args.func(args)
+        try:
+            return args.func(args)
+        except (SystemError, InputError, UsageError, OSError) as exc:
+            # a Ctrl-C inside a compiled kernel comes back as a SystemError; and once told to
+            # stop, whatever ends the command is the stop's doing
+            if signals.received() is not None or is_interrupt(exc):
+                raise KeyboardInterrupt from exc
+            raise  # a SystemError that is no interrupt: a bug, whose traceback is the report
     except InputError as exc:
         print(f"mavattitude: error: {exc}", file=sys.stderr)
         return 1
@@ -981,8 +1013,7 @@ def _run(args) -> int:
         print(f"mavattitude: error: {name}{exc.strerror or exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+        return _interrupted()
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""Errors the CLI turns into one line on stderr and a non-zero exit."""
+"""Errors the CLI turns into one line on stderr and a non-zero exit, and how an interrupt looks
+when numba's compiled code returns it."""
 from __future__ import annotations
 
 import os
@@ -37,3 +38,20 @@ def check_not_special(path) -> None:
     kind = special_file(path)
     if kind:
         raise InputError(path, f"not a regular file ({kind})")
+
+
+def is_interrupt(exc: BaseException | None) -> bool:
+    """Whether ``exc`` is a stop signal's KeyboardInterrupt, also as numba's compiled code
+    returns it: a signal handled while a kernel runs leaves the exception set under its
+    result, and CPython reports a SystemError ("returned a result with an exception set")
+    caused by the KeyboardInterrupt."""
+    if isinstance(exc, KeyboardInterrupt):
+        return True
+    return isinstance(exc, SystemError) and is_interrupt(exc.__cause__ or exc.__context__)
+
+
+def reraise_interrupt(exc: BaseException) -> None:
+    """For a catch-all (``except Exception``) around compiled code: raise KeyboardInterrupt if
+    ``exc`` is an interrupt, so that a Ctrl-C is never taken for a log's fault or result."""
+    if is_interrupt(exc):
+        raise KeyboardInterrupt from exc

@@ -22,12 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, UsageError, check_not_special, special_file
+from .errors import InputError, UsageError, check_not_special, reraise_interrupt, special_file
 from .pipeline import NoReference, ReplaySettings
 from .progress import clock
 
 LOG_SUFFIXES = (".bin", ".tlog", ".ulg")
 RECORD_VERSION = 2  # 2: the reference as an object, its stream, algorithm and spread, the autopilot's streams
+INTERNAL_ERROR = "internal error"  # a record's error that is our fault, not the log's: redone on resume
 
 
 # ---------------------------------------------------------------- which logs
@@ -119,7 +120,8 @@ def evaluate_log(path: str, settings: ReplaySettings, data: bytes | None = None,
     except MemoryError:
         record["error"] = f"{path}: out of memory"
     except Exception as exc:  # noqa: BLE001 - one log's fault must not stop a thousand others
-        record["error"] = f"{path}: internal error ({type(exc).__name__}: {exc}); please report it"
+        reraise_interrupt(exc)  # a Ctrl-C inside a compiled kernel is no result of the log
+        record["error"] = f"{path}: {INTERNAL_ERROR} ({type(exc).__name__}: {exc}); please report it"
     record["seconds"] = round(time.perf_counter() - start, 3)
     return record
 
@@ -215,7 +217,8 @@ class Progress:
 
 
 def load_records(folder: Path, settings: ReplaySettings) -> dict[str, dict]:
-    """The records in ``folder`` computed with these settings, by log path."""
+    """The records in ``folder`` computed with these settings, by log path; internal errors are
+    left out, to be tried again."""
     key = settings_key(settings)
     records = {}
     for path in sorted(folder.glob("*.json")):
@@ -223,9 +226,16 @@ def load_records(folder: Path, settings: ReplaySettings) -> dict[str, dict]:
             record = json.loads(path.read_text())
         except (OSError, ValueError):
             continue  # a record cut off mid-write: the log is redone
-        if isinstance(record, dict) and record.get("settings") == key and record.get("version") == RECORD_VERSION:
+        if (isinstance(record, dict) and record.get("settings") == key and record.get("version") == RECORD_VERSION
+                and not is_internal_error(record)):
             records[record["log"]] = record
     return records
+
+
+def is_internal_error(record: dict) -> bool:
+    """A record of a failure of ours, not of the log (a bug, or an interrupt an older version
+    took for one): tried again by the next run rather than kept as the log's result."""
+    return record.get("status") == "failed" and f": {INTERNAL_ERROR} (" in str(record.get("error"))
 
 
 def save_record(folder: Path, record: dict) -> None:
@@ -292,11 +302,14 @@ class Workers:
 
             # spawn: a fresh interpreter per worker (no forked numba or pymavlink state); each
             # loads the compiled kernels from the cache once
-            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=_start_worker, initargs=(os.getpid(),))
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, exc, tb) -> None:
         if self._pool is not None:
+            if exc_type is not None:  # stopped (Ctrl-C, SIGTERM) or failed: the logs under way are not waited for
+                _end_workers(self._pool)
             self._pool.shutdown(cancel_futures=True)
         if self._client is not None:
             self._client.close()
@@ -328,6 +341,29 @@ class Workers:
         else:
             for log in logs:
                 finished(evaluate_log(log, settings, keep=self.keep))
+
+
+def _start_worker(parent: int) -> None:
+    """In each pool process, first. Ctrl-C at a terminal reaches the whole process group: the
+    parent alone acts on it (and ends the pool), so no worker takes it for a log's failure.
+    A worker whose parent died without ending it (SIGKILL, a crash) ends as well."""
+    import signal
+
+    from .signals import end_with_parent
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    end_with_parent(parent)
+
+
+def _end_workers(pool) -> None:
+    """Terminate a ProcessPoolExecutor's processes (Python 3.14 has terminate_workers; before it
+    the processes are only in a private attribute)."""
+    terminate = getattr(pool, "terminate_workers", None)
+    if terminate is not None:
+        terminate()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.terminate()
 
 
 def check_scheduler(address: str) -> None:

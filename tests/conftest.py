@@ -39,6 +39,28 @@ def shared_log(name: str) -> Path:
     return path
 
 
+def kernel_interrupt(*args, **kwargs):
+    """Raise what numba's dispatcher returns when a Ctrl-C is handled while it calls a kernel: a
+    SystemError caused by the KeyboardInterrupt (a stand-in for replay_flight and the like)."""
+    try:
+        raise KeyboardInterrupt
+    except KeyboardInterrupt as exc:
+        raise SystemError("CPUDispatcher(<function mahony_run>) returned a result with an exception set") from exc
+
+
+def process_group(pgid: int) -> list[int]:
+    """The live processes of a process group (Linux's /proc)."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            pids.append(int(entry.name))
+    return pids
+
+
 _flights = {}
 
 

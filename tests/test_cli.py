@@ -3,13 +3,16 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
-from conftest import SAMPLE_LOGS, shared_log, shared_log_params
+from conftest import SAMPLE_LOGS, kernel_interrupt, process_group, shared_log, shared_log_params
 from mavattitude.cli import main
 
 AXES = ("roll", "pitch", "yaw")
@@ -248,3 +251,143 @@ def test_bad_toml_names_the_file(tmp_path, capsys):
     bad.write_text("mahony = 3\n")
     got, _, err = run(capsys, "replay", SAMPLE_LOGS / "static.bin", "--no-view", "--params", bad)
     assert got == 1 and "must be a table" in err
+
+
+# ---------------------------------------------------------------- stop signals
+
+
+def test_a_ctrl_c_that_numba_returns_as_a_system_error_is_an_interrupt(tmp_path, capsys, monkeypatch):
+    from mavattitude import pipeline
+    from mavattitude.errors import is_interrupt
+
+    assert is_interrupt(KeyboardInterrupt()) and not is_interrupt(SystemError("a bug")) and not is_interrupt(None)
+    monkeypatch.setattr(pipeline, "replay_flight", kernel_interrupt)
+    code, out, err = run(capsys, "replay", SAMPLE_LOGS / "figure8.tlog", "--no-view", "--json", tmp_path / "m.json")
+    assert code == 130 and err.strip().splitlines()[-1] == "interrupted" and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []  # no --json, no temporary file left
+
+
+def test_a_system_error_that_is_no_interrupt_stays_a_bug(capsys, monkeypatch):
+    from mavattitude import pipeline
+
+    def bug(*args, **kwargs):
+        raise SystemError("a bug")
+    monkeypatch.setattr(pipeline, "replay_flight", bug)
+    with pytest.raises(SystemError):
+        main(["replay", str(SAMPLE_LOGS / "figure8.tlog"), "--no-view"])
+
+
+def test_stop_signals_are_handled_only_while_main_runs(capsys):
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    assert main(["estimators"]) == 0
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+
+
+def test_a_stop_signal_in_numbas_own_code_waits_until_it_lands_elsewhere():
+    """Raised in the Python code numba runs from inside a compiled call, a KeyboardInterrupt
+    leaves the call half done (a SystemError, or a crash): the signal is sent again instead."""
+    from mavattitude import signals
+
+    in_numba = compile("import signal, os; os.kill(os.getpid(), signal.SIGINT); import time; time.sleep(0.05)",
+                       os.path.join("site-packages", "numba", "core", "dispatcher.py"), "exec")
+    previous = signals.install()
+    try:
+        exec(in_numba, {})  # the handler runs there: not raised, not counted
+        assert signals.received() is None
+        with pytest.raises(KeyboardInterrupt):
+            time.sleep(1.0)  # sent again: raised here
+        assert signals.received() == signal.SIGINT
+        os.kill(os.getpid(), signal.SIGTERM)  # a second signal while stopping: noted, not raised
+        time.sleep(0.05)
+        assert signals.exit_code() == 130 and signals.message() == "interrupted"
+    finally:
+        signals.restore(previous)
+
+
+def _start(args, tmp_path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "mavattitude", *map(str, args)], cwd=tmp_path, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def _signal_at(proc: subprocess.Popen, *times_and_signals) -> tuple[str, str]:
+    """Send each (seconds after the start, signal) while the process runs; its output."""
+    start = time.monotonic()
+    for at, signum in times_and_signals:
+        time.sleep(max(0.0, start + at - time.monotonic()))
+        if proc.poll() is None:
+            proc.send_signal(signum)
+    return proc.communicate(timeout=120)
+
+
+def _stopped_cleanly(proc, err: str, code: int, line: str) -> None:
+    assert proc.returncode == code, err
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == line
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_the_first_second_is_one_line_and_130(tmp_path):
+    for at in (0.2, 0.6):  # importing numpy, numba
+        proc = _start(["replay", SAMPLE_LOGS / "figure8.tlog", "--no-view"], tmp_path)
+        out, err = _signal_at(proc, (at, signal.SIGINT))
+        _stopped_cleanly(proc, err, 130, "interrupted")
+
+
+@pytest.mark.slow
+def test_a_second_ctrl_c_still_ends_with_130_and_no_file_left(tmp_path):
+    proc = _start(["replay", SAMPLE_LOGS / "figure8.tlog", "--json", tmp_path / "m.json", "--rrd",
+                   tmp_path / "r.rrd"], tmp_path)
+    out, err = _signal_at(proc, (1.0, signal.SIGINT), (1.02, signal.SIGINT))
+    _stopped_cleanly(proc, err, 130, "interrupted")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_sigterm_ends_a_replay_with_143_and_no_temporary_file(tmp_path):
+    log = shared_log("sitl-copter-4.7-400hz.bin")  # 3-5 s of work
+    proc = _start(["replay", log, "--estimators", "all", "--json", tmp_path / "m.json", "--rrd",
+                   tmp_path / "r.rrd"], tmp_path)
+    out, err = _signal_at(proc, (1.5, signal.SIGTERM))
+    _stopped_cleanly(proc, err, 143, "terminated (SIGTERM)")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_ctrl_c_while_the_kernels_run_is_one_line_and_130(tmp_path):
+    """Sent at moments spread over the estimation of the 400 Hz shared log: numba's compiled
+    code returned some of these as a SystemError (a traceback, exit 1), and some landed while
+    numba loaded a cached kernel, which crashed the process (SIGSEGV)."""
+    log = shared_log("sitl-copter-4.7-400hz.bin")
+    args = ["replay", log, "--estimators", "all", "--no-view"]
+    start = time.monotonic()
+    proc = _start(args, tmp_path)
+    proc.communicate(timeout=300)
+    took = time.monotonic() - start
+    assert proc.returncode == 0
+    for fraction in (0.45, 0.5, 0.55, 0.65, 0.75, 0.85):  # reading is the first 40 % or so
+        proc = _start(args, tmp_path)
+        out, err = _signal_at(proc, (fraction * took, signal.SIGINT))
+        if proc.returncode == 0:
+            continue  # done before the signal came
+        _stopped_cleanly(proc, err, 130, "interrupted")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux's /proc")
+def test_sigterm_during_a_first_compile_leaves_no_compiling_process(tmp_path):
+    """SIGTERM to the command alone (not its group, as a terminal's Ctrl-C): the processes
+    compiling for it end too."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cold-cache"))
+    proc = subprocess.Popen([sys.executable, "-m", "mavattitude", "replay", str(SAMPLE_LOGS / "figure8.tlog"),
+                             "--estimators", "all", "--no-view"], env=env, cwd=tmp_path, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    deadline = time.monotonic() + 60
+    while len(process_group(proc.pid)) < 3:  # the command and two compiling processes
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    _stopped_cleanly(proc, err, 143, "terminated (SIGTERM)")
+    deadline = time.monotonic() + 5.0  # not the tens of seconds their compile takes
+    while process_group(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert process_group(proc.pid) == []

@@ -5,12 +5,16 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+import signal
+import subprocess
+import sys
+import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
 
-from conftest import SAMPLE_LOGS, SHARED_LOGS
+from conftest import SAMPLE_LOGS, SHARED_LOGS, kernel_interrupt, process_group
 from mavattitude import evalreport as er
 from mavattitude.cli import main
 from mavattitude.evaluate import find_logs, record_name
@@ -213,3 +217,70 @@ def test_shared_logs_all_estimators(tmp_path):
     assert sorted(disowned) == ["real-copter-3.3dev-erlepxf-dcm-long-erle-20140923-51.bin",
                                 "real-plane-3.0.4b3-erlepxf-dcm-erle-roverfolder-20140802-10.bin"]
     assert summary["paper_001_ranking"]["logs"] == summary["scored"] - len(short) - len(disowned)
+
+
+# ---------------------------------------------------------------- stop signals
+
+
+def test_an_interrupt_inside_a_kernel_is_never_a_logs_result(logs, tmp_path, capsys, monkeypatch):
+    from mavattitude import evaluate as ev
+
+    monkeypatch.setattr(ev, "_replay", kernel_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        ev.evaluate_log(str(logs / "static.bin"), None)
+    out = tmp_path / "eval"
+    assert evaluate(logs, "--estimators", "mahony", "--out", out, "-j", "1") == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "interrupted"
+    assert list((out / "logs").iterdir()) == []  # nothing saved for the log
+
+
+def test_an_internal_error_is_tried_again_on_resume(logs, tmp_path, capsys, monkeypatch):
+    from mavattitude import evaluate as ev
+
+    replay = ev._replay
+
+    def bug_on_static(local, path, *args, **kwargs):
+        if path.endswith("static.bin"):
+            raise RuntimeError("a bug")
+        return replay(local, path, *args, **kwargs)
+    monkeypatch.setattr(ev, "_replay", bug_on_static)
+    out = tmp_path / "eval"
+    evaluate(logs, "--estimators", "mahony", "--out", out, "-j", "1")
+    assert "internal error (RuntimeError: a bug)" in records(out)["static.bin"]["error"]
+    capsys.readouterr()
+    monkeypatch.setattr(ev, "_replay", replay)  # the bug fixed, or an interrupt an older version took for one
+    assert evaluate(logs, "--estimators", "mahony", "--out", out, "-j", "1") == 0
+    err = capsys.readouterr().err
+    assert "static.bin: ok" in err and "figure8.tlog: already done" in err
+    assert records(out)["static.bin"]["status"] == "ok"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux's /proc")
+@pytest.mark.parametrize("signum, code", [("SIGTERM", 143), ("SIGINT", 130), ("SIGKILL", -9)])
+def test_a_stopped_evaluate_leaves_no_worker_and_no_temporary_file(tmp_path, signum, code):
+    """Sent to the parent alone (a service manager, kill), not the whole group as a terminal's
+    Ctrl-C is: the workers end too, replaying nothing for nobody; even when the parent is
+    killed outright, they notice within a second."""
+    if not (SHARED_LOGS / "sitl-copter-4.7-400hz.bin").exists():
+        pytest.skip(f"real logs not found at {SHARED_LOGS}")
+    logs = [SHARED_LOGS / "sitl-copter-4.7-400hz.bin", *sorted(SHARED_LOGS.glob("*.tlog"))]
+    out = tmp_path / "eval"
+    proc = subprocess.Popen([sys.executable, "-m", "mavattitude", "evaluate", *map(str, logs), "--estimators", "all",
+                             "-j", "2", "--out", str(out)], cwd=tmp_path, text=True, start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while len(process_group(proc.pid)) < 3:  # the parent and its two workers
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.1)
+    time.sleep(2.0)  # replaying
+    proc.send_signal(getattr(signal, signum))
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    if code > 0:
+        assert "Traceback" not in err and err.strip().splitlines()[-1].split()[0] in ("interrupted", "terminated")
+        assert not [p.name for p in out.rglob(".*")]  # no .partial output
+    deadline = time.monotonic() + 5.0  # not after their logs
+    while process_group(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert process_group(proc.pid) == []

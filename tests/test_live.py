@@ -192,6 +192,60 @@ def test_corrupt_data_between_packets_is_counted_and_never_recorded(tmp_path, fl
     assert result.comparisons["mahony"].axes["roll"].mae < 2.0
 
 
+class CuttingTap(Tap):
+    """A tap that sends, every ``EVERY`` packets, a frame cut short at the end of a datagram:
+    alone, or after the packet in the same datagram. No later datagram can complete it."""
+    EVERY = 40
+
+    def __init__(self, conn, garbage_every: int = 0):
+        super().__init__(conn, garbage_every)
+        self.cut_sent = 0
+
+    def write(self, packet: bytes) -> None:
+        if len(self.sent) % self.EVERY or len(packet) < 12:
+            return super().write(packet)
+        cut = packet[:self.rng.randint(1, len(packet) - 1)]  # from the magic byte on: a frame begun
+        together = self.cut_sent % 2 == 0
+        self.conn.port.sendto(packet + cut if together else cut, self.conn.destination_addr)
+        if not together:
+            self.conn.write(packet)
+        self.sent.append(bytes(packet))
+        self.cut_sent += 1
+
+
+@pytest.mark.slow
+def test_a_frame_cut_short_in_a_datagram_costs_no_valid_packet(tmp_path, flight):
+    """UDP delivers whole datagrams: a frame cut short at the end of one is dropped there and
+    counted, and every valid packet after it is decoded and recorded, none counted as lost."""
+    port = free_udp_port()
+    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=4.0, t_to=20.0), flight,
+                                 tap_class=CuttingTap)
+    result = listen(port, thread, holder, tmp_path)
+    assert tap.cut_sent > 50
+    assert recorded_packets(tmp_path / "live.tlog") == tap.sent
+    assert result.monitor.packets == len(tap.sent) and result.monitor.lost == 0
+    assert result.monitor.cut_frames == result.monitor.bad == tap.cut_sent
+    assert result.link()["cut_frames"] == tap.cut_sent
+    assert result.comparisons["mahony"].axes["roll"].n > 300
+
+
+def test_a_datagram_boundary_drops_the_frame_cut_short_before_it():
+    """pymavlink's parser alone would complete a cut frame with the next datagram's bytes."""
+    from mavattitude.live.link import drop_cut_frame
+
+    mav = mavlink2.MAVLink(None, 1, 1)
+    packets = [bytes(mavlink2.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(mav)) for _ in range(3)]
+    datagrams = [packets[0] + packets[1][:9], packets[1], packets[2][:5], packets[2]]
+    parser = mavlink2.MAVLink(None)
+    parser.robust_parsing = True
+    got, cut = [], 0
+    for datagram in datagrams:
+        got += [bytes(m.get_msgbuf()) for m in parser.parse_buffer(datagram) or [] if m.get_type() != "BAD_DATA"]
+        cut += drop_cut_frame(parser)
+    assert got == [packets[0], packets[1], packets[2]] and cut == 2
+    assert not drop_cut_frame(parser)
+
+
 @pytest.mark.slow
 def test_a_sender_that_stops_and_comes_back(tmp_path, flight):
     """The vehicle goes silent for 2 s of wall time, and 3 s of its clock pass meanwhile: the

@@ -299,8 +299,6 @@ def test_an_interrupted_replay_replaces_nothing_and_leaves_nothing(capsys, monke
         log_replay(result, rec)
         raise interrupt(143) if interrupt is SystemExit else interrupt()
     monkeypatch.setattr(view, "log_replay", stopped_while_viewing)
-    # an earlier test's Ctrl-C during a compile would make main end this process (os._exit)
-    monkeypatch.setattr("mavattitude.estimators.compile_interrupted", lambda: False)
     try:
         code, _, err = run(capsys, "replay", LOG, "--json", js, "--rrd", rrd, "--export", export,
                            "--estimators", "mahony,eskf")

@@ -100,15 +100,6 @@ COMPILE_SECONDS = {"mahony": 2.0, "mahony-ekf": 4.0, "ekf": 4.0, "eskf": 2.5, "n
                    "cpf-ekf": 9.5}
 
 
-_interrupted: list[bool] = []  # a compile was interrupted in this process (see compile_interrupted)
-
-
-def compile_interrupted() -> bool:
-    """Whether a Ctrl-C stopped a compile here. LLVM, stopped mid-compile, can crash the
-    interpreter's own exit (SIGSEGV seen): such a process should end with ``os._exit``."""
-    return bool(_interrupted)
-
-
 @contextmanager
 def _noticing_interrupts():
     """A Ctrl-C while numba compiles can land in one of LLVM's callbacks, where Python can only
@@ -121,7 +112,10 @@ def _noticing_interrupts():
 
     def handler(signum, frame):
         seen.append(signum)
-        raise KeyboardInterrupt
+        if callable(previous):
+            previous(signum, frame)  # the program's own handling (the command's: see signals.py)
+        else:
+            raise KeyboardInterrupt
 
     def unraisable(report):
         if isinstance(report.exc_value, KeyboardInterrupt):
@@ -135,10 +129,16 @@ def _noticing_interrupts():
     finally:
         signal.signal(signal.SIGINT, previous)
         sys.unraisablehook = previous_hook
-        if seen:  # also when the handler's KeyboardInterrupt is what ends the body
-            _interrupted.append(True)
     if seen:
-        raise KeyboardInterrupt
+        _raise_interrupt(previous)
+
+
+def _raise_interrupt(handler) -> None:
+    """Raise KeyboardInterrupt through ``handler``, the program's SIGINT handler, if it is a
+    function: the command's counts it as its first stop signal (see signals.py)."""
+    if callable(handler):
+        handler(signal.SIGINT, None)
+    raise KeyboardInterrupt
 
 
 CORE = "estimation core"  # the runner's own kernels: a step of every first compile
@@ -172,8 +172,7 @@ class Compiling:
                 for p in processes:
                     p.wait()
                 if any(p.returncode == -signal.SIGINT for p in processes):
-                    _interrupted.append(True)
-                    raise KeyboardInterrupt  # Ctrl-C at a terminal reaches the workers too
+                    _raise_interrupt(signal.getsignal(signal.SIGINT))  # Ctrl-C at a terminal reaches the workers too
                 for name in list(self.pending):
                     if interrupted:
                         break
@@ -245,9 +244,10 @@ def precompile(names: list[str], progress=None, also=()) -> Compiling:
         k = loads.index(min(loads))
         shares[k].append(name)
         loads[k] += COMPILE_SECONDS[name]
-    code = ("import sys; from mavattitude.estimators import compile_kernels; "
-            "compile_kernels(sys.argv[1:], report=sys.stdout)")
-    return Compiling((subprocess.Popen([sys.executable, "-c", code, *share], stdout=subprocess.PIPE,
+    # a compiling process ends with its parent (a SIGTERM may end that before it waits for them)
+    code = ("import sys; from mavattitude.signals import end_with_parent; end_with_parent(int(sys.argv[1])); "
+            "from mavattitude.estimators import compile_kernels; compile_kernels(sys.argv[2:], report=sys.stdout)")
+    return Compiling((subprocess.Popen([sys.executable, "-c", code, str(os.getpid()), *share], stdout=subprocess.PIPE,
                                        stderr=subprocess.DEVNULL) for share in shares), pending, progress, also)
 
 

@@ -6,6 +6,8 @@ what a monitoring tool needs around it:
 - ``open_link``: one clear error for a port in use, a missing serial device, a bad string;
 - ``LinkMonitor``: packets and bytes, corrupt data, packets lost by sequence number (per
   sender), per-message arrival rates on the wall clock, and whether the link is lost;
+- ``drop_cut_frame``: a UDP datagram holds whole frames; one cut short at its end is dropped
+  there, not completed with the bytes of the next datagram's packets;
 - ``RateRequester``: asks the vehicle for its IMU, ATTITUDE, GPS and baro messages with
   MAV_CMD_SET_MESSAGE_INTERVAL, one message at a time, and falls back to the older
   REQUEST_DATA_STREAM groups when the vehicle does not acknowledge or refuses.
@@ -174,6 +176,26 @@ def _udp_socket(conn) -> socket.socket | None:
     return port if isinstance(port, socket.socket) and port.type == socket.SOCK_DGRAM else None
 
 
+def is_datagram_link(conn) -> bool:
+    """Whether each read of the link is one UDP datagram (udpin, udpout, udpbcast, mcast), not
+    a slice of a byte stream (TCP, serial)."""
+    return _udp_socket(conn) is not None
+
+
+def drop_cut_frame(mav) -> bool:
+    """After a datagram is parsed: the bytes left in pymavlink's parser (``mav``) are a frame cut
+    short, since a frame never spans datagrams. Left there, they would take the start of the
+    next datagram's first packet to complete themselves and fail the CRC, and the parser would
+    then resynchronise inside that packet's payload: valid packets lost. Dropped here; True if
+    there were any. (A stream link must keep them: the rest of the frame is on its way.)"""
+    if mav.buf_len() == 0:
+        return False
+    mav.buf = bytearray()
+    mav.buf_index = 0
+    mav.expected_length = mavlink2.HEADER_LEN_V1 + 2  # as a new parser starts
+    return True
+
+
 def receive_buffer(conn) -> int | None:
     """Bytes of receive buffer the system granted a UDP link (Linux counts its bookkeeping
     too: twice what was asked); None for other links."""
@@ -249,7 +271,8 @@ class LinkMonitor:
     RADIO_STATUS, another ground station)."""
     timeout_s: float = 5.0
     packets: int = 0  # valid MAVLink packets, every sender
-    bad: int = 0  # corrupt data: garbage bytes, bad CRC, unknown message ids (``is_corrupt``)
+    bad: int = 0  # corrupt data: garbage bytes, bad CRC, unknown message ids (``is_corrupt``), cut frames
+    cut_frames: int = 0  # of ``bad``: frames cut short at the end of a datagram (``drop_cut_frame``)
     lost: int = 0  # packets missing by sequence number
     first_at: float | None = None  # the vehicle's first and last packet
     last_at: float | None = None
@@ -284,6 +307,11 @@ class LinkMonitor:
             while self._gaps and self._gaps[0][0] < now - 1.0:
                 self._gaps.popleft()
         self._seq[key] = (seq, now)
+
+    def cut_frame(self) -> None:
+        """A frame cut short at the end of a datagram, dropped (corrupt data)."""
+        self.bad += 1
+        self.cut_frames += 1
 
     def heard(self, msg, now: float) -> None:
         """A packet from the vehicle."""

@@ -28,8 +28,9 @@ from ..sink import Sink
 from .estimation import HISTORY_S, LiveEstimation
 from ..readers import enum_name, identify_vehicle
 from ..readers.tlog import IMU_MESSAGES, is_vehicle
-from .link import (UDP_RECEIVE_BUFFER, LinkMonitor, RateRequester, close_link, is_corrupt, kernel_drops,
-                   mavlink2, open_link, receive_buffer, request_identity, wait_readable)
+from .link import (UDP_RECEIVE_BUFFER, LinkMonitor, RateRequester, close_link, drop_cut_frame, is_corrupt,
+                   is_datagram_link, kernel_drops, mavlink2, open_link, receive_buffer, request_identity,
+                   wait_readable)
 from .recorder import TlogRecorder
 
 TICK_S = 0.2  # s of wall time between the periodic jobs
@@ -104,7 +105,7 @@ class LiveResult:
         return {"packets_received": m.packets, "packets_lost_by_sequence": m.lost,
                 "imu_samples_received": loss.received if loss else 0,
                 "imu_samples_lost_by_clock": loss.lost if loss else 0,
-                "corrupt": m.bad, "kernel_drops": self.kernel_drops, "duration_s": round(self.seconds, 3),
+                "corrupt": m.bad, "cut_frames": m.cut_frames, "kernel_drops": self.kernel_drops, "duration_s": round(self.seconds, 3),
                 "peak_rss_mb": _peak_rss_mb()}
 
 
@@ -188,6 +189,7 @@ class _Session:
         self.status = status
         self.say = say
         self.conn = open_link(opts.url, opts.baud)
+        self.datagrams = is_datagram_link(self.conn)  # each read a whole datagram (UDP)
         self.recorder = TlogRecorder(opts.record) if opts.record else None
         self.monitor = LinkMonitor(timeout_s=opts.timeout)
         self.est = LiveEstimation(opts.names, opts.params, opts.declination, opts.use_mag, opts.imu_source,
@@ -278,6 +280,8 @@ class _Session:
             except (ConnectionError, OSError):
                 data = b""  # a TCP peer went away: TcpReconnect takes over; keep listening
             parsed = self.conn.mav.parse_buffer(data)  # every packet the bytes complete
+            if self.datagrams and data and drop_cut_frame(self.conn.mav):
+                self.monitor.cut_frame()
             if not parsed:
                 return None
             self._parsed.extend(parsed)
@@ -447,13 +451,15 @@ def _report_rates(est: LiveEstimation, monitor: LinkMonitor, wanted: dict[str, f
 
 def loss_text(monitor: LinkMonitor, samples, drops: int | None) -> str:
     """'lost 3 packets by sequence number, 250 IMU samples by clock (1.2 %), 0 dropped by the
-    system, bad 0': the sequence number misses bursts of 128 and more, the clock does not."""
+    system, bad 0': the sequence number misses bursts of 128 and more, the clock does not.
+    Frames cut short at a datagram's end are bad data, said apart: '(2 frames cut short)'."""
     parts = [f"lost {monitor.lost} packets by sequence number"]
     if samples is not None:
         parts.append(f"{samples.lost} IMU samples by clock ({samples.percent:.1f} %)")
     if drops is not None:
         parts.append(f"{drops} dropped by the system")
-    return ", ".join(parts) + f", bad {monitor.bad}"
+    cut = f" ({monitor.cut_frames} frame{'s' if monitor.cut_frames != 1 else ''} cut short)" if monitor.cut_frames else ""
+    return ", ".join(parts) + f", bad {monitor.bad}{cut}"
 
 
 def _status_text(est: LiveEstimation, monitor: LinkMonitor, rolling: dict, now: float, vehicle, opts,

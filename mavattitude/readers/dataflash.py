@@ -38,7 +38,7 @@ import os
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, reraise_interrupt
 from .collect import Collector, Decoded, first_utc, gps_to_unix
 from .dfrecords import decode, open_log, scan_log
 
@@ -71,6 +71,7 @@ def read_dataflash(path: str, progress=None) -> Decoded:
         data = open_log(path)
         scan = scan_log(data, WANTED)
     except Exception as exc:  # not expected: pymavlink may still make something of it
+        reraise_interrupt(exc)  # but a Ctrl-C in the compiled scan is no reason to read on
         return _read_with_pymavlink(path, progress, f"read with pymavlink ({type(exc).__name__}: {exc})")
     if progress is not None:
         progress(0.5)
