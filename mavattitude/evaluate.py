@@ -26,7 +26,7 @@ from .errors import InputError, UsageError, check_not_special, special_file
 from .pipeline import ReplaySettings
 from .progress import clock
 
-LOG_SUFFIXES = (".bin", ".tlog", ".ulg")
+LOG_SUFFIXES = (".bin", ".tlog", ".ulg", ".hdf5", ".h5")  # .hdf5/.h5: BROAD trials
 RECORD_VERSION = 1
 
 
@@ -35,7 +35,7 @@ RECORD_VERSION = 1
 
 def find_logs(paths: list[str], passed: list[str] | None = None) -> list[str]:
     """The logs named by ``paths``: files as given, folders searched recursively for .bin,
-    .tlog and .ulg files (any case) that are logs by their content, and glob patterns. In order,
+    .tlog, .ulg and .hdf5/.h5 (BROAD) files (any case) that are logs by their content, and glob patterns. In order,
     each once; InputError for a path that names nothing, or a file named that is no regular file.
     A FIFO or device a folder or pattern holds is passed by, and its path added to ``passed``."""
     from .readers import sniff_format
