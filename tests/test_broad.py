@@ -245,3 +245,17 @@ def test_evaluate_on_the_shared_trials(tmp_path, capsys):
                     if line.startswith("Mahony (published)"))
     assert "7.49" in rotation  # all_trials, TAGP: the published total over the 39 trials
     assert "## BROAD's measures" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_replay_prints_and_writes_the_measures(tmp_path, capsys):
+    from mavattitude.cli import main
+
+    trial = write_trial(tmp_path / "t.hdf5", axis_quat([0, 1, 0], 0.1), n=2000)
+    assert main(["replay", trial, "--estimators", "mahony,eskf", "--reference", "truth", "--no-mag", "--no-view",
+                 "--warmup", "1", "--json", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr().out
+    table = out.split("BROAD's measures")[1]
+    assert next(line for line in table.splitlines() if line.startswith("eskf")).split()[1:] == ["n/a", "n/a"] + \
+        [f"{json.loads((tmp_path / 'm.json').read_text())['estimators']['eskf']['broad']['inclination_rmse_deg']:.2f}"]
+    written = json.loads((tmp_path / "m.json").read_text())["estimators"]
+    assert set(written["mahony"]["broad"]) == {"total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg"}
