@@ -39,6 +39,7 @@ def find_logs(paths: list[str], passed: list[str] | None = None) -> list[str]:
     each once; InputError for a path that names nothing, or a file named that is no regular file.
     A FIFO or device a folder or pattern holds is passed by, and its path added to ``passed``."""
     from .readers import sniff_format
+    from .readers.broad import NEEDS_H5PY
 
     found: list[str] = []
     for path in paths:
@@ -54,8 +55,9 @@ def find_logs(paths: list[str], passed: list[str] | None = None) -> list[str]:
                             continue
                         try:
                             sniff_format(candidate)
-                        except InputError:
-                            continue  # a .bin that is no log (firmware, say) is not ours to replay
+                        except InputError as exc:
+                            if exc.problem != NEEDS_H5PY:  # a BROAD trial without h5py fails, saying why
+                                continue  # a .bin that is no log (firmware, say) is not ours to replay
                         found.append(candidate)
         elif os.path.exists(path):
             check_not_special(path)

@@ -259,3 +259,13 @@ def test_replay_prints_and_writes_the_measures(tmp_path, capsys):
         [f"{json.loads((tmp_path / 'm.json').read_text())['estimators']['eskf']['broad']['inclination_rmse_deg']:.2f}"]
     written = json.loads((tmp_path / "m.json").read_text())["estimators"]
     assert set(written["mahony"]["broad"]) == {"total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg"}
+
+
+def test_a_folder_of_trials_without_h5py_says_so(tmp_path, monkeypatch, capsys):
+    from mavattitude.cli import main
+
+    write_trial(tmp_path / "a.hdf5", np.array([1.0, 0, 0, 0]))
+    monkeypatch.setitem(sys.modules, "h5py", None)
+    assert main(["evaluate", str(tmp_path), "--estimators", "mahony", "--reference", "truth", "-j", "1",
+                 "--out", str(tmp_path / "out"), "--quiet"]) == 1
+    assert NEEDS_H5PY in capsys.readouterr().err
