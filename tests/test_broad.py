@@ -113,6 +113,9 @@ def test_hdf5_that_is_no_trial_and_missing_h5py(tmp_path, monkeypatch):
         f["x"] = np.zeros(3)
     with pytest.raises(InputError, match="HDF5 file, but not a BROAD trial"):
         read_log(str(other))
+    (tmp_path / "text.hdf5").write_text("hello")
+    with pytest.raises(InputError, match="not a BROAD HDF5 file .* or an HDF5 signature"):
+        read_log(str(tmp_path / "text.hdf5"))
     trial = write_trial(tmp_path / "t.hdf5", np.array([1.0, 0, 0, 0]))
     monkeypatch.setitem(sys.modules, "h5py", None)  # import h5py now raises ImportError
     with pytest.raises(InputError) as exc:

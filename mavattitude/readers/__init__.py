@@ -56,9 +56,11 @@ def sniff_format(path: str) -> str:
     if head.startswith(HDF5_SIGNATURE):
         raise InputError(path, "an HDF5 file, but not a BROAD trial (it lacks imu_gyr, imu_acc, imu_mag, "
                                "opt_quat or movement)")
-    kind = {".bin": "DataFlash .bin", ".tlog": "telemetry .tlog", ".ulg": "PX4 ULog"}.get(ext, "flight log")
+    kind = {".bin": "DataFlash .bin", ".tlog": "telemetry .tlog", ".ulg": "PX4 ULog", ".hdf5": "BROAD HDF5",
+            ".h5": "BROAD HDF5"}.get(ext, "flight log")
     raise InputError(path, f"not a {kind} file (it starts with bytes {head[:10].hex(' ')}; "
-                           "expected a DataFlash header a3 95, a tlog record or the ULog header 'ULog')")
+                           "expected a DataFlash header a3 95, a tlog record, the ULog header 'ULog' "
+                           "or an HDF5 signature)")
 
 
 @contextlib.contextmanager
