@@ -84,6 +84,9 @@ def test_reader_skips_nan_truth_and_keeps_the_movement_spans(tmp_path):
     assert not np.isin(np.arange(600, 650) / RATE, flight.truth.t).any()
     assert flight.unscored_spans == [(0.0, 4.99), (12.0, 14.99), (18.0, 19.99)]
     assert any("50 truth samples" in note for note in flight.notes)
+    from mavattitude.declination import for_flight
+    assert for_flight(flight).known and for_flight(flight).rad == 0.0  # its north is magnetic: no warning
+    assert for_flight(flight, 5.0).source == "--declination"
 
 
 def test_replay_scores_only_the_movement_samples(tmp_path):

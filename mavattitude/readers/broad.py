@@ -20,8 +20,8 @@ Checked on the shared trials (tests/test_broad.py): at rest the accelerometer re
 within its tilt, and the truth's tilt matches the accelerometer's.
 
 The truth's north is the magnetometer's (magnetic north): with declination 0 the 9D estimators'
-heading RMSE on trial 02 is 1.4-2.0° (the published Madgwick 1.3°). No declination is set: the
-replay warns that it uses 0, which here is right.
+heading RMSE on trial 02 is 1.4-2.0° (the published Madgwick 1.3°). So the declination is 0, said
+as the source's own (``declination.for_flight``), not warned of as unknown.
 """
 from __future__ import annotations
 
