@@ -178,6 +178,10 @@ def cmd_replay(args) -> int:
                   f"after a {args.warmup:g} s warm-up{trim}")
             print(format_table(result.comparisons, ref.label, result.declination, streams=result.stream_comparisons,
                                reference_algorithm=ref.algorithm))
+            broad = {name: c.broad for name, c in result.comparisons.items() if c.broad is not None}
+            if broad:
+                from .broadscore import format_broad_table
+                print(format_broad_table(broad))
             why = nothing_scored(result.comparisons, args.warmup)
             if why:
                 _warn(why)
@@ -216,12 +220,13 @@ def _logs_to_run(args) -> list[str]:
     for path in passed:
         print(f"note: passed by {path}: not a regular file", file=sys.stderr)
     if not logs:
-        raise InputError(", ".join(args.paths), "holds no .bin, .tlog or .ulg log")
+        raise InputError(", ".join(args.paths), "holds no .bin, .tlog, .ulg log or BROAD trial (.hdf5)")
     return logs
 
 
 def cmd_evaluate(args) -> int:
     from . import evalreport as er
+    from .broadscore import broad_text
     from .evaluate import Progress, run_logs
 
     names = _estimator_names(args.estimators)
@@ -256,8 +261,10 @@ def cmd_evaluate(args) -> int:
         summary = er.summarize(records, names, args.baseline, args.reference)
         command = "mavattitude evaluate " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["evaluate"] else \
             "mavattitude evaluate"
+        broad = broad_text(records, names)  # BROAD trials: the dataset's measures, per trial and group
         texts = {"results.csv": er.results_csv(rows), "summary.json": er.summary_json(summary),
-                 "report.md": er.report_markdown(summary, command, "tilt_error.svg"),
+                 "report.md": er.report_markdown(summary, command, "tilt_error.svg")
+                 + (f"\n## BROAD's measures\n\n```\n{broad}```\n" if broad else ""),
                  "tilt_error.svg": er.strip_plot_svg(records, names)}
         for name, text in texts.items():
             with files[name].writing() as path:
@@ -267,6 +274,8 @@ def cmd_evaluate(args) -> int:
             with files["results.parquet"].writing() as path:
                 er.write_parquet(rows, path)
     print(er.ranking_text(summary))
+    if broad:
+        print(broad)
     print(f"{len(records)} logs: {summary['scored']} scored, {len(summary['not_meaningful'])} not meaningful, "
           f"{len(summary['failed'])} failed, "
           f"{len(summary['skipped'])} skipped; written to {out}/ (report.md, summary.json, results.csv"
@@ -769,7 +778,7 @@ def build_parser() -> argparse.ArgumentParser:
                "  mavattitude evaluate /shared/logs --estimators all --scheduler tcp://10.0.0.5:8786",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("paths", nargs="+", metavar="PATH",
-                   help="log files, folders (searched recursively for .bin/.tlog/.ulg logs) or glob patterns")
+                   help="log files, folders (searched recursively for .bin/.tlog/.ulg logs and BROAD .hdf5 trials) or glob patterns")
     _estimation_args(p, "log")
     p.add_argument("--baseline", default="mahony", metavar="NAME",
                    help="the estimator ratios are taken to (default mahony; run too if not listed)")
@@ -798,7 +807,7 @@ def build_parser() -> argparse.ArgumentParser:
                "  mavattitude replay flight.bin --estimators mahony --params tuned-mahony.toml\n",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("paths", nargs="+", metavar="PATH",
-                   help="log files, folders (searched recursively for .bin/.tlog/.ulg logs) or glob patterns")
+                   help="log files, folders (searched recursively for .bin/.tlog/.ulg logs and BROAD .hdf5 trials) or glob patterns")
     p.add_argument("--estimator", required=True, metavar="NAME", help="the estimator to tune")
     p.add_argument("--trials", type=COUNT, default=50, metavar="N",
                    help="trials per fit (default 50); the run makes (folds + 1) fits")

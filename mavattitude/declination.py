@@ -66,7 +66,8 @@ class Declination:
     rad: float  # east positive: true heading = magnetic + declination
     source: str  # where it came from, said to the user ("--declination", "log parameter COMPASS_DEC ...")
     # which rule of the module docstring gave it: "option" (1), "parameter" (2), "model" (3),
-    # "held" (4: a position would have decided), "none" (5: 0 used)
+    # "held" (4: a position would have decided), "none" (5: 0 used); "source": the data's own
+    # frame is magnetic (a BROAD trial)
     kind: str = "none"
 
     @property
@@ -186,7 +187,10 @@ def choose(params: dict, fix: Fix | None = None, when: datetime.datetime | None 
 
 
 def for_flight(flight, override_deg: float | None = None, home: Fix | None = None) -> Declination:
-    """``choose`` for a whole log: its parameters, first good fix and date."""
+    """``choose`` for a whole log: its parameters, first good fix and date. A BROAD trial's truth
+    is referenced to magnetic north (``readers.broad``): 0 there, said as the source's own."""
+    if flight.format == "broad" and override_deg is None:
+        return Declination(0.0, "0: BROAD's truth is referenced to magnetic north", "source")
     when = None if flight.utc_s is None else datetime.datetime.fromtimestamp(flight.utc_s, datetime.timezone.utc)
     return choose(flight.params, first_good_fix(flight.gps), when, override_deg, home)
 

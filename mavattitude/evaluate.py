@@ -26,7 +26,7 @@ from .errors import InputError, UsageError, check_not_special, reraise_interrupt
 from .pipeline import NoReference, ReplaySettings
 from .progress import clock
 
-LOG_SUFFIXES = (".bin", ".tlog", ".ulg")
+LOG_SUFFIXES = (".bin", ".tlog", ".ulg", ".hdf5", ".h5")  # .hdf5/.h5: BROAD trials
 RECORD_VERSION = 2  # 2: the reference as an object, its stream, algorithm and spread, the autopilot's streams
 INTERNAL_ERROR = "internal error"  # a record's error that is our fault, not the log's: redone on resume
 
@@ -36,10 +36,11 @@ INTERNAL_ERROR = "internal error"  # a record's error that is our fault, not the
 
 def find_logs(paths: list[str], passed: list[str] | None = None) -> list[str]:
     """The logs named by ``paths``: files as given, folders searched recursively for .bin,
-    .tlog and .ulg files (any case) that are logs by their content, and glob patterns. In order,
+    .tlog, .ulg and .hdf5/.h5 (BROAD) files (any case) that are logs by their content, and glob patterns. In order,
     each once; InputError for a path that names nothing, or a file named that is no regular file.
     A FIFO or device a folder or pattern holds is passed by, and its path added to ``passed``."""
     from .readers import sniff_format
+    from .readers.broad import NEEDS_H5PY
 
     found: list[str] = []
     for path in paths:
@@ -55,8 +56,9 @@ def find_logs(paths: list[str], passed: list[str] | None = None) -> list[str]:
                             continue
                         try:
                             sniff_format(candidate)
-                        except InputError:
-                            continue  # a .bin that is no log (firmware, say) is not ours to replay
+                        except InputError as exc:
+                            if exc.problem != NEEDS_H5PY:  # a BROAD trial without h5py fails, saying why
+                                continue  # a .bin that is no log (firmware, say) is not ours to replay
                         found.append(candidate)
         elif os.path.exists(path):
             check_not_special(path)

@@ -99,7 +99,7 @@ class AttitudeSeries:
 @dataclass
 class Flight:
     path: str
-    format: str  # "bin", "tlog" or "ulg"
+    format: str  # "bin", "tlog", "ulg" or "broad" (a BROAD trial: readers.broad)
     imu: dict[str, ImuSeries] = field(default_factory=dict)  # every IMU source found
     mag: dict[str, MagSeries] = field(default_factory=dict)
     gps: GpsSeries | None = None
@@ -109,7 +109,9 @@ class Flight:
     # "XKF1[1]", "AHRS2", "estimator_attitude[1]", ...; ``attitude`` is one of them, the primary.
     # Which algorithm made each: ``readers.attitudes.name_attitudes``.
     attitudes: dict[str, AttitudeSeries] = field(default_factory=dict)
-    truth: AttitudeSeries | None = None  # simulator ground truth
+    truth: AttitudeSeries | None = None  # simulator ground truth (or a benchmark's measured truth)
+    # (first, last) time, s, of each span the source says not to score (BROAD's rest phases)
+    unscored_spans: list[tuple[float, float]] = field(default_factory=list)
     params: dict[str, float] = field(default_factory=dict)
     vehicle: str | None = None  # e.g. "ArduCopter"
     firmware: str | None = None  # e.g. "ArduCopter V4.4.4 (865cffa5)"

@@ -67,6 +67,9 @@ class Comparison:
     # Why the scores do not measure the estimator (an IMU too slow to follow the vehicle:
     # ``imucheck``), set by the caller; None: they do.
     not_meaningful: str | None = None
+    # Against a truth: total, heading and inclination RMSE of the error quaternion
+    # (``broadscore.broad_measures``); None otherwise.
+    broad: dict | None = None
 
 
 def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float = 10.0,

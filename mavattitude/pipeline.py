@@ -12,6 +12,7 @@ from . import aiding as aid
 from . import declination as decl
 from . import quaternion as quat
 from . import estimators as est
+from .broadscore import broad_measures
 from .errors import InputError, UsageError
 from .events import Event
 from .flight import GRAVITY, AttitudeSeries, Flight
@@ -354,13 +355,19 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
         for name, series in estimates.items():
             comparisons[name] = compare(ref, series, warmup_s=warmup_s, align_yaw=not runner.has_heading[name],
                                         name=name, restarts=restarts, max_gap_s=REINIT_GAP_S,
-                                        exclude=excluded_spans(suspects))
+                                        exclude=excluded_spans(suspects) + flight.unscored_spans)
             comparisons[name].not_meaningful = not_meaningful
         if against_truth and flight.attitude is not None:
             comparisons["autopilot"] = compare(ref, flight.attitude, warmup_s=warmup_s, name="autopilot")
         primary = flight.attitude.source if against_truth and flight.attitude is not None else None
         streams, stream_series = score_autopilot_streams(
-            flight, autopilot_streams(named, primary or chosen.stream), ref, warmup_s, excluded_spans(suspects))
+            flight, autopilot_streams(named, primary or chosen.stream), ref, warmup_s,
+            excluded_spans(suspects) + flight.unscored_spans)
+        if against_truth:  # BROAD's error-quaternion measures, beside the Euler axes
+            headings = {**runner.has_heading, "autopilot": True}
+            for name, comp in comparisons.items():
+                series = estimates.get(name, flight.attitude)
+                comp.broad = broad_measures(ref, series, comp, heading=headings[name])
     else:
         events.append(Event(flight.time_span[0], "warn",
                             "the log has no attitude reference (ATT / ATTITUDE / vehicle_attitude): nothing to score against"))

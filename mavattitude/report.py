@@ -142,7 +142,9 @@ def to_json_dict(log: str, reference: dict, comparisons: dict[str, Comparison],
     non-finite number is null. ``meaningful``: false where the scores do not measure the
     estimator (``why``: the reason, e.g. an IMU too slow to follow the vehicle; null when true).
     ``unscored_in_gaps``: reference samples in a gap of the estimate or across a restart;
-    ``unscored_suspect_reference``: in a span where the reference is not trusted (``refcheck``).
+    ``unscored_suspect_reference``: in a span where the reference is not trusted (``refcheck``) or that
+    the source says not to score (BROAD's rest phases). Against a truth, ``broad``: {total_rmse_deg,
+    heading_rmse_deg, inclination_rmse_deg} (``broadscore``; total and heading null with no heading reference).
     ``extras`` adds keys per estimator next to the axes: ``events`` (what became of its
     accelerometer updates: {state: {samples, spans, seconds}}; a watchdog's resets:
     ``resets``: {count, times}), ``diagnostics`` (median and
@@ -181,6 +183,8 @@ def _comparison_dict(comp: Comparison, extras: dict) -> dict:
     axes["why"] = comp.not_meaningful
     axes["unscored_in_gaps"] = comp.n_in_gaps
     axes["unscored_suspect_reference"] = comp.n_excluded
+    if comp.broad is not None:  # against a truth: BROAD's error-quaternion measures
+        axes["broad"] = comp.broad
     axes.update(_clean(extras))
     return axes
 

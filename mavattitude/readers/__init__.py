@@ -17,6 +17,7 @@ import warnings as py_warnings
 from ..errors import InputError, check_not_special
 from ..flight import Flight
 from ..kernel_cache import cached
+from .broad import HDF5_SIGNATURE, looks_like_broad, read_broad
 from .dataflash import read_dataflash
 from .series import IMU_LIMITS, MAG_LIMITS, earth_field_power, fill_series
 from .sources import (IMU_PREFERENCE, best_imu_source, enum_name, identify_vehicle, imu_rate, mag_for_imu,
@@ -33,7 +34,7 @@ DATAFLASH_MAGIC = b"\xa3\x95"
 
 
 def sniff_format(path: str) -> str:
-    """'bin', 'tlog' or 'ulg' from the file's content; InputError if it is none of them."""
+    """'bin', 'tlog', 'ulg' or 'broad' from the file's content; InputError if it is none of them."""
     if not os.path.exists(path):
         raise InputError(path, "no such file")
     if os.path.isdir(path):
@@ -47,12 +48,19 @@ def sniff_format(path: str) -> str:
         return "bin"
     if looks_like_ulog(head):  # a damaged magic byte is said by the reader
         return "ulg"
+    if looks_like_broad(path, head):
+        return "broad"
     if tlog_start(head) is not None:
         return "tlog"
     ext = os.path.splitext(path)[1].lower()
-    kind = {".bin": "DataFlash .bin", ".tlog": "telemetry .tlog", ".ulg": "PX4 ULog"}.get(ext, "flight log")
+    if head.startswith(HDF5_SIGNATURE):
+        raise InputError(path, "an HDF5 file, but not a BROAD trial (it lacks imu_gyr, imu_acc, imu_mag, "
+                               "opt_quat or movement)")
+    kind = {".bin": "DataFlash .bin", ".tlog": "telemetry .tlog", ".ulg": "PX4 ULog", ".hdf5": "BROAD HDF5",
+            ".h5": "BROAD HDF5"}.get(ext, "flight log")
     raise InputError(path, f"not a {kind} file (it starts with bytes {head[:10].hex(' ')}; "
-                           "expected a DataFlash header a3 95, a tlog record or the ULog header 'ULog')")
+                           "expected a DataFlash header a3 95, a tlog record, the ULog header 'ULog' "
+                           "or an HDF5 signature)")
 
 
 @contextlib.contextmanager
@@ -111,16 +119,25 @@ def reader_needs_compile(path: str) -> bool:
         fmt = sniff_format(path)
     except (InputError, OSError):
         return False  # read_log says what is wrong with it
+    if fmt == "broad":
+        return False  # h5py reads it, nothing to compile
     kernels = {"bin": (dfrecords._scan, dfrecords._gather), "tlog": (tlogrecords._scan, tlogrecords._gather),
                "ulg": ()}[fmt]  # those every read of the format runs
     return not all(cached(kernel) for kernel in (collect._track, *kernels))
 
 
 def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
-    """Read a .bin, .tlog or .ulg. ``segment``: which clock segment to keep when the autopilot
+    """Read a .bin, .tlog, .ulg or BROAD trial (.hdf5). ``segment``: which clock segment to keep when the autopilot
     rebooted during the log (0-based); default the longest."""
     path = str(path)
     fmt = sniff_format(path)
+    if fmt == "broad":  # one clock, one IMU: none of the logs' decoding
+        if segment not in (None, 0):
+            raise InputError(path, f"has 1 clock segment(s); segment {segment} does not exist")
+        flight = read_broad(path)
+        if progress is not None:
+            progress(1.0)
+        return flight
     reader = {"bin": read_dataflash, "tlog": read_tlog, "ulg": read_ulog}[fmt]
     with _captured_output() as chatter:  # pymavlink's (or pyulog's) complaints about corrupt data
         decoded = reader(path, progress)
