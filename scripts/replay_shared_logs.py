@@ -48,7 +48,7 @@ def main() -> int:
                 rows.append(f"| `{log.name}` | replay failed (exit {code}) | | | |")
                 continue
             metrics = json.loads(out.read_text())
-            wide[log.name] = metrics["estimators"]
+            wide[log.name] = metrics
             for name, m in metrics["estimators"].items():
                 yaw = m["yaw"]
                 yaw_text = "n/a" if yaw is None else f"{yaw['mae']:.2f}" + ("*" if yaw.get("aligned") else "")
@@ -66,13 +66,20 @@ def main() -> int:
 
 
 def print_wide(table: dict) -> None:
-    names = list(dict.fromkeys(n for per_log in table.values() for n in per_log))
-    print("| log | " + " | ".join(names) + " |")
-    print("|---|" + "---|" * len(names))
-    for log, per_log in table.items():
+    """A row per log: its reference (stream, algorithm) and the autopilot's own spread (the
+    smallest tilt error of its other streams against the reference), then each estimator's
+    roll / pitch / yaw MAE; a log whose IMU is too slow to mean anything is marked so, not bolded."""
+    names = list(dict.fromkeys(n for metrics in table.values() for n in metrics["estimators"]))
+    print("| log | reference | spread | " + " | ".join(names) + " |")
+    print("|---|---|---|" + "---|" * len(names))
+    for log, metrics in table.items():
+        per_log = metrics["estimators"]
+        ref = metrics["reference"]
+        spread = (metrics.get("reference_spread_deg") or {}).get("tilt")
+        meaningful = all(m.get("meaningful", True) for m in per_log.values())
         tilt = {n: (m["roll"]["mae"] + m["pitch"]["mae"]) / 2 for n, m in per_log.items()
                 if m["roll"] and m["pitch"]}
-        best = min(tilt, key=tilt.get) if tilt else None
+        best = min(tilt, key=tilt.get) if tilt and meaningful else None
         cells = []
         for n in names:
             m = per_log.get(n)
@@ -83,9 +90,12 @@ def print_wide(table: dict) -> None:
             yaw_text = "n/a" if yaw is None else f"{yaw['mae']:.2f}" + ("*" if yaw.get("aligned") else "")
             text = f"{m['roll']['mae']:.2f} / {m['pitch']['mae']:.2f} / {yaw_text}"
             cells.append(f"**{text}**" if n == best else text)
-        print(f"| `{log}` | " + " | ".join(cells) + " |")
-    print("\nroll / pitch / yaw MAE in degrees; bold: the lowest mean of roll and pitch MAE on the log."
-          "\n\\* yaw compared after removing its initial offset: no heading reference.")
+        said = f"{ref['stream']} ({ref['algorithm']})" + ("" if meaningful else "; not meaningful (IMU too slow)")
+        print(f"| `{log}` | {said} | {'-' if spread is None else f'{spread:.2f}'} | " + " | ".join(cells) + " |")
+    print("\nroll / pitch / yaw MAE in degrees; bold: the lowest mean of roll and pitch MAE on the log. Spread: the "
+          "smallest tilt error (mean of roll and pitch MAE) of the autopilot's other attitude streams against the "
+          "reference: a lead smaller than it is not meaningful.\n\\* yaw drift: no heading reference, its initial "
+          "offset removed.")
 
 
 if __name__ == "__main__":
