@@ -13,6 +13,7 @@ import simtruth as st
 from mavattitude import quaternion as quat
 from mavattitude.cli import main
 from mavattitude.estimators import ESTIMATORS, all_names, available, create
+from mavattitude.estimators.rivals import START_STEPS
 from mavattitude.flight import GRAVITY
 
 RIVALS = [pytest.param(n, marks=pytest.mark.skipif(bool(available(n)), reason=available(n) or ""))
@@ -103,7 +104,10 @@ def test_chunked_equals_whole_and_a_gap_holds(name):
     q_live = np.vstack([live.update(t[a:b], gyro[a:b], accel[a:b], mag[a:b]) for a, b in zip(cuts, cuts[1:])])
     np.testing.assert_array_equal(q_live, q_whole)
     np.testing.assert_array_equal(q_whole[5000], q_whole[4999])
-    np.testing.assert_array_equal(q_whole[0], [1.0, 0, 0, 0])  # the first sample is no step
+    # the first sample is no step, the next START_STEPS wait for the sample time (their median)
+    np.testing.assert_array_equal(q_whole[:START_STEPS + 1], np.tile([1.0, 0, 0, 0], (START_STEPS + 1, 1)))
+    assert not np.array_equal(q_whole[START_STEPS + 1], q_whole[START_STEPS])
+    assert whole._ts == np.median(np.diff(t[:START_STEPS + 1]))
 
 
 @pytest.mark.parametrize("name, field, value", [

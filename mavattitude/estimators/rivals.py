@@ -22,9 +22,11 @@ NED directly), gyro in °/s, accelerometer in g, compass in µT (any unit does).
 heading from magnetic north: the declination turns it to true north (``yaw_turned``), as ours.
 
 Choices made here (neither package takes a time step per sample):
-- Each runs at a fixed sample time, the first step the filter sees (the rate of its time
-  constants); each sample's gyro is scaled by its own step over that time, so the rotation
-  integrated over a step is the measured one even where the log's rate jitters.
+- Each runs at a fixed sample time (the rate its time constants assume): the median of the
+  first ``START_STEPS`` steps, which wait for it, the attitude held at the start meanwhile
+  (a log's very first step is 0.4-1.5× its usual one in 5 of the 11 shared logs); each
+  sample's gyro is scaled by its own step over that time, so the rotation integrated over a
+  step is the measured one even where the log's rate jitters.
 - A step that is not a step (the first sample, a repeated time, a gap longer than
   ``MAX_STEP_S``) is not fed: the attitude holds, as ours do.
 - A missing accelerometer or compass sample (NaN) is fed as zeros, which both filters skip.
@@ -45,6 +47,7 @@ from ..params import param
 from .base import MAX_STEP_S, Estimator
 
 INSTALL = "pip install 'mavattitude[rivals]'"
+START_STEPS = 16  # steps whose median is the filters' fixed sample time (a log's first step can be 0.4-1.5×)
 ENU_TO_NED = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])  # x_ned = y_enu, y_ned = x_enu, z_ned = -z_enu
 
 
@@ -79,7 +82,8 @@ class Rival(Estimator):
     def initialize(self, q0, gyro_bias) -> None:
         self._q0 = quat.normalize(np.asarray(q0, dtype=np.float64))
         self._bias0 = np.array(gyro_bias, dtype=np.float64).reshape(3)
-        self._filter = None  # made at the first step, when the sample time is known
+        self._filter = None  # made once the first START_STEPS steps give the sample time
+        self._first = []  # those steps meanwhile: (dt, gyro, accel, mag) each
         self._ts = np.nan
         self._t_prev = np.nan
         self._q = self._q0.copy()
@@ -106,23 +110,34 @@ class Rival(Estimator):
         if len(s.t):
             self._t_prev = s.t[-1]
         fed = (dt > 0.0) & (dt <= MAX_STEP_S)  # NaN (the first sample) compares False
-        out = np.empty((len(s.t), 4))
-        if fed.any():
-            if self._filter is None:
-                self._ts = float(dt[fed][0])
+        steps = np.flatnonzero(fed)
+        if self._filter is None:  # the first steps wait, held, until the sample time is known
+            waiting, steps = steps[:START_STEPS - len(self._first)], steps[START_STEPS - len(self._first):]
+            self._first += [(dt[i], s.gyro[i], s.accel[i], s.mag[i]) for i in waiting]
+            if len(self._first) == START_STEPS:
+                first = [np.array(column) for column in zip(*self._first)]
+                self._ts = float(np.median(first[0]))
                 self._filter = self._make_filter(self._ts)
-            scaled = s.gyro[fed] * (dt[fed] / self._ts)[:, None]
-            accel_fed = np.nan_to_num(s.accel[fed], nan=0.0)
-            mag_fed = np.nan_to_num(s.mag[fed], nan=0.0) if self._heading_from_mag else None
-            out[fed] = self._to_ned(self._run(scaled, accel_fed, mag_fed))
+                self._step(*first)  # the filter catches up; those samples' attitudes were already given
+        out = np.empty((len(s.t), 4))
+        if len(steps):
+            out[steps] = self._step(dt[steps], s.gyro[steps], s.accel[steps], s.mag[steps])
         # an attitude that is not fed holds the last one
-        index = np.where(fed, np.arange(len(s.t)), -1)
+        index = np.full(len(s.t), -1)
+        index[steps] = steps
         last = np.maximum.accumulate(index) if len(s.t) else index
         out[last < 0] = self._q
         out[last >= 0] = out[last[last >= 0]]
         if len(s.t):
             self._q = out[-1].copy()
         return out
+
+    def _step(self, dt, gyro, accel, mag) -> np.ndarray:
+        """Feed steps to the filter (converted here); our attitude after each."""
+        scaled = gyro * (dt / self._ts)[:, None]
+        accel = np.nan_to_num(accel, nan=0.0)
+        mag = np.nan_to_num(mag, nan=0.0) if self._heading_from_mag else None
+        return self._to_ned(self._run(scaled, accel, mag))
 
 
 @dataclass
