@@ -38,7 +38,7 @@ import numpy as np
 
 from . import __version__
 from .errors import UsageError
-from .flight import GRAVITY, MagSeries
+from .flight import MagSeries
 from .outputs import json_text
 
 MIN_X_IMUFUSION = 5.0  # every estimator: at least this many times imufusion's samples/s

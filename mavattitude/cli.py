@@ -639,7 +639,8 @@ def _estimation_args(p, source: str, estimators: bool = True) -> None:
     ``source``: "log" or "vehicle", for the help texts; ``estimators``: with --estimators."""
     if estimators:
         p.add_argument("--estimators", default="mahony", metavar="LIST",
-                       help="comma-separated estimator names, or 'all' (default: mahony)")
+                       help="comma-separated estimator names, 'all' (ours) among them, e.g. "
+                            "all,vqf,imufusion (default: mahony)")
     p.add_argument("--reference", choices=("autopilot", "truth"), default="autopilot",
                    help="score against the autopilot's attitude (ATT/ATTITUDE/vehicle_attitude, default) or the "
                         "simulator's ground truth (SIM/SIMSTATE/vehicle_attitude_groundtruth); with truth the autopilot is "
@@ -896,9 +897,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "imufusion and whether the targets are met (every estimator >= 5x "
                                    "imufusion, cpf-ekf >= 1x, mahony >= 1 M samples/s). imufusion "
                                    "is optional: "
-                                   'pip install "mavattitude[bench]".')
+                                   'pip install "mavattitude[bench]". The filters of other projects '
+                                   "(vqf, imufusion) can be timed too, by name: their rows have no target.")
     p.add_argument("--estimators", default="all", metavar="LIST",
-                   help="comma-separated estimator names, or 'all' (default: all)")
+                   help="comma-separated estimator names, 'all' (ours) among them (default: all)")
     p.add_argument("--scenario", default="figure8", help="simulated scenario (default figure8)")
     p.add_argument("--duration", type=POSITIVE, default=3600.0, metavar="S",
                    help="simulated seconds (default 3600)")

@@ -197,11 +197,11 @@ class Vqf(Rival):
 @dataclass
 class ImufusionParams:
     # Fusion's settings (FusionAhrsSettings), the values its README recommends
-    gain: float = param(0.5, "[0, 100]", "log [0.05, 5]")  # how much the accelerometer and compass correct the gyro
-    gyroscope_range: float = param(2000.0, "[0, 1e5]")  # °/s the gyro can read (a reading near it restarts the filter; 0: none)
-    acceleration_rejection: float = param(10.0, "[0, 90]", "linear [1, 90]")  # ° of disagreement beyond which the accelerometer is ignored (0: never)
-    magnetic_rejection: float = param(10.0, "[0, 90]", "linear [1, 90]")  # ° of disagreement beyond which the compass is ignored (0: never)
-    rejection_timeout: float = param(5.0, "[0, 1e4]", "linear [0.5, 30]")  # s of rejection before the filter starts over
+    gain: float = param(0.5, "[0, 100]", "log [0.05, 5]")  # weight of the accelerometer and compass against the gyro
+    gyroscope_range: float = param(2000.0, "[0, 1e5]")  # °/s the gyro reads up to (near it: a restart; 0: none)
+    acceleration_rejection: float = param(10.0, "[0, 90]", "linear [1, 90]")  # ignore the accelerometer beyond this disagreement, ° (0: never)
+    magnetic_rejection: float = param(10.0, "[0, 90]", "linear [1, 90]")  # ignore the compass beyond this disagreement, ° (0: never)
+    rejection_timeout: float = param(5.0, "[0, 1e4]", "linear [0.5, 30]")  # s of rejection before it starts over
     use_mag: bool = param(True)  # correct heading from the magnetometer when the log has one
 
 
