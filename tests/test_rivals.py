@@ -158,3 +158,23 @@ def test_replay_scores_them_beside_ours(tmp_path, capsys):
         assert scores[name]["meaningful"] and scores[name]["roll"]["n"] == scores["mahony"]["roll"]["n"]
         # measured: vqf 3.1/9.8/4.5°, imufusion 7.6/6.7/15.1° RMSE; a frame error makes tens of degrees
         assert all(scores[name][axis]["rmse"] < 20.0 for axis in ("roll", "pitch", "yaw")), scores[name]
+
+
+@pytest.mark.parametrize("name", RIVALS[:1])
+def test_vqf_says_when_it_detects_rest_and_a_disturbed_field(name):
+    """Its rest and magnetic-disturbance detection as diagnostics: NaN while the first steps
+    wait, rest at the end of a still start, never while turning at 1 rad/s; on figure8 it
+    accepts the field part of the time (VQF accepts a new field only in motion: magNewMinGyr)."""
+    inputs = steady(quat.from_euler(0.0, 0.0, 0.3))
+    f = create(name)
+    f.initialize(quat.from_euler(0.0, 0.0, 0.3), np.zeros(3))
+    f.update(*inputs[:4])
+    rest = f.diagnostics["rest"]
+    assert np.isnan(rest[:START_STEPS + 1]).all() and rest[-1] == 1.0
+    turning = steady(quat.from_euler(0.0, 0.0, 0.3), rate_rad_s=1.0)
+    g = create(name, use_mag=False)
+    g.initialize(quat.from_euler(0.0, 0.0, 0.3), np.zeros(3))
+    g.update(*turning[:3], None)
+    assert set(g.diagnostics) == {"rest"} and (g.diagnostics["rest"][START_STEPS + 1:] == 0.0).all()
+    _, h = st.run(name, st.figure8_120())
+    assert set(np.unique(h.diagnostics["mag_disturbed"][START_STEPS + 1:])) == {0.0, 1.0}

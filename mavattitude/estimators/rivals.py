@@ -120,8 +120,11 @@ class Rival(Estimator):
                 self._filter = self._make_filter(self._ts)
                 self._step(*first)  # the filter catches up; those samples' attitudes were already given
         out = np.empty((len(s.t), 4))
+        self.diagnostics = {key: np.full(len(s.t), np.nan) for key in self._diagnostic_keys()}
         if len(steps):
             out[steps] = self._step(dt[steps], s.gyro[steps], s.accel[steps], s.mag[steps])
+            for key, series in self.diagnostics.items():
+                series[steps] = self._fed_diagnostics[key]
         # an attitude that is not fed holds the last one
         index = np.full(len(s.t), -1)
         index[steps] = steps
@@ -131,6 +134,9 @@ class Rival(Estimator):
         if len(s.t):
             self._q = out[-1].copy()
         return out
+
+    def _diagnostic_keys(self) -> list[str]:
+        return []
 
     def _step(self, dt, gyro, accel, mag) -> np.ndarray:
         """Feed steps to the filter (converted here); our attitude after each."""
@@ -162,6 +168,13 @@ class Vqf(Rival):
     Params = VqfParams
     uses_mag = True
     requires = "vqf"
+    DIAGNOSTICS = {
+        "rest": "1 while VQF detects rest (and learns the gyro bias from it), else 0; NaN: sample not fed",
+        "mag_disturbed": "1 while VQF rejects the compass as disturbed (9D only), else 0; NaN: sample not fed",
+    }
+
+    def _diagnostic_keys(self) -> list[str]:
+        return ["rest", "mag_disturbed"] if self._heading_from_mag else ["rest"]
 
     def _frame_from_ned(self, q):
         return quat.multiply(quat.conjugate(ENU_TO_NED), q)
@@ -182,11 +195,15 @@ class Vqf(Rival):
         return f
 
     def _run(self, gyro, accel, mag):
+        gyro, accel = np.ascontiguousarray(gyro), np.ascontiguousarray(accel)
         if mag is None:
-            return self._filter.updateBatch(np.ascontiguousarray(gyro), np.ascontiguousarray(accel))["quat6D"]
-        out = self._filter.updateBatch(np.ascontiguousarray(gyro), np.ascontiguousarray(accel),
-                                       np.ascontiguousarray(mag))
-        return out["quat9D"]
+            out = self._filter.updateBatch(gyro, accel)
+        else:
+            out = self._filter.updateBatch(gyro, accel, np.ascontiguousarray(mag))
+        self._fed_diagnostics = {"rest": out["restDetected"].astype(np.float64)}
+        if mag is not None:
+            self._fed_diagnostics["mag_disturbed"] = out["magDistDetected"].astype(np.float64)
+        return out["quat6D" if mag is None else "quat9D"]
 
     @property
     def gyro_bias(self) -> np.ndarray:
