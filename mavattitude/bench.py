@@ -3,14 +3,16 @@
 One simulated flight (default: figure8, 1 h at 400 Hz = 1.44 M IMU samples) feeds every
 estimator. Each is run once on a short slice first, which compiles its kernels (or loads them
 from numba's cache), then ``update()`` over the whole flight is timed, best of ``repeat``
-runs, with and without the magnetometer. The yardstick is imufusion's ``Ahrs`` (the Python
-package of x-io's Fusion, a C complementary filter) called per sample from a Python loop, as
-a user of that package would, on the first ``imufusion_samples`` samples of the same data.
+runs, with and without the magnetometer. The yardstick is the ``imufusion`` estimator
+(``estimators.rivals``: the Python package of x-io's Fusion, a C complementary filter, whose
+``Ahrs`` is called per sample from a Python loop, as a user of that package would), timed the
+same way on the first ``imufusion_samples`` samples of the same data. The filters from other
+projects (``vqf``, ``imufusion``) can be named too (``--estimators mahony,vqf,imufusion``):
+their rows have no target.
 
-What is timed, for both: the call(s) that turn the samples into one attitude per sample.
-Ours: one ``update()`` over the whole chunk (input checks, kernel, output array). imufusion:
-per sample ``update(...)`` or ``update_no_magnetometer(...)`` then ``get_quaternion()`` into
-an output array, its inputs converted to its units (°/s, g, µT) beforehand, outside the timing.
+What is timed: one ``update()`` over the whole chunk (input checks, the filter, the output
+array). For imufusion that is its inputs converted to its units (°/s, g, µT) in one go, then
+per sample ``update(...)`` or ``update_no_magnetometer(...)`` and ``get_quaternion()``.
 
 The magnetometer reaches the estimators as in ``replay`` (``runner.held_magnetometer``, the
 interface of ``estimators.base``): the latest compass sample held at every IMU time (a new
@@ -19,7 +21,7 @@ with the latest compass sample on every sample, as its documentation calls it. A
 that takes aiding (``cpf-ekf``) also gets the simulated GPS and baro on the IMU clock
 (``aiding.from_sim``, as ``replay`` builds them from a log), in both modes.
 
-Targets: every estimator at least ``MIN_X_IMUFUSION`` times imufusion's rate in the same mode
+Targets: every estimator of ours at least ``MIN_X_IMUFUSION`` times imufusion's rate in the same mode
 (``MIN_X_IMUFUSION_FOR`` where an estimator's own target differs),
 and mahony at least ``MAHONY_MIN_RATE`` samples/s.
 """
@@ -36,7 +38,7 @@ import numpy as np
 
 from . import __version__
 from .errors import UsageError, reraise_interrupt
-from .flight import GRAVITY, MagSeries
+from .flight import MagSeries
 from .outputs import json_text
 
 MIN_X_IMUFUSION = 5.0  # every estimator: at least this many times imufusion's samples/s
@@ -141,54 +143,20 @@ def time_estimator(name: str, data: BenchData, use_mag: bool, repeat: int) -> fl
 # ---------------------------------------------------------------- imufusion
 
 
-def import_imufusion():
-    """The imufusion module, or None (with how to install it on stderr) when it is missing."""
-    try:
-        import imufusion
-    except ImportError:
+def imufusion_available() -> bool:
+    """Whether the imufusion estimator (``estimators.rivals``) can run; if not, says how to install it."""
+    from .estimators import available
+
+    if available("imufusion"):
         _say(f"imufusion is not installed, so there is no comparison with it: {INSTALL_HINT}")
-        return None
-    return imufusion
+        return False
+    return True
 
 
-def imufusion_settings(imufusion, imu_rate: float):
-    """Fusion's recommended settings (its README example), in our NED convention."""
-    settings = imufusion.AhrsSettings(
-        sample_rate=imu_rate,  # Hz: sets the start-up ramp's length in samples
-        gain=0.5,
-        gyroscope_range=2000.0,  # °/s
-        acceleration_rejection=10.0,  # °
-        magnetic_rejection=10.0,  # °
-        rejection_timeout=int(5 * imu_rate),  # samples
-    )
-    # imufusion 1.3.3's constructor ignores its convention argument; the attribute takes.
-    settings.convention = imufusion.CONVENTION_NED
-    return settings
-
-
-def time_imufusion(imufusion, data: BenchData, use_mag: bool, n: int, repeat: int) -> float:
-    """Best of ``repeat`` timings of a per-sample Python loop over imufusion.Ahrs, seconds."""
-    gyro = np.degrees(data.gyro[:n])  # °/s
-    accel = data.accel[:n] / GRAVITY  # g
-    mag = data.mag[:n] * 1e6  # µT (any unit does; µT keeps Fusion's float32 comfortable)
-    has_mag = np.isfinite(mag[:, 0]) if use_mag else np.zeros(n, dtype=bool)
-    period = float(np.median(np.diff(data.t[:n]))) if n > 1 else 1.0 / data.imu_rate
-    best = np.inf
-    for _ in range(repeat):
-        ahrs = imufusion.Ahrs()
-        ahrs.set_settings(imufusion_settings(imufusion, 1.0 / period))
-        ahrs.set_sample_period(period)  # s: the step every update integrates over
-        out = np.empty((n, 4))
-        update, update_no_mag, get_q = ahrs.update, ahrs.update_no_magnetometer, ahrs.get_quaternion
-        start = time.perf_counter()
-        for i in range(n):
-            if has_mag[i]:
-                update(gyro[i], accel[i], mag[i])
-            else:
-                update_no_mag(gyro[i], accel[i])
-            out[i] = get_q()
-        best = min(best, time.perf_counter() - start)
-    return best
+def time_imufusion(data: BenchData, use_mag: bool, n: int, repeat: int) -> float:
+    """Best of ``repeat`` timings of the ``imufusion`` estimator (Fusion's Ahrs per sample in a
+    Python loop, its defaults) over the first ``n`` samples, seconds."""
+    return min(_run_once("imufusion", data, use_mag, n) for _ in range(repeat))
 
 
 # ---------------------------------------------------------------- the whole bench
@@ -214,13 +182,13 @@ def run_bench(names: list[str], scenario: str = "figure8", duration: float = 360
     from .estimators import ESTIMATORS, needs_compile
 
     data = make_data(scenario, duration, imu_rate, seed)
-    imufusion = import_imufusion()
+    has_imufusion = imufusion_available()
     reference = {}
     n_fusion = min(imufusion_samples, data.n)
-    if imufusion is not None:
+    if has_imufusion:
         for label, use_mag in MODES:
             _say(f"timing imufusion.Ahrs ({label}) on {n_fusion:,} samples ...")
-            reference[label] = n_fusion / time_imufusion(imufusion, data, use_mag, n_fusion, repeat)
+            reference[label] = n_fusion / time_imufusion(data, use_mag, n_fusion, repeat)
     pending = needs_compile(names)
     if pending:
         _say(f"compiling {', '.join(pending)} (first run on this machine only; cached afterwards) ...")
@@ -247,7 +215,7 @@ def run_bench(names: list[str], scenario: str = "figure8", duration: float = 360
                 continue
             rate = data.n / seconds
             x = rate / reference[label] if label in reference else None
-            met, misses = _verdict(name, rate, x)
+            met, misses = _verdict(name, rate, x if cls.in_all else None)  # targets are ours, not the rivals'
             rows.append(dict(estimator=name, mag=use_mag, samples=data.n, best_s=seconds,
                              samples_per_s=rate, x_imufusion=x, target_met=met, misses=misses,
                              warm_s=warm_s))
@@ -262,21 +230,22 @@ def run_bench(names: list[str], scenario: str = "figure8", duration: float = 360
         "repeat": repeat,
         "targets": {"min_x_imufusion": MIN_X_IMUFUSION, "mahony_min_samples_per_s": MAHONY_MIN_RATE},
         "imufusion": {
-            "available": imufusion is not None,
-            "version": _version("imufusion") if imufusion is not None else None,
-            "samples": n_fusion if imufusion is not None else 0,
+            "available": has_imufusion,
+            "version": _version("imufusion") if has_imufusion else None,
+            "samples": n_fusion if has_imufusion else 0,
             "samples_per_s": {("mag" if k == "mag" else "no_mag"): v for k, v in reference.items()},
-            "settings": _settings_json(imufusion, data.imu_rate) if imufusion is not None else None,
+            "settings": _settings_json() if has_imufusion else None,
         },
         "results": rows,
     }
 
 
-def _settings_json(imufusion, imu_rate: float) -> dict:
-    s = imufusion_settings(imufusion, imu_rate)
-    return {k: getattr(s, k) for k in ("sample_rate", "convention", "gain", "gyroscope_range",
-                                       "acceleration_rejection", "magnetic_rejection",
-                                       "rejection_timeout")}
+def _settings_json() -> dict:
+    """The yardstick's settings: the imufusion estimator's defaults, in its NED convention."""
+    from dataclasses import asdict
+
+    from .estimators.rivals import ImufusionParams
+    return {"convention": "NED", **asdict(ImufusionParams())}
 
 
 def _version(package: str) -> str | None:

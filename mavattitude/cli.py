@@ -98,15 +98,20 @@ def cmd_info(args) -> int:
 
 
 def _estimator_names(text: str) -> list[str]:
-    from .estimators import ESTIMATORS
+    from .estimators import ESTIMATORS, all_names, available
 
-    names = list(ESTIMATORS) if text.strip() == "all" else [n.strip() for n in text.split(",") if n.strip()]
+    names = []  # 'all' is ours, in a list too: all,vqf,imufusion
+    for n in (n.strip() for n in text.split(",")):
+        names += [m for m in (all_names() if n == "all" else [n] if n else []) if m not in names]
     unknown = [n for n in names if n not in ESTIMATORS]
     if unknown or not names:
         raise UsageError(f"unknown estimator(s) {', '.join(unknown) or '(none given)'}; "
                          f"choose from: {', '.join(ESTIMATORS)} (or 'all')")
     if "autopilot" in names:
         raise UsageError("'autopilot' is the name of the autopilot's own row; it is not an estimator")
+    for n in names:
+        if available(n):
+            raise UsageError(available(n))
     return names
 
 
@@ -361,7 +366,8 @@ def _view(result, rec, sink) -> None:
 
 
 def cmd_estimators(args) -> int:
-    from .estimators import ESTIMATORS, summary
+    from .estimators import ESTIMATORS, available, summary
+    from .estimators.rivals import INSTALL
     from .params import describe, search_space
 
     if args.json:
@@ -376,7 +382,8 @@ def cmd_estimators(args) -> int:
         return 0
     for name, cls in ESTIMATORS.items():
         heading = "heading from the magnetometer" if cls.uses_mag else "no heading reference (yaw from the gyro)"
-        print(f"{name}: {summary(cls)}")
+        optional = f" (optional: {INSTALL}; not installed)" if available(name) else ""
+        print(f"{name}: {summary(cls)}{optional}")
         print(f"  {heading}")
         rows = describe(cls.Params)
         searched = search_space(cls.Params)
@@ -644,7 +651,8 @@ def _estimation_args(p, source: str, estimators: bool = True) -> None:
     ``source``: "log" or "vehicle", for the help texts; ``estimators``: with --estimators."""
     if estimators:
         p.add_argument("--estimators", default="mahony", metavar="LIST",
-                       help="comma-separated estimator names, or 'all' (default: mahony)")
+                       help="comma-separated estimator names, 'all' (ours) among them, e.g. "
+                            "all,vqf,imufusion (default: mahony)")
     if source == "log":
         p.add_argument("--reference", default="autopilot", metavar="NAME",
                        help="what to score against: 'autopilot' (its attitude in use: ATT/ATTITUDE/"
@@ -909,9 +917,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "imufusion and whether the targets are met (every estimator >= 5x "
                                    "imufusion, cpf-ekf >= 1x, mahony >= 1 M samples/s). imufusion "
                                    "is optional: "
-                                   'pip install "mavattitude[bench]".')
+                                   'pip install "mavattitude[bench]". The filters of other projects '
+                                   "(vqf, imufusion) can be timed too, by name: their rows have no target.")
     p.add_argument("--estimators", default="all", metavar="LIST",
-                   help="comma-separated estimator names, or 'all' (default: all)")
+                   help="comma-separated estimator names, 'all' (ours) among them (default: all)")
     p.add_argument("--scenario", default="figure8", help="simulated scenario (default figure8)")
     p.add_argument("--duration", type=POSITIVE, default=3600.0, metavar="S",
                    help="simulated seconds (default 3600)")

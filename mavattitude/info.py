@@ -55,7 +55,7 @@ def summarize(flight: Flight) -> dict:
     if (low_rate := rate_warning(best_rate)) is not None:
         warnings.append(low_rate)
     reading = imus[best]["accel_g_reading"]
-    scale = accel_scale_warning(reading["ms2"], reading["at_rest"], [est.create(name) for name in est.ESTIMATORS])
+    scale = accel_scale_warning(reading["ms2"], reading["at_rest"], [est.create(name) for name in est.all_names()])
     if scale is not None:
         warnings.append(scale)
     declination = for_flight(flight)

@@ -11,6 +11,20 @@ SHARED_LOGS = ROOT.parent / "shared" / "logs"
 SAMPLE_LOGS = ROOT / "sample_logs"
 
 
+def installed_estimators() -> list[str]:
+    """Every registered estimator whose package is installed (vqf and imufusion are optional)."""
+    from mavattitude.estimators import ESTIMATORS, available
+    return [name for name in ESTIMATORS if not available(name)]
+
+
+def estimator_params() -> list:
+    """Every registered estimator as a test parameter, skipped with the pip command where its
+    package is not installed."""
+    from mavattitude.estimators import ESTIMATORS, available
+    return [pytest.param(name, marks=pytest.mark.skipif(bool(available(name)), reason=available(name) or ""))
+            for name in ESTIMATORS]
+
+
 def shared_log_paths() -> list[Path]:
     if not SHARED_LOGS.is_dir():
         return []

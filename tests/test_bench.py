@@ -11,7 +11,7 @@ import pytest
 
 from mavattitude import quaternion as quat
 from mavattitude.cli import main
-from mavattitude.estimators import ESTIMATORS, Estimator
+from mavattitude.estimators import ESTIMATORS, Estimator, all_names, available
 from mavattitude.estimators.base import MAX_STEP_S
 from mavattitude.estimators.mahony import Mahony, MahonyParams
 from mavattitude.flight import MagSeries
@@ -38,7 +38,8 @@ def test_bench_runs_every_estimator(capsys, tmp_path):
     assert result["repeat"] == 1
     assert set(result["targets"]) == {"min_x_imufusion", "mahony_min_samples_per_s"}
     rows = result["results"]
-    for name, cls in ESTIMATORS.items():
+    for name in all_names():  # 'all': ours
+        cls = ESTIMATORS[name]
         modes = sorted(r["mag"] for r in rows if r["estimator"] == name)
         assert modes == ([False, True] if cls.uses_mag else [False]), name
         assert name in out
@@ -54,10 +55,26 @@ def test_bench_runs_every_estimator(capsys, tmp_path):
         assert fusion["samples"] == 500 and fusion["version"]
         assert set(fusion["samples_per_s"]) == {"mag", "no_mag"}
         assert all(v > 0 for v in fusion["samples_per_s"].values())
-        assert fusion["settings"]["convention"] == 2  # NED
+        assert fusion["settings"]["convention"] == "NED" and fusion["settings"]["gain"] == 0.5
         assert all(r["x_imufusion"] > 0 for r in rows)
         assert "imufusion.Ahrs" in out
     assert "samples/s" in out and "target met" in out
+
+
+@pytest.mark.skipif(bool(available("vqf") or available("imufusion")), reason="needs vqf and imufusion")
+def test_bench_times_the_rivals_beside_ours_without_targets(capsys, tmp_path):
+    rc, out, err, result = _bench(capsys, tmp_path, "--estimators", "mahony,vqf,imufusion",
+                                  "--imufusion-samples", "500")
+    assert rc == 0, err
+    rows = {(r["estimator"], r["mag"]): r for r in result["results"]}
+    assert set(rows) == {(n, m) for n in ("mahony", "vqf", "imufusion") for m in (True, False)}
+    for name in ("vqf", "imufusion"):
+        for mag in (True, False):
+            row = rows[name, mag]
+            assert row["samples_per_s"] > 0 and row["x_imufusion"] > 0 and row["target_met"] is None
+    assert rows["mahony", True]["target_met"] in (True, False)
+    assert [line.split()[0] for line in out.splitlines() if line.startswith(("vqf ", "imufusion "))] == \
+        ["vqf", "vqf", "imufusion", "imufusion"]
 
 
 def test_bench_without_imufusion(capsys, tmp_path, monkeypatch):

@@ -170,14 +170,14 @@ def _bound(name: str) -> float:
 
 @pytest.mark.parametrize("path", shared_log_params(slow_above_mb=5))
 def test_every_shared_log_replays_with_every_estimator(path, tmp_path, capsys):
-    from mavattitude.estimators import ESTIMATORS
+    from mavattitude.estimators import all_names
 
     code, out, err = run(capsys, "replay", path, "--estimators", "all",
                          "--rrd", tmp_path / "r.rrd", "--json", tmp_path / "m.json",
                          "--export", tmp_path / "csv")
     assert code == 0, err
     assert "mahony" in out and "MAE" in out
-    metrics = check_outputs(tmp_path, list(ESTIMATORS),
+    metrics = check_outputs(tmp_path, all_names(),
                             json.loads((tmp_path / "m.json").read_text())["reference"]["stream"])
     mahony = metrics["estimators"]["mahony"]
     bound = _bound(path.name)

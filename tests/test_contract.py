@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 
 import simtruth as st
+from conftest import estimator_params
 from mavattitude.aiding import Aiding, from_sim
 from mavattitude.estimators import ESTIMATORS, align, create
 from mavattitude.flight import GRAVITY
 
-NAMES = list(ESTIMATORS)
+NAMES = estimator_params()
 
 
 def hostile(n: int = 200_000, seed: int = 5, accel_noise: float = 3.0):

@@ -76,15 +76,16 @@ def test_estimating_in_steps_changes_nothing_and_reports_progress(sim_logs, monk
     """An hour is estimated in steps of ``STEP_ROWS`` (bounded scratch memory): every
     estimate and diagnostic is bit-identical to one step, and the progress climbs to 1."""
     from mavattitude import runner
-    from mavattitude.estimators import ESTIMATORS
+    from conftest import installed_estimators
 
+    names = installed_estimators()
     flight = read_log(str(sim_logs["figure8.bin"][1]))
-    whole = run_replay(flight, list(ESTIMATORS))
+    whole = run_replay(flight, names)
     monkeypatch.setattr(runner, "STEP_ROWS", 700)
     seen = []
-    steps = run_replay(flight, list(ESTIMATORS), progress=seen.append)
+    steps = run_replay(flight, names, progress=seen.append)
     assert len(seen) > 10 and seen == sorted(seen) and seen[-1] == 1.0
-    for name in ESTIMATORS:
+    for name in names:
         np.testing.assert_array_equal(steps.estimates[name].q, whole.estimates[name].q)
         assert steps.diagnostics[name].keys() == whole.diagnostics[name].keys()
         for key, values in whole.diagnostics[name].items():

@@ -25,7 +25,7 @@ optuna = pytest.importorskip("optuna", reason="tune needs the optional extra: pi
 # ---------------------------------------------------------------- search spaces
 
 
-@pytest.mark.parametrize("name", list(ESTIMATORS))
+@pytest.mark.parametrize("name", list(ESTIMATORS))  # the Params alone: no package needed
 def test_every_estimator_searches_a_space_around_its_defaults(name):
     cls = ESTIMATORS[name].Params
     space = search_space(cls)

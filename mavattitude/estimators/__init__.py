@@ -24,8 +24,9 @@ from .eskf import Eskf
 from .mahony import Mahony
 from .mahony_ekf import MahonyEkf
 from .ncs_eskf import NcsEskf
+from .rivals import Imufusion, Vqf
 
-__all__ = ["ESTIMATORS", "Alignment", "Estimator", "align", "create", "load_plugins", "needs_compile", "precompile",
+__all__ = ["ESTIMATORS", "Alignment", "Estimator", "align", "all_names", "available", "create", "load_plugins", "needs_compile", "precompile",
            "register", "summary", "warm_up"]
 
 ESTIMATORS: dict[str, type[Estimator]] = {
@@ -36,19 +37,34 @@ ESTIMATORS: dict[str, type[Estimator]] = {
     NcsEskf.name: NcsEskf,
     EqKf.name: EqKf,
     CpfEkf.name: CpfEkf,
+    Vqf.name: Vqf,  # the filters people use instead, for comparison: optional packages, not in 'all'
+    Imufusion.name: Imufusion,
 }
 
 _kernel_cache.refresh(Mahony.kernels[0])  # no stale kernel from older sources (see kernel_cache)
 
 
 def summary(cls) -> str:
-    """The first line of an estimator's module docstring: what it is and which paper."""
+    """The first line of an estimator's module docstring (a filter from another project: its
+    class docstring): what it is and which paper."""
     import sys
-    doc = sys.modules[cls.__module__].__doc__ or cls.__doc__ or ""
+    doc = (cls.__doc__ if cls.requires else sys.modules[cls.__module__].__doc__) or cls.__doc__ or ""
     return doc.strip().splitlines()[0].rstrip(".") if doc.strip() else cls.name
 
 
 ENTRY_POINT_GROUP = "mavattitude.estimators"
+
+
+def all_names() -> list[str]:
+    """What '--estimators all' runs: every registered estimator but the filters from other
+    projects (``Estimator.in_all``), which are named explicitly."""
+    return [name for name, cls in ESTIMATORS.items() if cls.in_all]
+
+
+def available(name: str) -> str | None:
+    """None when estimator ``name`` can run here; else why not, in a line with the pip command."""
+    from .rivals import missing
+    return missing(ESTIMATORS[name])
 
 
 def create(name: str, params=None, declination: float = 0.0, **values) -> Estimator:

@@ -43,6 +43,8 @@ class Estimator:
     ACCEL_STATES: tuple = ()  # meaning of each accel_state code, code 0 = "used"
     uses_aiding: bool = False  # takes GPS / baro measurements: update(..., aiding=Aiding)
     PAPER: dict = {}  # parameter values ``strict`` forces: the paper's filter as published
+    requires: str = ""  # the Python package a filter from another project runs on (imported when created)
+    in_all: bool = True  # one of '--estimators all' (a filter from another project is named explicitly)
 
     def run_params(self):
         """The parameters the filter runs with: ``params``, or with ``strict`` set, ``params``
