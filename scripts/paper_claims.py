@@ -7,8 +7,10 @@ of the README's "Claims and measurements".
     python scripts/paper_claims.py [--evaluation DIR]
 
 ``--evaluation``: the --out folder of an evaluation against the autopilot (default: run one
-on ../shared/logs into a temporary folder; about a minute on 2 cores). The simulated part
-takes about a minute more.
+on ../shared/logs into a temporary folder; about a minute on 2 cores). ``--broad``: the --out
+folder of ``evaluate ../shared/broad --estimators all,vqf --reference truth --no-mag`` (default:
+run one; skipped where ../shared/broad or h5py is absent). The simulated part takes about a
+minute more.
 """
 from __future__ import annotations
 
@@ -119,6 +121,38 @@ def rows(ev: dict) -> list[tuple[str, str, str, str]]:
     return out
 
 
+def broad_column(folder: Path | None) -> dict[str, str]:
+    """Per estimator: its median 6D inclination RMSE over the BROAD trials and its ratio to
+    VQF's (BROAD: Laidig et al. 2021, doi:10.3390/data6070072, CC BY 4.0)."""
+    if folder is None:
+        return {}
+    per = {}
+    for path in sorted((folder / "logs").glob("*.json")):
+        record = json.loads(path.read_text())
+        for name, m in (record.get("metrics") or {}).items():
+            value = (m.get("broad") or {}).get("inclination_rmse_deg")
+            if value is not None:
+                per.setdefault(name, []).append(value)
+    median = {name: float(np.median(v)) for name, v in per.items()}
+    vqf = median.get("vqf")
+    return {name: f"median inclination RMSE {m:.2f}° over {len(per[name])} trials"
+                  + (f" ({m / vqf:.1f}× VQF's {vqf:.2f}°)" if vqf else "") for name, m in median.items()}
+
+
+def run_broad() -> Path | None:
+    shared = ROOT.parent / "shared" / "broad"
+    try:
+        import h5py  # noqa: F401
+    except ImportError:
+        return None
+    if not shared.is_dir():
+        return None
+    folder = Path(tempfile.mkdtemp()) / "broad"
+    subprocess.run([sys.executable, "-m", "mavattitude", "evaluate", str(shared), "--estimators", "all,vqf",
+                    "--reference", "truth", "--no-mag", "--out", str(folder)], check=True, stdout=subprocess.DEVNULL)
+    return folder
+
+
 def load_evaluation(folder: Path) -> dict:
     from mavattitude.evalreport import tilt_score
 
@@ -133,6 +167,7 @@ def load_evaluation(folder: Path) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--evaluation", type=Path, help="an evaluate --out folder (default: run one)")
+    parser.add_argument("--broad", type=Path, help="an evaluate --out folder over ../shared/broad (default: run one)")
     args = parser.parse_args()
     folder = args.evaluation
     if folder is None:
@@ -140,10 +175,13 @@ def main() -> int:
         subprocess.run([sys.executable, "-m", "mavattitude", "evaluate", str(ROOT.parent / "shared" / "logs"),
                         "--estimators", "all", "--out", str(folder)], check=True, stdout=subprocess.DEVNULL)
     ev = load_evaluation(folder)
-    print("| paper | claim | simulated truth (tests' flights) | real logs (against the autopilot) |")
-    print("|---|---|---|---|")
+    broad = broad_column(args.broad if args.broad is not None else run_broad())
+    print("| paper | claim | simulated truth (tests' flights) | real logs (against the autopilot) "
+          "| BROAD (real IMU, optical truth; 6D) |")
+    print("|---|---|---|---|---|")
     for paper, claim, sim, real in rows(ev):
-        print(f"| {paper} | {claim} | {sim} | {real} |")
+        name = paper.split()[1]
+        print(f"| {paper} | {claim} | {sim} | {real} | {broad.get(name, '-') if real != '(same)' else '(same)'} |")
     return 0
 
 
