@@ -75,6 +75,22 @@ def process_group(pgid: int) -> list[int]:
     return pids
 
 
+def run(capsys, *args):
+    """The command in this process: (exit status, stdout, stderr)."""
+    from mavattitude.cli import main
+
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def one_line(err: str) -> str:
+    """The one line a problem is told in (no traceback, nothing else)."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
 _flights = {}
 
 

@@ -9,23 +9,13 @@ from dataclasses import replace
 
 import pytest
 
-from conftest import SAMPLE_LOGS
-from mavattitude.cli import build_parser, main
+from conftest import SAMPLE_LOGS, one_line, run
+from mavattitude.cli import build_parser
 
 LOG = SAMPLE_LOGS / "static.bin"
 POSITIONALS = {"info": [LOG], "replay": [LOG], "evaluate": [LOG], "tune": [LOG, "--estimator", "mahony"]}
 
 
-def run(capsys, *args):
-    code = main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_line(err: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 def options_with_values():

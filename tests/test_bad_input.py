@@ -20,8 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import SAMPLE_LOGS, SHARED_LOGS, installed_estimators
-from mavattitude.cli import main
+from conftest import SAMPLE_LOGS, SHARED_LOGS, installed_estimators, one_line, run
 from mavattitude.errors import InputError
 from mavattitude.estimators import ESTIMATORS, create
 from mavattitude.params import describe
@@ -35,16 +34,6 @@ from fuzz_logs import KINDS, mutate, replay_or_error  # noqa: E402
 LOG = SAMPLE_LOGS / "static.bin"
 
 
-def run(capsys, *args):
-    code = main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_line(err: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 @pytest.fixture

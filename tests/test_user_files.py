@@ -11,23 +11,12 @@ from contextlib import contextmanager
 
 import pytest
 
-from conftest import SAMPLE_LOGS
-from mavattitude.cli import main
+from conftest import SAMPLE_LOGS, one_line, run
 
 LOG = SAMPLE_LOGS / "static.bin"
 needs_fifo = pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
 
 
-def run(capsys, *args):
-    code = main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_line(err: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 @contextmanager
