@@ -52,7 +52,7 @@ def run(name: str, sim, params=None, mag: bool = True, q0=None, in_air=None):
     t, gyro, accel, m = inputs(sim, mag)
     a = align(t, gyro, accel, m, sim.declination_rad)
     f = create(name, params, declination=sim.declination_rad)
-    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias)
+    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias, a.accel_g)
     return f.update(t, gyro, accel, m, in_air), f
 
 
@@ -71,5 +71,5 @@ def run_aided(name: str, sim, params=None, mag: bool = True, gps: bool = True, q
     t, gyro, accel, m = inputs(sim, mag)
     a = align(t, gyro, accel, m, sim.declination_rad)
     f = create(name, params, declination=sim.declination_rad)
-    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias)
+    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias, a.accel_g)
     return f.update(t, gyro, accel, m, aiding=from_sim(sim) if gps else None), f

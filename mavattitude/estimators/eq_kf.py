@@ -194,7 +194,8 @@ from ..flight import GRAVITY
 from ..params import param
 from ..quaternion import dcm_into, qmul_into
 from .base import MAX_STEP_S, Estimator
-from .consistency import attitude_error, carried, learn_gravity, step_rotation_into, track_stillness
+from .consistency import attitude_error, carried, step_rotation_into, track_stillness
+from .gravity import learn_gravity, scale_effect
 
 
 @dataclass
@@ -703,17 +704,18 @@ class EqKf(Estimator):
     }
 
     def accel_scale_effect(self, scale_error: float) -> str | None:
-        """Its trust falls with ‖f̃‖ against g_a: GRAVITY until learned at rest (never, strict)."""
+        """Its trust falls with ‖f̃‖ against g_a: the reading at the still start, learned on while
+        still (GRAVITY without a still start until learned; always, strict)."""
         p = self.params
         lo, hi = (STRICT["norm_lo"], STRICT["norm_hi"]) if p.strict else (p.norm_lo, p.norm_hi)
         if abs(scale_error) <= lo:
             return None
         learns = "" if p.strict else (f" unless it learns the reading of g while still ({p.still_time:g} s with the "
                                       f"accelerometer within {p.still_accel:g} m/s²: a vibrating vehicle may never be)")
-        return (f"its trust in the accelerometer falls from {100 * lo:g} % off g (none at {100 * hi:g} %){learns}: "
-                "tilt from the gyro alone meanwhile")
+        return scale_effect(f"its trust in the accelerometer falls from {100 * lo:g} % off g (none at {100 * hi:g} %)"
+                            f"{learns}: tilt from the gyro alone meanwhile", scale_error, bool(p.strict))
 
-    def initialize(self, q0, gyro_bias) -> None:
+    def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         q0 = np.array(q0, dtype=np.float64).reshape(4)
         p = self.params
         strict = bool(p.strict)
@@ -721,7 +723,7 @@ class EqKf(Estimator):
         aux[_A_VIB] = 0.0
         aux[_A_STILL] = 0.0
         aux[_A_W] = 1.0
-        aux[_A_G] = GRAVITY
+        aux[_A_G] = GRAVITY if strict else accel_g  # the reading at rest, learned on while still
         aux[_A_CONS] = 0.0
         # strict: no bias states (P = 0 on β and no walk: b̂ stays the still-period bias)
         bias_sigma = 0.0 if strict else p.init_bias_sigma

@@ -153,7 +153,8 @@ from numba import njit
 from ..flight import GRAVITY
 from ..params import param
 from ..quaternion import exp_s, gravity_in_body_s, normalize_into, qmul_s
-from .consistency import attitude_error, carried, learn_gravity, step_rotation_into, track_stillness
+from .consistency import attitude_error, carried, step_rotation_into, track_stillness
+from .gravity import learn_gravity, scale_effect
 from .base import MAX_STEP_S, Estimator
 from .eskf import set_q, step_dt
 
@@ -651,8 +652,13 @@ class NcsEskf(Estimator):
     }
 
     def accel_scale_effect(self, scale_error: float) -> str | None:
-        """Both gates compare with GRAVITY: the total one ‖a‖ - g, the horizontal one the
-        residual a - C(q)ᵀ(-g n), whose body x/y part a scale error makes (‖a‖ - g) sin(tilt)."""
+        """Both gates compare with g: the total one ‖a‖ - g, the horizontal one the residual
+        a - C(q)ᵀ(-g n), whose body x/y part a scale error makes (‖a‖ - g) sin(tilt). g is the
+        reading at the still start (GRAVITY without one, or strict)."""
+        p = self.run_params()
+        return scale_effect(self._effect_against_gravity(scale_error), scale_error, bool(p.strict))
+
+    def _effect_against_gravity(self, scale_error: float) -> str | None:
         p = self.run_params()
         if abs(scale_error) > p.total_threshold:
             return (f"‖a‖ is more than its total threshold ({p.total_threshold:g} g) from g even at rest: "
@@ -665,7 +671,7 @@ class NcsEskf(Estimator):
         return (f"the scale error reads as a horizontal manoeuvre beyond about {tilt:.0f}° of tilt: there, in the "
                 f"air, the accelerometer is skipped ({p.h_threshold_air:g} g threshold){near}")
 
-    def initialize(self, q0, gyro_bias) -> None:
+    def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         p = self.run_params()
         q0 = np.array(q0, dtype=np.float64)
         P = np.zeros((6, 6))
@@ -673,14 +679,15 @@ class NcsEskf(Estimator):
         if p.estimate_bias:
             P[3:, 3:] = np.eye(3) * np.radians(p.bias_p0_dps) ** 2
         cons = np.full(N_CONS, np.nan)
-        cons[C_T], cons[C_G], cons[C_STILL] = 0.0, GRAVITY, 0.0
+        gravity = GRAVITY if p.strict else accel_g  # the gates' g: the reading at rest (strict: the paper's)
+        cons[C_T], cons[C_G], cons[C_STILL] = 0.0, gravity, 0.0
         noise = np.zeros(N_NOISE)
         noise[N_PREV:N_PREV + 2] = np.nan
         self._state = NcsEskfState(q0 / np.linalg.norm(q0), P, np.zeros(3), np.array([np.nan]), np.zeros(3),
                                    np.full(3, np.nan), np.array(gyro_bias, dtype=np.float64), cons, noise)
         self._settings = NcsEskfSettings(
             p.gyro_arw ** 2, p.accel_noise ** 2, p.bias_walk ** 2 if p.estimate_bias else 0.0, p.step_noise,
-            GRAVITY, p.total_threshold, p.h_threshold_air, p.h_threshold_ground, bool(p.segmented),
+            gravity, p.total_threshold, p.h_threshold_air, p.h_threshold_ground, bool(p.segmented),
             p.accel_lpf_hz, p.gate_sigma, p.taper, MAX_STEP_S, p.cons_tol, p.cons_norm, p.cons_rate,
             p.cons_time, p.noise_gate)
         self.initialized = True
