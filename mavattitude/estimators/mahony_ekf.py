@@ -96,6 +96,13 @@ shared logs; the numbers are in the issue-3 report):
   in-flight noise of ‖a‖ did not separate the logs the weight helps (forumlog0039,
   quiver083: gyro-only error ≈ 0.55-0.75°) from those it hurts (cubeblack, mohai subs:
   gyro-only 2-36°); the gyro's drift did, which the coasting limit bounds instead.
+- Eq 17's g (issue 25) is the accelerometer's reading of g at the still start (``gravity``,
+  bounded to ±25 %; 9.80665 with ``strict`` or without a still start): against 9.80665 a
+  15 % scale error grew R some 150 times at rest. Simulated figure 8 at 0.85 / 1.15 g: tilt
+  1.24° / 1.17° → 0.83° / 0.73° (0.79° at 1.0). Corpus: erle-20141222-41 (reads -16 %)
+  5.28° → 1.89° (its worst DCM-reference log, now real-plane-3.1.2b1 5.11°), althold-error
+  (-20 %) 1.38° → 1.41°; medians per reference family within 0.005°. BROAD inclination RMSE
+  0-0.02° lower per trial. Not learned on in flight: the rest detection above could, not done.
 - The EKF predicts with the still-period bias only, as the paper does; the internal
   Mahony's integral term (its running bias correction) stays inside the Mahony filter.
 - The trapezoidal rate and gap handling follow mahony: the first sample, and any step
