@@ -94,3 +94,22 @@ def test_strict_keeps_standard_gravity(name):
         published.initialize(a.q0, a.gyro_bias)  # GRAVITY
         same = np.array_equal(learned.update(t, gyro, accel, mag), published.update(t, gyro, accel, mag))
         assert same == strict, strict
+
+
+def test_replay_gives_each_estimator_the_reading_at_the_still_start(tmp_path):
+    """End to end on a log whose accelerometer reads 0.85 g: the still start is found, its reading
+    named, and ncs-eskf's total gate (‖a‖ - g beyond 0.2 g) never refuses the accelerometer."""
+    import json
+
+    from mavattitude.cli import main
+    from test_imucheck import scaled_log
+
+    out = tmp_path / "m.json"
+    assert main(["replay", str(scaled_log(tmp_path, 0.85)), "--estimators", "ncs-eskf", "--no-view", "-q",
+                 "--json", str(out)]) == 0
+    metrics = json.loads(out.read_text())
+    still = next(e["text"] for e in metrics["events"] if e["text"].startswith("still "))
+    assert "accelerometer reads g as 8.3" in still
+    # main's code: no still start, 80 samples past the total gate, roll MAE 0.75° (now 0.20°)
+    assert metrics["estimators"]["ncs-eskf"]["events"]["skipped: |a|-g above total threshold"]["samples"] == 0
+    assert metrics["estimators"]["ncs-eskf"]["roll"]["mae"] < 0.4
