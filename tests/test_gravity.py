@@ -12,9 +12,10 @@ import pytest
 from mavattitude import estimators as est
 from mavattitude.estimators.alignment import align
 from mavattitude.estimators.eq_kf import _A_G
+from mavattitude.estimators.ncs_eskf import ACCEL_TOTAL, C_G
 from mavattitude.estimators.gravity import G_MAX, G_MIN, learn_gravity, plausible_g, reading_at_rest
 from mavattitude.flight import GRAVITY
-from simtruth import accel_110, errors_deg, figure8_120, inputs, run, run_aided
+from simtruth import accel_110, errors_deg, figure8_120, inputs, run, run_aided, static_300
 
 SCALES = (0.85, 1.0, 1.15)
 
@@ -69,6 +70,20 @@ def test_learned_g_does_not_follow_a_sustained_acceleration():
     """Three runs of 0.25 g: ‖a‖ 3 % above g for seconds, which learning in motion would take."""
     _, f = run("eq-kf", accel_110())
     assert f._state.aux[_A_G] == pytest.approx(GRAVITY, rel=0.005)
+    _, f = run("ncs-eskf", accel_110())
+    assert f._state.cons[C_G] == pytest.approx(GRAVITY, rel=0.005)
+
+
+def test_ncs_eskf_learns_g_while_still_without_a_still_start():
+    """Given standard gravity (no still start found) on an accelerometer reading 0.78 g at rest,
+    ncs-eskf's gates learn the reading while still: the total gate, which refuses everything at
+    first, lets the accelerometer in within seconds."""
+    sim = scaled(static_300(), 0.78)  # beyond the 0.2 g total gate
+    _, f = run("ncs-eskf", sim, accel_g=GRAVITY)
+    assert f._state.cons[C_G] == pytest.approx(0.78 * GRAVITY, rel=0.005)
+    state = f.diagnostics["accel_state"]
+    assert state[0] != ACCEL_TOTAL and state[10] == ACCEL_TOTAL  # the first sample has no step to gate
+    assert (state[np.searchsorted(sim.t, sim.t[0] + 30.0):] != ACCEL_TOTAL).all()
 
 
 @pytest.mark.parametrize("name", est.all_names())

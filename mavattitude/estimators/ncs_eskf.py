@@ -291,7 +291,6 @@ class NcsEskfSettings(NamedTuple):
     acc2: float
     walk2: float  # bias random walk² (0: no bias learning)
     step_noise: float
-    gravity: float
     total_threshold: float
     h_threshold_air: float
     h_threshold_ground: float
@@ -323,7 +322,7 @@ def ncs_eskf_run(s, state, cfg, out, diag):
     t, gyro, accel, in_air = s.t, s.gyro, s.accel, s.in_air
     q, P, bias_est, t_prev, gyro_prev = state.q, state.P, state.bias_est, state.t_prev, state.gyro_prev
     accel_lp, bias, cons = state.accel_lp, state.bias, state.cons
-    arw2, acc2, walk2, step_noise, gravity = cfg.arw2, cfg.acc2, cfg.walk2, cfg.step_noise, cfg.gravity
+    arw2, acc2, walk2, step_noise = cfg.arw2, cfg.acc2, cfg.walk2, cfg.step_noise
     total_threshold, h_threshold_air, h_threshold_ground = (cfg.total_threshold, cfg.h_threshold_air,
                                                             cfg.h_threshold_ground)
     segmented, lpf_hz, gate_sigma, taper, max_step = (cfg.segmented, cfg.lpf_hz, cfg.gate_sigma, cfg.taper,
@@ -367,6 +366,8 @@ def ncs_eskf_run(s, state, cfg, out, diag):
                     accel_lp[0], accel_lp[1], accel_lp[2] = ax, ay, az
                 ax, ay, az = accel_lp[0], accel_lp[1], accel_lp[2]
             w, x, y, z = q[0], q[1], q[2], q[3]
+            # g: the accelerometer's reading of g, learned while still (``gravity``; strict: 9.80665)
+            gravity = cons[C_G]
             # the manoeuvre acceleration: residual z - C(q⁻)ᵀ(-g_n), body frame (eq 8, 14)
             r0 = ax + gravity * 2.0 * (x * z - w * y)
             r1 = ay + gravity * 2.0 * (y * z + w * x)
@@ -690,15 +691,15 @@ class NcsEskf(Estimator):
         if p.estimate_bias:
             P[3:, 3:] = np.eye(3) * np.radians(p.bias_p0_dps) ** 2
         cons = np.full(N_CONS, np.nan)
-        gravity = GRAVITY if p.strict else accel_g  # the gates' g: the reading at rest (strict: the paper's)
-        cons[C_T], cons[C_G], cons[C_STILL] = 0.0, gravity, 0.0
+        # the gates' g: the reading at rest, learned on while still (strict: the paper's, never learned)
+        cons[C_T], cons[C_G], cons[C_STILL] = 0.0, GRAVITY if p.strict else accel_g, 0.0
         noise = np.zeros(N_NOISE)
         noise[N_PREV:N_PREV + 2] = np.nan
         self._state = NcsEskfState(q0 / np.linalg.norm(q0), P, np.zeros(3), np.array([np.nan]), np.zeros(3),
                                    np.full(3, np.nan), np.array(gyro_bias, dtype=np.float64), cons, noise)
         self._settings = NcsEskfSettings(
             p.gyro_arw ** 2, p.accel_noise ** 2, p.bias_walk ** 2 if p.estimate_bias else 0.0, p.step_noise,
-            gravity, p.total_threshold, p.h_threshold_air, p.h_threshold_ground, bool(p.segmented),
+            p.total_threshold, p.h_threshold_air, p.h_threshold_ground, bool(p.segmented),
             p.accel_lpf_hz, p.gate_sigma, p.taper, MAX_STEP_S, p.cons_tol, p.cons_norm, p.cons_rate,
             p.cons_time, p.noise_gate)
         self.initialized = True
