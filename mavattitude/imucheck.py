@@ -46,6 +46,7 @@ import numpy as np
 
 from .estimators.alignment import MAX_PLAUSIBLE_BIAS_RAD_S, MIN_STILL_S, MIN_STILL_SAMPLES, STILL_ACCEL_MS2, \
     STILL_GYRO_RAD_S
+from .estimators.gravity import G_BOUND, plausible_g
 from .flight import GRAVITY
 
 MEANINGFUL_RATE_HZ = 9.5  # Hz: below it, scores are not meaningful (see the module docstring)
@@ -78,7 +79,7 @@ def accel_at_rest(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> tuple[f
     gyro and the accelerometer each stay within the alignment's still thresholds of the
     window's middle (a range of twice the threshold), turning slower than a plausible gyro
     bias. Not the alignment's own still start: that is refused when ‖a‖ is more than
-    STILL_ACCEL_MS2 from g, which is what is measured here. With no window at rest, the whole
+    G_BOUND from g, and a log may not start still. With no window at rest, the whole
     series' median (False): a vehicle in steady flight reads g on average too. None: no sample."""
     norm = np.linalg.norm(accel, axis=1)
     norm = norm[np.isfinite(norm)]
@@ -115,9 +116,9 @@ def accel_scale_warning(norm: float | None, at_rest: bool, estimators) -> str | 
     where = "at rest" if at_rest else "over the whole log (no rest span found)"
     effects = [f"{e.name}: {text}" for e in estimators if (text := e.accel_scale_effect(error))]
     untouched = [e.name for e in estimators if not e.accel_scale_effect(error)]
-    if abs(norm - GRAVITY) > STILL_ACCEL_MS2:
-        effects.append(f"the start is not recognised as still (more than {STILL_ACCEL_MS2:g} m/s² from g), so "
-                       "every estimator starts with a gyro bias of 0")
+    if not plausible_g(norm):
+        effects.append(f"the start is not recognised as still (more than {100 * G_BOUND:g} % from g), so "
+                       "every estimator starts with a gyro bias of 0 and takes standard gravity for g")
     if untouched:
         effects.append(f"{', '.join(untouched)}: little or no effect")
     return (f"accelerometer reads {norm:.2f} m/s² {where}, {100 * error:+.1f} % from g "

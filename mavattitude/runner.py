@@ -216,8 +216,9 @@ class Runner:
         alignment = est.align(t, gyro, accel, mag, self.declination)
         if not self.runs:
             self._report_start(t, mag is not None, alignment)
-        elif alignment.still_span is None:
-            alignment.gyro_bias = self.runs[0].alignment.gyro_bias  # no new still period: keep the first
+        elif alignment.still_span is None:  # no new still period: keep the first's bias and reading of g
+            alignment.gyro_bias = self.runs[0].alignment.gyro_bias
+            alignment.accel_g = self.runs[0].alignment.accel_g
         for e in self.estimators:
             q0 = alignment.q0
             previous = self.estimates[e.name]
@@ -225,7 +226,7 @@ class Runner:
                 # no heading reference: carry the yaw over the gap rather than restart it at 0
                 roll, pitch, _ = quat.to_euler(q0)
                 q0 = quat.from_euler(roll, pitch, quat.to_euler(previous.last)[2])
-            e.initialize(q0, alignment.gyro_bias)
+            e.initialize(q0, alignment.gyro_bias, alignment.accel_g)
             self.has_heading[e.name] = e.has_heading_reference(mag is not None)
         gap = float(t[0] - self.store[IMU].view()[a - 1, 0]) if a > 0 else 0.0
         self.runs.append(Run(a, alignment, a, float(t[0]), gap, dict(self.has_heading)))
@@ -243,7 +244,8 @@ class Runner:
             a, b = alignment.still_span
             bias = np.degrees(alignment.gyro_bias)
             self.events.append(Event(b, "info", f"still {a:.1f}-{b:.1f} s: gyro bias "
-                                                f"[{bias[0]:.3f}, {bias[1]:.3f}, {bias[2]:.3f}] °/s"))
+                                                f"[{bias[0]:.3f}, {bias[1]:.3f}, {bias[2]:.3f}] °/s, "
+                                                f"accelerometer reads g as {alignment.accel_g:.3f} m/s²"))
         else:
             self.events.append(Event(t0, "warn", "no initial still period: gyro bias starts at 0"))
 

@@ -47,12 +47,13 @@ def inputs(sim, mag: bool = True):
     return sim.t, imu.gyro, imu.accel, m
 
 
-def run(name: str, sim, params=None, mag: bool = True, q0=None, in_air=None):
-    """Run estimator ``name`` over ``sim`` from the shared alignment; returns (q, estimator)."""
+def run(name: str, sim, params=None, mag: bool = True, q0=None, in_air=None, accel_g=None):
+    """Run estimator ``name`` over ``sim`` from the shared alignment; returns (q, estimator).
+    ``accel_g``: the reading of g it is given (default: the alignment's, as replay does)."""
     t, gyro, accel, m = inputs(sim, mag)
     a = align(t, gyro, accel, m, sim.declination_rad)
     f = create(name, params, declination=sim.declination_rad)
-    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias)
+    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias, a.accel_g if accel_g is None else accel_g)
     return f.update(t, gyro, accel, m, in_air), f
 
 
@@ -71,5 +72,5 @@ def run_aided(name: str, sim, params=None, mag: bool = True, gps: bool = True, q
     t, gyro, accel, m = inputs(sim, mag)
     a = align(t, gyro, accel, m, sim.declination_rad)
     f = create(name, params, declination=sim.declination_rad)
-    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias)
+    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias, a.accel_g)
     return f.update(t, gyro, accel, m, aiding=from_sim(sim) if gps else None), f

@@ -110,10 +110,13 @@ def test_an_accelerometer_far_from_g_is_a_warning_that_names_the_estimators(tmp_
     info = summarize(read_log(str(bad)))
     warning = next(w for w in info["warnings"] if w.startswith("accelerometer reads"))
     assert re.search(r"reads 8\.0\d m/s² at rest, -18\.\d % from g", warning)  # 0.82 g, and the sim's bias
-    for effect in ("mahony-ekf: its accelerometer noise", "ncs-eskf: the scale error reads as a horizontal manoeuvre",
-                   "eq-kf: its trust in the accelerometer falls", "the start is not recognised as still",
+    still_start = "none when the log starts still (g is then the accelerometer's reading there); without a still start "
+    for effect in (f"mahony-ekf: {still_start}its accelerometer noise",
+                   f"ncs-eskf: {still_start}the scale error reads as a horizontal manoeuvre",
+                   f"eq-kf: {still_start}its trust in the accelerometer falls",
                    "mahony, ekf, eskf, cpf-ekf: little or no effect"):
         assert effect in warning, effect
+    assert "the start is not recognised as still" not in warning  # within 25 % of g: it is
     assert info["imu_sources"][info["best_imu"]]["accel_g_reading"]["scale_error"] == pytest.approx(-0.18, abs=0.005)
     assert not any(w.startswith("accelerometer reads") for w in summarize(read_log(str(good)))["warnings"])
 
@@ -132,6 +135,11 @@ def test_each_estimator_says_what_a_scale_error_does():
     effects = {name: est.create(name).accel_scale_effect(-0.18) for name in est.ESTIMATORS}
     assert {n for n, e in effects.items() if e} == {"mahony-ekf", "ncs-eskf", "eq-kf"}
     assert "never used" in est.create("ncs-eskf").accel_scale_effect(-0.25)  # beyond its 0.2 g total gate
+    # strict keeps standard gravity: no still start to say "none" for; beyond 25 % no start is still
+    assert est.create("ncs-eskf", strict=True).accel_scale_effect(-0.18).startswith("the scale error reads")
+    assert est.create("eq-kf").accel_scale_effect(-0.18).startswith("none when the log starts still")
+    assert est.create("eq-kf").accel_scale_effect(-0.3).startswith("its trust in the accelerometer falls")
+    assert "the start is not recognised as still" in imucheck.accel_scale_warning(0.7 * GRAVITY, True, [])
     assert all(est.create(n).accel_scale_effect(0.004) is None for n in est.ESTIMATORS if n != "mahony-ekf")
 
 

@@ -33,7 +33,7 @@ def _run(sim, q0=None, params=None, mag=True):
     t, gyro, accel, m = _inputs(sim)
     a = align(t, gyro, accel, m if mag else None, sim.declination_rad)
     f = Mahony(params, declination=sim.declination_rad)
-    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias)
+    f.initialize(a.q0 if q0 is None else q0, a.gyro_bias, a.accel_g)
     return f.update(t, gyro, accel, m if mag else None), a
 
 

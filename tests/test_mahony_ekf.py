@@ -121,7 +121,7 @@ def test_strict_is_the_papers_unweighted_mahony_ekf():
     m.initialize(a.q0, a.gyro_bias)
     np.testing.assert_allclose(f.mahony_q, m.update(t, gyro, accel, mag), rtol=0, atol=1e-12)
     assert (f.diagnostics["mahony_weight"] == 1.0).all()
-    q0, _ = st.run("mahony-ekf", sim, MahonyEkfParams(k_mahony=0.0))
+    q0, _ = st.run("mahony-ekf", sim, MahonyEkfParams(k_mahony=0.0), accel_g=GRAVITY)  # strict: standard g
     np.testing.assert_array_equal(q, q0)
     params = build(["mahony-ekf"], None, ["mahony-ekf.strict=true"])
     assert params["mahony-ekf"].strict is True
@@ -187,7 +187,9 @@ def test_adaptive_r_is_eq_17():
     t, gyro, accel, mag = st.inputs(sim)
     p = MahonyEkfParams(k_accel=37.0, r0=2e-4)
     _, f = st.run("mahony-ekf", sim, p)
-    expected = p.r0 * (1 + p.k_accel * np.abs(np.linalg.norm(accel, axis=1) - GRAVITY))
+    g = align(t, gyro, accel, mag, sim.declination_rad).accel_g  # the reading at the still start, not GRAVITY
+    assert abs(g - GRAVITY) > 0.01
+    expected = p.r0 * (1 + p.k_accel * np.abs(np.linalg.norm(accel, axis=1) - g))
     np.testing.assert_allclose(f.diagnostics["adaptive_r"], expected, rtol=1e-12)
 
 

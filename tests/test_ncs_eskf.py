@@ -199,7 +199,7 @@ def test_strict_is_the_papers_filter_whatever_the_other_values():
     sim = st.figure8_120()
     paper = NcsEskfParams(gate_sigma=0.0, taper=0.0, estimate_bias=False, step_noise=0.0, cons_time=0.0,
                           noise_gate=0.0)
-    q_p, f_p = st.run("ncs-eskf", sim, params=paper)
+    q_p, f_p = st.run("ncs-eskf", sim, params=paper, accel_g=GRAVITY)  # strict keeps standard gravity
     odd = NcsEskfParams(strict=True, gate_sigma=9.0, taper=0.5, estimate_bias=True, step_noise=1.0,
                         cons_time=0.5, noise_gate=5.0, total_threshold=0.5, h_threshold_air=0.05,
                         h_threshold_ground=0.3)

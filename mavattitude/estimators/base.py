@@ -28,6 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..flight import GRAVITY
 from ..kernel_cache import cached
 
 # A step longer than this is a gap in the data, not an interval to integrate the gyro over.
@@ -57,8 +58,10 @@ class Estimator:
         self.initialized = False
         self.diagnostics: dict[str, np.ndarray] = {}  # per-sample series of the last update
 
-    def initialize(self, q0, gyro_bias) -> None:
-        """Start from attitude ``q0`` with gyro bias ``gyro_bias`` (rad/s) already known."""
+    def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
+        """Start from attitude ``q0`` with gyro bias ``gyro_bias`` (rad/s) already known, and
+        ``accel_g`` (m/s²) the accelerometer's reading of g at rest (``gravity``), which a
+        filter that compares ‖a‖ with g takes for g unless ``strict``."""
         raise NotImplementedError
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:

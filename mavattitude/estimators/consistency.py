@@ -1,6 +1,7 @@
 """What eq-kf (paper 002) and ncs-eskf (paper 001, an addition) share to tell an attitude error
 from a manoeuvre by the accelerometer alone: vectors carried with the body's rotation, a
-stillness detector, the accelerometer's own reading of g, and the consistency test.
+stillness detector and the consistency test (the accelerometer's own reading of g it takes
+is ``gravity``'s).
 
 The consistency test: a horizontal manoeuvre that turns the specific force by ρ away from
 gravity also lengthens it to g/cos ρ. A residual angle ρ (the low-passed accelerometer f̃
@@ -18,9 +19,6 @@ from __future__ import annotations
 import math
 
 from numba import njit
-
-G_LEARN_S = 5.0  # s, time constant of learning the accelerometer's reading of g while still
-
 
 @njit(cache=True, inline="always")
 def step_rotation_into(dx, dy, dz, a):
@@ -70,12 +68,6 @@ def track_stillness(ref0, ref1, ref2, still_t, ax, ay, az, a, stepped, rate2, st
         still_t = 0.0
         ref0, ref1, ref2 = ax, ay, az
     return ref0, ref1, ref2, still_t
-
-
-@njit(cache=True, inline="always")
-def learn_gravity(g_a, accel_norm, dt):
-    """One step of learning the accelerometer's reading of g (while still)."""
-    return g_a + dt / (G_LEARN_S + dt) * (accel_norm - g_a)
 
 
 @njit(cache=True, inline="always")

@@ -64,6 +64,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..flight import GRAVITY
 from ..params import param
 from ..quaternion import wrap_pi_s
 from .base import MAX_STEP_S, Estimator, filter_state
@@ -456,7 +457,7 @@ class Ekf(Estimator):
     kernels = (ekf_run,)
     DIAGNOSTICS = {"cov_trace": "trace of the 4×4 quaternion covariance P (dimensionless)"}
 
-    def initialize(self, q0, gyro_bias) -> None:
+    def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         self._state = filter_state(q0, np.eye(4), gyro_bias)  # paper 000: P₀ = I₄
         p = self.params
         self._settings = EkfSettings(float(p.q_gyro), float(p.r_accel), float(p.r_mag), self.declination,

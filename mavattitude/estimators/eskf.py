@@ -249,7 +249,7 @@ class Eskf(Estimator):
     kernels = (eskf_run,)
     DIAGNOSTICS = {"cov_trace": "trace of the attitude-error covariance P, rad²"}
 
-    def initialize(self, q0, gyro_bias) -> None:
+    def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         p = self.params
         self._state = filter_state(q0, np.eye(3) * np.radians(p.p0_deg) ** 2, gyro_bias)
         self._settings = EskfSettings(p.gyro_arw ** 2, p.accel_noise ** 2, GRAVITY, MAX_STEP_S)

@@ -37,6 +37,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..flight import GRAVITY
 from ..quaternion import integrate_gyro_scalar
 from ..params import param
 from .base import MAX_STEP_S, Estimator
@@ -150,7 +151,7 @@ class Mahony(Estimator):
     uses_mag = True
     kernels = (mahony_run,)
 
-    def initialize(self, q0, gyro_bias) -> None:
+    def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         p = self.params
         self._state = MahonyState(np.array(q0, dtype=np.float64), -np.array(gyro_bias, dtype=np.float64),
                                   np.array([np.nan]), np.zeros(3))

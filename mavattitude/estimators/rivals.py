@@ -79,7 +79,7 @@ class Rival(Estimator):
         super().__init__(params, declination)
         self._module = package(type(self))
 
-    def initialize(self, q0, gyro_bias) -> None:
+    def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         self._q0 = quat.normalize(np.asarray(q0, dtype=np.float64))
         self._bias0 = np.array(gyro_bias, dtype=np.float64).reshape(3)
         self._filter = None  # made once the first START_STEPS steps give the sample time
