@@ -28,6 +28,7 @@ arrives a second after its fix is fused then, not a second in the past.
 """
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 
 import numpy as np
@@ -226,7 +227,10 @@ class Runner:
                 # no heading reference: carry the yaw over the gap rather than restart it at 0
                 roll, pitch, _ = quat.to_euler(q0)
                 q0 = quat.from_euler(roll, pitch, quat.to_euler(previous.last)[2])
-            e.initialize(q0, alignment.gyro_bias, alignment.accel_g)
+            if _takes_accel_g(e):
+                e.initialize(q0, alignment.gyro_bias, alignment.accel_g)
+            else:  # an estimator of a user's, written to the two-argument interface
+                e.initialize(q0, alignment.gyro_bias)
             self.has_heading[e.name] = e.has_heading_reference(mag is not None)
         gap = float(t[0] - self.store[IMU].view()[a - 1, 0]) if a > 0 else 0.0
         self.runs.append(Run(a, alignment, a, float(t[0]), gap, dict(self.has_heading)))
@@ -487,3 +491,9 @@ def _compact(values) -> np.ndarray:
 def _nothing(n: int, dtype) -> np.ndarray:
     """Diagnostic values where an estimator gave none: 0 for codes, NaN for measures."""
     return np.zeros(n, dtype) if np.dtype(dtype).kind in "iub" else np.full(n, np.nan, dtype)
+
+
+def _takes_accel_g(estimator) -> bool:
+    """Whether ``estimator.initialize`` takes the accelerometer's reading of g (ours do; an
+    estimator written before it was added takes the attitude and the gyro bias only)."""
+    return "accel_g" in inspect.signature(estimator.initialize).parameters
