@@ -149,7 +149,12 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
     if prefix in SENSORS:
         kind, _ = SENSORS[prefix]
         values = _sensor_values(prefix, r)
-        for i in np.unique(instance[plausible]):
+        # which instances there are, by counting (instance is 0-9 where plausible: no sort needed)
+        per_instance = np.bincount(instance[plausible], minlength=MAX_INSTANCE + 1)
+        for i in np.flatnonzero(per_instance):
+            if per_instance[i] == len(t):  # one instance: its columns as they are, not copied
+                col.add_columns(kind, f"{prefix}[{i}]", order, t, values)
+                continue
             mine = instance == i
             col.add_columns(kind, f"{prefix}[{i}]", order[mine], t[mine], values[mine])
         return

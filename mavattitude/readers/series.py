@@ -5,6 +5,7 @@ Shared by both readers (and, for its limits and compass-unit rule, by the live l
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from .. import quaternion as quat
 from ..flight import AttitudeSeries, BaroSeries, Flight, GpsSeries, ImuSeries, MagSeries
@@ -33,14 +34,12 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
         return c.t, c.values, c.arrival
 
     def plausible(key, v, limits):
-        """Rows that are finite and within physical ranges; corrupt records decode as anything."""
-        ok = np.isfinite(v).all(axis=1)
-        finite = np.where(ok[:, None], v, 0.0)
-        for cols, limit in limits:
-            ok &= np.linalg.norm(finite[:, cols], axis=1) < limit
+        """Rows that are finite and within physical ranges (corrupt records decode as anything),
+        and rows not all zeros."""
+        ok, nonzero = row_checks(v, limits)
         if np.count_nonzero(~ok):
             flight.warnings.append(f"{key}: dropped {np.count_nonzero(~ok)} samples with impossible values")
-        return ok
+        return ok, nonzero
 
     unusable = []
     imus = [(key, *columns("imu", key)) for key in col.keys("imu")]
@@ -49,8 +48,8 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
         if accel_key in col.keys("acc"):
             imus.append((key, *sensor_rate_imu(columns("gyr", key), columns("acc", accel_key))))
     for key, t, v, arrival in imus:
-        fitted = np.any(v != 0, axis=1)  # an unfitted sensor sends all zeros
-        live = fitted & plausible(key, v, IMU_LIMITS)
+        ok, fitted = plausible(key, v, IMU_LIMITS)  # (an unfitted sensor sends all zeros)
+        live = fitted & ok
         if np.count_nonzero(live) >= 2:
             flight.imu[key] = ImuSeries(key, t[live], v[live, :3], v[live, 3:6], arrival=arrival[live])
         elif len(t):
@@ -66,7 +65,7 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
         # Repair the unit before judging plausibility: a whole series off by 1e6 is a unit
         # bug, not a series of corrupt records.
         t, v, arrival = t[live], _earth_field_scale(flight, key, v[live]), arrival[live]
-        live = plausible(key, v, MAG_LIMITS)
+        live, _ = plausible(key, v, MAG_LIMITS)
         if np.count_nonzero(live) >= 2:
             flight.mag[key] = MagSeries(key, t[live], v[live], arrival=arrival[live])
     for key in col.keys("gps"):
@@ -85,6 +84,35 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
     flight.attitude = max(primary, key=lambda s: len(s.t)) if primary else None
     flight.truth = _attitude(col, "truth", segment, columns)
     return unusable
+
+
+def row_checks(v: np.ndarray, limits: list[tuple[slice, float]]) -> tuple[np.ndarray, np.ndarray]:
+    """(ok, nonzero) per row of ``v``: ok where every value is finite and the norm of each
+    ``limits`` column slice is below its limit; nonzero where any value is not 0. One pass over
+    the rows (numpy's isfinite, where, norm and any made a temporary of every row each)."""
+    bounds = np.array([(cols.start, cols.stop, limit) for cols, limit in limits], np.float64)
+    ok = np.empty(len(v), np.bool_)
+    nonzero = np.empty(len(v), np.bool_)
+    _row_checks(np.ascontiguousarray(v, np.float64), bounds, ok, nonzero)
+    return ok, nonzero
+
+
+@njit(cache=True)
+def _row_checks(v, bounds, ok, nonzero):
+    for i in range(v.shape[0]):
+        good, any_set = True, False
+        for j in range(v.shape[1]):
+            good &= np.isfinite(v[i, j])
+            any_set |= v[i, j] != 0.0
+        nonzero[i] = any_set
+        for b in range(bounds.shape[0]):
+            if not good:
+                break
+            squares = 0.0
+            for j in range(int(bounds[b, 0]), int(bounds[b, 1])):
+                squares += v[i, j] * v[i, j]  # in order, as np.linalg.norm sums three columns
+            good = np.sqrt(squares) < bounds[b, 2]
+        ok[i] = good
 
 
 def sensor_rate_imu(gyro: tuple, accel: tuple, max_gap_s: float = ACCEL_GAP_S) -> tuple:
