@@ -218,8 +218,8 @@ class Collector:
         n_segments = int(seg.max()) + 1 if len(seg) else 0
         spans = []
         for s in range(n_segments):
-            times = t[seg == s]
-            spans.append((float(times.min()), float(times.max())) if len(times) else (np.inf, -np.inf))
+            mine = seg == s
+            spans.append((float(t.min(where=mine, initial=np.inf)), float(t.max(where=mine, initial=-np.inf))))
         self._segment_spans = spans
         start = 0
         for k, (order, times, values) in merged.items():
@@ -256,8 +256,8 @@ class Collector:
             return (arrival, t, values) if rows is None else (arrival[rows], t[rows], values[rows])
         mine = seg == segment
         arrival, t, values = select(None if mine.all() else mine)
-        order = np.argsort(arrival, kind="stable")
-        arrival, t, values = select(None if np.all(order[1:] > order[:-1]) else order)
+        if not np.all(arrival[1:] >= arrival[:-1]):  # (in file order, as a .bin's are, no sort)
+            arrival, t, values = select(np.argsort(arrival, kind="stable"))
         before = np.maximum.accumulate(np.concatenate([[-np.inf], t]))[:-1]
         keep = t > before
         repeated = int(np.count_nonzero(t == before))
