@@ -212,8 +212,7 @@ class Collector:
         seg = np.empty_like(seg_sorted)
         seg[sort] = seg_sorted
         if followers:
-            clocked = seg_sorted >= 0
-            self._follow(followers, order[sort][clocked], t_sorted[clocked], seg_sorted[clocked])
+            self._follow(followers, order[sort], t_sorted, seg_sorted)
         self.outliers = int(np.count_nonzero(seg < 0))
         n_segments = int(seg.max()) + 1 if len(seg) else 0
         spans = []
@@ -228,12 +227,15 @@ class Collector:
 
     def _follow(self, followers: dict, order: np.ndarray, t: np.ndarray, seg: np.ndarray) -> None:
         """Each follower sample takes the segment of the last clocked sample before it in the
-        file (``order``, ``t``, ``seg``: those samples in file order), or CORRUPT when its time
-        is more than JUMP_S from that sample's."""
+        file (``order``, ``t``, ``seg``: the other samples in file order, CORRUPT ones among
+        them), or CORRUPT when its time is more than JUMP_S from that sample's."""
+        clocked = np.flatnonzero(seg >= 0)  # (indices only: the samples themselves are not copied)
         for k, (at, times, values) in followers.items():
-            before = np.searchsorted(order, at, side="right") - 1
-            near = (before >= 0) & (np.abs(times - t[np.maximum(before, 0)]) <= JUMP_S)
-            self._series[k] = (at, times, values, np.where(near, seg[np.maximum(before, 0)], CORRUPT))
+            before = np.searchsorted(order, at, side="right") - 1  # the last sample before, clocked or not
+            last = np.searchsorted(clocked, before, side="right") - 1  # the last clocked one up to it
+            before = clocked[np.maximum(last, 0)] if len(clocked) else np.zeros_like(last)
+            near = (last >= 0) & (np.abs(times - t[before]) <= JUMP_S)
+            self._series[k] = (at, times, values, np.where(near, seg[before], CORRUPT))
 
     @property
     def segments(self) -> list[tuple[float, float]]:

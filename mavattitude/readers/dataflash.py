@@ -151,11 +151,12 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
         values = _sensor_values(prefix, r)
         # which instances there are, by counting (instance is 0-9 where plausible: no sort needed)
         per_instance = np.bincount(instance[plausible], minlength=MAX_INSTANCE + 1)
+        if per_instance.max(initial=0) < len(t):  # several (or implausible): each instance's records together
+            by_instance = np.argsort(np.where(plausible, instance, MAX_INSTANCE + 1).astype(np.uint8), kind="stable")
+            order, t, values = order[by_instance], t[by_instance], values[by_instance]
+        end = np.cumsum(per_instance)
         for i in np.flatnonzero(per_instance):
-            if per_instance[i] == len(t):  # one instance: its columns as they are, not copied
-                col.add_columns(kind, f"{prefix}[{i}]", order, t, values)
-                continue
-            mine = instance == i
+            mine = slice(end[i] - per_instance[i], end[i])
             col.add_columns(kind, f"{prefix}[{i}]", order[mine], t[mine], values[mine])
         return
     primary = instance == 0
