@@ -51,7 +51,11 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
         ok, fitted = plausible(key, v, IMU_LIMITS)  # (an unfitted sensor sends all zeros)
         live = fitted & ok
         if np.count_nonzero(live) >= 2:
-            flight.imu[key] = ImuSeries(key, t[live], v[live, :3], v[live, 3:6], arrival=arrival[live])
+            if not live.all():  # (on a sound log every row is: nothing to leave out, nothing copied)
+                t, v, arrival = t[live], v[live], arrival[live]
+            # each array its own and contiguous (a .tlog's t is a column of the collector's rows)
+            flight.imu[key] = ImuSeries(key, np.ascontiguousarray(t), v[:, :3].copy(), v[:, 3:6].copy(),
+                                        arrival=np.ascontiguousarray(arrival))
         elif len(t):
             why = ("all zeros (no sensor fitted?)" if not fitted.any() else
                    "none within ±50 rad/s and ±50 g (saturated or corrupt)" if not live.any() else
