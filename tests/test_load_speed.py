@@ -121,3 +121,24 @@ SAMPLE_DIGESTS = {
 @pytest.mark.parametrize("name", sorted(SAMPLE_DIGESTS))
 def test_sample_logs_read_as_before(name):
     assert _digest(read_log(str(SAMPLE_LOGS / name))) == SAMPLE_DIGESTS[name]
+
+
+def test_a_sensors_instances_are_split_in_file_order():
+    """IMU records of interleaved instances (and one of an impossible instance, a corrupt
+    record) become one series per instance, each in file order, as masking each did."""
+    from mavattitude.readers.collect import Collector
+    from mavattitude.readers.dataflash import _collect
+
+    instance = np.array([0, 1, 12, 0, 1, 2, 0, 1], np.uint8)
+    columns = {"TimeUS": np.arange(8) * 2500.0, "I": instance,
+               **{c: np.arange(8.0) + k for k, c in enumerate(("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"))}}
+    col = Collector()
+    _collect(col, "IMU", columns, np.arange(8) * 50)
+    col.finish()
+    assert sorted(col.keys("imu")) == ["IMU[0]", "IMU[1]", "IMU[2]"]
+    for i in (0, 1, 2):
+        mine = instance == i
+        c = col.columns("imu", f"IMU[{i}]", 0)
+        np.testing.assert_array_equal(c.arrival, np.flatnonzero(mine) * 50)
+        np.testing.assert_array_equal(c.t, np.flatnonzero(mine) * 2500.0 * 1e-6)
+        np.testing.assert_array_equal(c.values[:, 3], np.flatnonzero(mine) + 3.0)
