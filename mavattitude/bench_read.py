@@ -7,6 +7,8 @@ hour-long replay costs end to end.
   same run: on a simulated 1-hour 400 Hz log the simulator writes, and on any ``--log`` given.
 - ``.tlog``: our reader (``readers.tlog.read_tlog``) against pymavlink's ``mavmmaplog`` with
   ``recv_match(type=...)`` of the types replay uses, on any ``--log`` given.
+- ``load()``: ``mavattitude.load`` end to end (the reader, then the clock, the checks and the
+  series of a ``Flight``) against the same pymavlink read (``x_pymavlink_load``), per log.
 - End to end: ``mavattitude replay LOG --estimators all --rrd`` on the 1-hour log, in a child
   process (kernels compiled beforehand): wall time and peak RSS, next to the size of the
   arrays the reader decoded.
@@ -14,7 +16,8 @@ hour-long replay costs end to end.
 Ours: best of ``repeat`` runs (the first compiles or loads the scan kernels); pymavlink's: one
 run (it takes seconds to minutes).
 
-Targets: ``.bin`` decode at least ``MIN_X_PYMAVLINK`` times pymavlink's; the hour through all
+Targets: ``.bin`` decode at least ``MIN_X_PYMAVLINK`` times pymavlink's, ``load()`` of a ``.bin`` at
+least ``MIN_X_LOAD`` times; the hour through all
 seven estimators, metrics and recording within ``MAX_END_TO_END_S`` (a shorter simulated log:
 its share of it); its peak RSS is reported
 against ``MAX_RSS_X_DECODED`` times the decoded arrays.
@@ -29,6 +32,7 @@ import time
 from pathlib import Path
 
 MIN_X_PYMAVLINK = 15.0
+MIN_X_LOAD = 10.0  # load() does more than decode: the clock, the checks, the Flight's series
 MAX_END_TO_END_S = 30.0
 MAX_RSS_X_DECODED = 3.0
 
@@ -70,17 +74,20 @@ def _pymavlink_tlog(path: str) -> int:
 
 def read_figures(path: str, repeat: int = 3) -> dict:
     """Our reader and pymavlink's on one log: CPU seconds, MB/s and the ratio."""
+    from . import load
     from .readers import sniff_format
     from .readers.dataflash import read_dataflash
     from .readers.tlog import read_tlog
 
     kind = sniff_format(path)
     ours = _cpu(lambda: (read_dataflash if kind == "bin" else read_tlog)(path), repeat)
+    loaded = _cpu(lambda: load(path), repeat)
     theirs = _cpu(lambda: (_pymavlink_bin if kind == "bin" else _pymavlink_tlog)(path), 1)
     mb = os.path.getsize(path) / 1e6
     return {"log": path, "format": kind, "mb": round(mb, 2), "ours_s": round(ours, 6),
             "pymavlink_s": round(theirs, 6), "ours_mb_s": round(mb / ours, 1),
-            "pymavlink_mb_s": round(mb / theirs, 1), "x_pymavlink": round(theirs / ours, 1)}
+            "pymavlink_mb_s": round(mb / theirs, 1), "x_pymavlink": round(theirs / ours, 1),
+            "load_s": round(loaded, 6), "x_pymavlink_load": round(theirs / loaded, 1)}
 
 
 def decoded_mb(path: str) -> float:
@@ -139,8 +146,9 @@ def run_read_bench(logs: list[str], scenario: str = "figure8", duration: float =
     # the target is for an hour at 400 Hz; a shorter log gets its share
     end_to_end_s = MAX_END_TO_END_S * (duration * imu_rate) / (3600.0 * 400.0)
     return {"reads": reads, "end_to_end": e2e, "targets": {
-        "bin_x_pymavlink": MIN_X_PYMAVLINK, "end_to_end_s": round(end_to_end_s, 4), "rss_x_decoded": MAX_RSS_X_DECODED},
+        "bin_x_pymavlink": MIN_X_PYMAVLINK, "x_pymavlink_load": MIN_X_LOAD, "end_to_end_s": round(end_to_end_s, 4), "rss_x_decoded": MAX_RSS_X_DECODED},
         "met": {"bin_x_pymavlink": all(r["x_pymavlink"] >= MIN_X_PYMAVLINK for r in bins),
+                "x_pymavlink_load": all(r["x_pymavlink_load"] >= MIN_X_LOAD for r in bins),
                 "end_to_end_s": e2e["wall_s"] <= end_to_end_s,
                 "rss_x_decoded": e2e["rss_x_decoded"] <= MAX_RSS_X_DECODED}}
 
@@ -149,17 +157,20 @@ def format_read(result: dict) -> str:
     def met(key):
         return "yes" if result["met"][key] else "NO"
     lines = ["", "Reading the message types replay uses (CPU s; ours best of several runs, pymavlink's one)",
-             f"{'log':58s} {'MB':>7s} {'ours s':>8s} {'MB/s':>7s} {'pymavlink s':>12s} {'MB/s':>6s} {'x':>6s}"]
+             f"{'log':58s} {'MB':>7s} {'ours s':>8s} {'MB/s':>7s} {'pymavlink s':>12s} {'MB/s':>6s} {'x':>6s}"
+             f" {'load() s':>9s} {'x':>6s}"]
     for r in result["reads"]:
         name = r["log"] if len(r["log"]) <= 58 else "..." + r["log"][-55:]
         lines.append(f"{name:58s} {r['mb']:7.1f} {r['ours_s']:8.3f} {r['ours_mb_s']:7.0f} "
-                     f"{r['pymavlink_s']:12.2f} {r['pymavlink_mb_s']:6.0f} {r['x_pymavlink']:5.1f}x")
+                     f"{r['pymavlink_s']:12.2f} {r['pymavlink_mb_s']:6.0f} {r['x_pymavlink']:5.1f}x"
+                     f" {r['load_s']:9.3f} {r['x_pymavlink_load']:5.1f}x")
     e = result["end_to_end"]
     t = result["targets"]
     lines += ["", f"End to end: replay --estimators all --rrd on the {result['reads'][-1]['log']} (a child process)",
               f"  wall {e['wall_s']:.1f} s, peak RSS {e['peak_rss_mb']:.0f} MB = {e['rss_x_decoded']:.1f}x the "
               f"{e['decoded_mb']:.0f} MB of decoded arrays, recording {e['rrd_mb']:.0f} MB",
               f"targets: .bin read >= {t['bin_x_pymavlink']:g}x pymavlink: {met('bin_x_pymavlink')}; "
+              f".bin load() >= {t['x_pymavlink_load']:g}x pymavlink: {met('x_pymavlink_load')}; "
               f"replay <= {t['end_to_end_s']:g} s ({MAX_END_TO_END_S:g} s for 1 h at 400 Hz): {met('end_to_end_s')}; "
               f"peak RSS <= {t['rss_x_decoded']:g}x decoded: {met('rss_x_decoded')}"]
     return "\n".join(lines) + "\n"

@@ -245,11 +245,14 @@ def test_read_figures_run_and_report(capsys, tmp_path):
     for r in reads.values():
         # (rounded to 0.1: a cold compile inside the timed run makes a small x)
         assert r["x_pymavlink"] == pytest.approx(r["pymavlink_s"] / r["ours_s"], rel=0.05, abs=0.05)
+        assert r["x_pymavlink_load"] == pytest.approx(r["pymavlink_s"] / r["load_s"], rel=0.05, abs=0.05)
+        assert r["load_s"] > 0
     e2e = result["end_to_end"]
     assert e2e["wall_s"] > 0 and e2e["peak_rss_mb"] > e2e["decoded_mb"] > 0 and e2e["rrd_mb"] > 0
     assert result["targets"]["end_to_end_s"] == pytest.approx(30.0 * 30 * 100 / (3600 * 400))
     assert "Reading the message types replay uses" in out and "End to end" in out
-    assert "targets:" in out and set(result["met"]) >= {"bin_x_pymavlink", "end_to_end_s"}
+    assert "targets:" in out and set(result["met"]) >= {"bin_x_pymavlink", "x_pymavlink_load", "end_to_end_s"}
+    assert result["targets"]["x_pymavlink_load"] == 10.0 and "load() >= 10x pymavlink" in out
 
 
 def test_log_without_read_is_a_usage_error(capsys):

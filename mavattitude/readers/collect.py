@@ -212,14 +212,13 @@ class Collector:
         seg = np.empty_like(seg_sorted)
         seg[sort] = seg_sorted
         if followers:
-            clocked = seg_sorted >= 0
-            self._follow(followers, order[sort][clocked], t_sorted[clocked], seg_sorted[clocked])
+            self._follow(followers, order[sort], t_sorted, seg_sorted)
         self.outliers = int(np.count_nonzero(seg < 0))
         n_segments = int(seg.max()) + 1 if len(seg) else 0
         spans = []
         for s in range(n_segments):
-            times = t[seg == s]
-            spans.append((float(times.min()), float(times.max())) if len(times) else (np.inf, -np.inf))
+            mine = seg == s
+            spans.append((float(t.min(where=mine, initial=np.inf)), float(t.max(where=mine, initial=-np.inf))))
         self._segment_spans = spans
         start = 0
         for k, (order, times, values) in merged.items():
@@ -228,12 +227,15 @@ class Collector:
 
     def _follow(self, followers: dict, order: np.ndarray, t: np.ndarray, seg: np.ndarray) -> None:
         """Each follower sample takes the segment of the last clocked sample before it in the
-        file (``order``, ``t``, ``seg``: those samples in file order), or CORRUPT when its time
-        is more than JUMP_S from that sample's."""
+        file (``order``, ``t``, ``seg``: the other samples in file order, CORRUPT ones among
+        them), or CORRUPT when its time is more than JUMP_S from that sample's."""
+        clocked = np.flatnonzero(seg >= 0)  # (indices only: the samples themselves are not copied)
         for k, (at, times, values) in followers.items():
-            before = np.searchsorted(order, at, side="right") - 1
-            near = (before >= 0) & (np.abs(times - t[np.maximum(before, 0)]) <= JUMP_S)
-            self._series[k] = (at, times, values, np.where(near, seg[np.maximum(before, 0)], CORRUPT))
+            before = np.searchsorted(order, at, side="right") - 1  # the last sample before, clocked or not
+            last = np.searchsorted(clocked, before, side="right") - 1  # the last clocked one up to it
+            before = clocked[np.maximum(last, 0)] if len(clocked) else np.zeros_like(last)
+            near = (last >= 0) & (np.abs(times - t[before]) <= JUMP_S)
+            self._series[k] = (at, times, values, np.where(near, seg[before], CORRUPT))
 
     @property
     def segments(self) -> list[tuple[float, float]]:
@@ -256,8 +258,8 @@ class Collector:
             return (arrival, t, values) if rows is None else (arrival[rows], t[rows], values[rows])
         mine = seg == segment
         arrival, t, values = select(None if mine.all() else mine)
-        order = np.argsort(arrival, kind="stable")
-        arrival, t, values = select(None if np.all(order[1:] > order[:-1]) else order)
+        if not np.all(arrival[1:] >= arrival[:-1]):  # (in file order, as a .bin's are, no sort)
+            arrival, t, values = select(np.argsort(arrival, kind="stable"))
         before = np.maximum.accumulate(np.concatenate([[-np.inf], t]))[:-1]
         keep = t > before
         repeated = int(np.count_nonzero(t == before))

@@ -149,8 +149,15 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
     if prefix in SENSORS:
         kind, _ = SENSORS[prefix]
         values = _sensor_values(prefix, r)
-        for i in np.unique(instance[plausible]):
-            mine = instance == i
+        # which instances there are, by counting: 0-9, and one slot past them for the implausible
+        slot = np.where(plausible, instance, MAX_INSTANCE + 1).astype(np.uint8)
+        per_instance = np.bincount(slot, minlength=MAX_INSTANCE + 2)[:MAX_INSTANCE + 1]
+        if per_instance.max(initial=0) < len(t):  # several (or implausible): each instance's records together
+            by_instance = np.argsort(slot, kind="stable")  # (a radix sort, on one byte)
+            order, t, values = order[by_instance], t[by_instance], values[by_instance]
+        end = np.cumsum(per_instance)
+        for i in np.flatnonzero(per_instance):
+            mine = slice(end[i] - per_instance[i], end[i])
             col.add_columns(kind, f"{prefix}[{i}]", order[mine], t[mine], values[mine])
         return
     primary = instance == 0

@@ -5,6 +5,7 @@ Shared by both readers (and, for its limits and compass-unit rule, by the live l
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from .. import quaternion as quat
 from ..flight import AttitudeSeries, BaroSeries, Flight, GpsSeries, ImuSeries, MagSeries
@@ -33,14 +34,12 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
         return c.t, c.values, c.arrival
 
     def plausible(key, v, limits):
-        """Rows that are finite and within physical ranges; corrupt records decode as anything."""
-        ok = np.isfinite(v).all(axis=1)
-        finite = np.where(ok[:, None], v, 0.0)
-        for cols, limit in limits:
-            ok &= np.linalg.norm(finite[:, cols], axis=1) < limit
+        """Rows that are finite and within physical ranges (corrupt records decode as anything),
+        and rows not all zeros."""
+        ok, nonzero = row_checks(v, limits)
         if np.count_nonzero(~ok):
             flight.warnings.append(f"{key}: dropped {np.count_nonzero(~ok)} samples with impossible values")
-        return ok
+        return ok, nonzero
 
     unusable = []
     imus = [(key, *columns("imu", key)) for key in col.keys("imu")]
@@ -49,10 +48,14 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
         if accel_key in col.keys("acc"):
             imus.append((key, *sensor_rate_imu(columns("gyr", key), columns("acc", accel_key))))
     for key, t, v, arrival in imus:
-        fitted = np.any(v != 0, axis=1)  # an unfitted sensor sends all zeros
-        live = fitted & plausible(key, v, IMU_LIMITS)
+        ok, fitted = plausible(key, v, IMU_LIMITS)  # (an unfitted sensor sends all zeros)
+        live = fitted & ok
         if np.count_nonzero(live) >= 2:
-            flight.imu[key] = ImuSeries(key, t[live], v[live, :3], v[live, 3:6], arrival=arrival[live])
+            if not live.all():  # (on a sound log every row is: nothing to leave out, nothing copied)
+                t, v, arrival = t[live], v[live], arrival[live]
+            # each array its own and contiguous (a .tlog's t is a column of the collector's rows)
+            flight.imu[key] = ImuSeries(key, np.ascontiguousarray(t), v[:, :3].copy(), v[:, 3:6].copy(),
+                                        arrival=np.ascontiguousarray(arrival))
         elif len(t):
             why = ("all zeros (no sensor fitted?)" if not fitted.any() else
                    "none within ±50 rad/s and ±50 g (saturated or corrupt)" if not live.any() else
@@ -66,7 +69,7 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
         # Repair the unit before judging plausibility: a whole series off by 1e6 is a unit
         # bug, not a series of corrupt records.
         t, v, arrival = t[live], _earth_field_scale(flight, key, v[live]), arrival[live]
-        live = plausible(key, v, MAG_LIMITS)
+        live, _ = plausible(key, v, MAG_LIMITS)
         if np.count_nonzero(live) >= 2:
             flight.mag[key] = MagSeries(key, t[live], v[live], arrival=arrival[live])
     for key in col.keys("gps"):
@@ -87,6 +90,35 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
     return unusable
 
 
+def row_checks(v: np.ndarray, limits: list[tuple[slice, float]]) -> tuple[np.ndarray, np.ndarray]:
+    """(ok, nonzero) per row of ``v``: ok where every value is finite and the norm of each
+    ``limits`` column slice is below its limit; nonzero where any value is not 0. One pass over
+    the rows (numpy's isfinite, where, norm and any made a temporary of every row each)."""
+    bounds = np.array([(cols.start, cols.stop, limit) for cols, limit in limits], np.float64)
+    ok = np.empty(len(v), np.bool_)
+    nonzero = np.empty(len(v), np.bool_)
+    _row_checks(np.ascontiguousarray(v, np.float64), bounds, ok, nonzero)
+    return ok, nonzero
+
+
+@njit(cache=True)
+def _row_checks(v, bounds, ok, nonzero):
+    for i in range(v.shape[0]):
+        good, any_set = True, False
+        for j in range(v.shape[1]):
+            good &= np.isfinite(v[i, j])
+            any_set |= v[i, j] != 0.0
+        nonzero[i] = any_set
+        for b in range(bounds.shape[0]):
+            if not good:
+                break
+            squares = 0.0
+            for j in range(int(bounds[b, 0]), int(bounds[b, 1])):
+                squares += v[i, j] * v[i, j]  # in order, as np.linalg.norm sums three columns
+            good = np.sqrt(squares) < bounds[b, 2]
+        ok[i] = good
+
+
 def sensor_rate_imu(gyro: tuple, accel: tuple, max_gap_s: float = ACCEL_GAP_S) -> tuple:
     """GYR and ACC (each: t, values, arrival) as one IMU series on the gyro's clock: the
     accelerometer interpolated linearly onto the gyro's sample times. The gyro is the clock
@@ -97,11 +129,43 @@ def sensor_rate_imu(gyro: tuple, accel: tuple, max_gap_s: float = ACCEL_GAP_S) -
     (t, rate, arrival), (ta, specific_force, _) = gyro, accel
     if len(ta) < 2:
         return t[:0], np.empty((0, 6)), arrival[:0]
-    after = np.clip(np.searchsorted(ta, t), 1, len(ta) - 1)
-    near = (np.minimum(np.abs(t - ta[after - 1]), np.abs(ta[after] - t)) <= max_gap_s) & (t >= ta[0]) & (t <= ta[-1])
-    t, rate, arrival = t[near], rate[near], arrival[near]
-    resampled = np.column_stack([np.interp(t, ta, specific_force[:, k]) for k in range(3)])
-    return t, np.hstack([rate, resampled]), arrival
+    near = np.empty(len(t), np.bool_)
+    values = np.empty((len(t), 6))
+    n = _resample_onto(t, np.ascontiguousarray(rate, np.float64), ta,
+                       np.ascontiguousarray(specific_force, np.float64), max_gap_s, near, values)
+    return t[near], values[:n], arrival[near]
+
+
+@njit(cache=True)
+def _resample_onto(t, rate, ta, specific_force, max_gap_s, near, values):
+    """``sensor_rate_imu``'s work in one merge of the two sorted clocks (it was a searchsorted,
+    three np.interp and their copies): ``near`` per gyro sample, and the rows kept in
+    ``values`` (rate, then the accelerometer by np.interp's own formula, to the bit); returns
+    how many rows."""
+    n, j, last = 0, 0, len(ta) - 1
+    for i in range(len(t)):
+        x = t[i]
+        while j <= last and ta[j] < x:  # j: the first accelerometer sample at or after x
+            j += 1
+        after = min(max(j, 1), last)
+        near[i] = min(abs(x - ta[after - 1]), abs(ta[after] - x)) <= max_gap_s and ta[0] <= x <= ta[last]
+        if not near[i]:
+            continue
+        values[n, :3] = rate[i]
+        for k in range(3):
+            y = specific_force[:, k]
+            if ta[j] == x:
+                values[n, 3 + k] = y[j]
+                continue
+            slope = (y[j] - y[j - 1]) / (ta[j] - ta[j - 1])
+            v = slope * (x - ta[j - 1]) + y[j - 1]
+            if np.isnan(v):  # as np.interp: from the other end, then the flat value
+                v = slope * (x - ta[j]) + y[j]
+                if np.isnan(v) and y[j - 1] == y[j]:
+                    v = y[j - 1]
+            values[n, 3 + k] = v
+        n += 1
+    return n
 
 
 def _earth_field_scale(flight: Flight, key: str, field: np.ndarray) -> np.ndarray:
