@@ -33,6 +33,7 @@ import numpy as np
 from ..errors import InputError
 from ..phase import height_pressure
 from .collect import Collector, Decoded, first_utc
+from .ulogdata import Unsupported, read_topics
 from .ulogrecords import frame
 
 GAUSS_TO_TESLA = 1e-4
@@ -43,25 +44,27 @@ TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_magnetometer", "vehicle_gps
           "estimator_attitude"]
 
 
-def read_ulog(path: str, progress=None) -> Decoded:
-    """Decode a .ulg (the topics of ``TOPICS``); InputError for a file pyulog cannot read.
-    Damage is cut out first (``ulogrecords``), and said in the warnings."""
-    from pyulog import ULog
-
+def read_ulog(path: str, progress=None, use_pyulog: bool = False) -> Decoded:
+    """Decode a .ulg (the topics of ``TOPICS``); InputError for a file that cannot be read.
+    Damage is cut out first (``ulogrecords``), and said in the warnings. Our bulk decoder
+    (``ulogdata``) reads it; pyulog where that one cannot (said in a note), or when asked."""
     with open(path, "rb") as f:
         data = f.read()
     framing = frame(data)
     warnings = framing.notes()
-    source = io.BytesIO(framing.repaired(data)) if warnings else path
-    try:
-        ulog = ULog(source, message_name_filter_list=TOPICS, disable_str_exceptions=True)
-    except Exception as exc:  # noqa: BLE001 - pyulog raises what it meets (struct.error, ValueError, ...)
-        raise InputError(path, f"not a readable ULog (header damaged: {type(exc).__name__}: {exc})") from None
+    fallback = None
+    if not use_pyulog and not framing.header:
+        try:
+            ulog = read_topics(data, framing, TOPICS)
+        except Unsupported as exc:
+            fallback = f"read by pyulog ({exc})"
+    if use_pyulog or framing.header or fallback:
+        ulog = _read_pyulog(path, data, framing)
     if progress is not None:
         progress(0.5)
     col = Collector()
     counts: dict[str, int] = {}
-    notes: list[str] = []
+    notes: list[str] = [fallback] if fallback else []
     if ulog.file_corruption and not framing.damage:
         warnings.append("the file is damaged (pyulog found corrupt data and skipped to the next valid message)")
     if ulog.dropouts:
@@ -93,6 +96,17 @@ def read_ulog(path: str, progress=None) -> Decoded:
            if d.name in ("vehicle_gps_position", "sensor_gps") and "time_utc_usec" in d.data]
     return Decoded(col, params, [], counts, notes=notes, warnings=warnings, identity=_identify(ulog, params),
                    utc_s=min((u for u in utc if u is not None), default=None))
+
+
+def _read_pyulog(path: str, data: bytes, framing):
+    """pyulog's read of the file (its damage cut out)."""
+    from pyulog import ULog
+
+    source = io.BytesIO(framing.repaired(data)) if framing.damage or framing.header else path
+    try:
+        return ULog(source, message_name_filter_list=TOPICS, disable_str_exceptions=True)
+    except Exception as exc:  # noqa: BLE001 - pyulog raises what it meets (struct.error, ValueError, ...)
+        raise InputError(path, f"not a readable ULog (header damaged: {type(exc).__name__}: {exc})") from None
 
 
 def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]) -> None:
