@@ -94,11 +94,9 @@ def read_topics(data: bytes, framing: Framing, wanted: list[str]) -> Topics:
             raise Unsupported("data of a wanted topic whose format is missing or damaged")
     if not subscribed:
         return out
-    at = framing.data_at
     buffer = np.frombuffer(data, np.uint8)
-    ids = buffer[at + 3].astype(np.uint16) | (buffer[at + 4].astype(np.uint16) << 8)
     for msg_id, (name, multi_id) in subscribed.items():
-        offsets = at[ids == msg_id]
+        offsets = framing.data_at[framing.data_ids == msg_id]
         if not len(offsets):
             continue  # pyulog lists only topics with data
         dtype = topic_dtype(framing.formats, name)

@@ -63,6 +63,7 @@ class Framing:
     times: list[tuple[float | None, float | None]] = field(default_factory=list)
     # where the valid messages start: data ('D') of a known size, and every other one (in order)
     data_at: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+    data_ids: np.ndarray = field(default_factory=lambda: np.empty(0, np.uint16))  # the topic id of each
     other_at: list[int] = field(default_factory=list)
     formats: dict[str, list[tuple[str, int, str]]] = field(default_factory=dict)  # name -> (type, count, field)
 
@@ -124,9 +125,10 @@ def frame(data: bytes) -> Framing:
     # data messages of a known size (nearly all), ``message`` the rest
     sizes = np.full(1 << 16, -1, np.int64)
     data_at = np.empty(len(data) // DATA_HEADER.size + 1, np.int64)  # 5 bytes: the smallest data message
+    data_ids = np.empty(len(data_at), np.uint16)
     n_data = 0
     while pos < len(data):
-        pos, n_data = _pass_data(buffer, pos, sizes, data_at, n_data)
+        pos, n_data = _pass_data(buffer, pos, sizes, data_at, data_ids, n_data)
         if pos >= len(data):
             break
         end = walk.message(pos, learn=True)
@@ -146,7 +148,7 @@ def frame(data: bytes) -> Framing:
         framing.times.append((walk.time_of(_last_data(walk, data_at, n_data)), walk.first_time(resume)))
         pos = run_start = resume
     framing.runs.append((run_start, min(pos, len(data))))
-    framing.data_at = data_at[:n_data].copy()
+    framing.data_at, framing.data_ids = data_at[:n_data].copy(), data_ids[:n_data].copy()
     framing.formats = walk.formats
     return framing
 
@@ -157,9 +159,9 @@ def _last_data(walk: "_Walk", data_at: np.ndarray, n_data: int) -> int:
 
 
 @njit(cache=True)
-def _pass_data(data, pos, sizes, data_at, n_data):
+def _pass_data(data, pos, sizes, data_at, data_ids, n_data):
     """Step over data messages of their topic's known size from ``pos``, keeping where each
-    starts; returns where it stopped (a message of another kind or size) and the count kept."""
+    starts and its topic id; returns where it stopped (a message of another kind or size) and the count kept."""
     n = len(data)
     while pos + 5 <= n:
         size = data[pos] | (data[pos + 1] << 8)
@@ -167,6 +169,7 @@ def _pass_data(data, pos, sizes, data_at, n_data):
         if data[pos + 2] != DATA or sizes[msg_id] != size - 2 or pos + 3 + size > n:
             break
         data_at[n_data] = pos
+        data_ids[n_data] = msg_id
         n_data += 1
         pos += 3 + size
     return pos, n_data
