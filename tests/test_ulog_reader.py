@@ -95,6 +95,7 @@ def test_a_shared_ulog_reads_into_the_same_flight_both_ways(path, monkeypatch):
 
 def test_a_simulated_ulog_reads_into_the_same_flight_both_ways(simulated, monkeypatch):
     ours, theirs = _flights_both_ways(simulated, monkeypatch)
+    assert ours.truth is not None and ours.attitude is not None and ours.gps is not None
     _assert_same_series(ours.imu["sensor_combined"], theirs.imu["sensor_combined"], "imu")
     _assert_same_series(ours.truth, theirs.truth, "truth")
     _assert_same_series(ours.gps, theirs.gps, "gps")

@@ -158,7 +158,7 @@ def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]
             col.add_columns("baro", key, order, t, np.column_stack([data["baro_pressure_pa"], data["baro_alt_meter"]]))
         elif name in ("vehicle_attitude", "vehicle_attitude_groundtruth", "estimator_attitude"):
             kind = {"vehicle_attitude": "att_quat", "vehicle_attitude_groundtruth": "truth_quat"}.get(name, "stream_quat")
-            col.add_columns(kind, key, order, t, vector("q", 4))
+            col.add_columns(kind, key, order, t, vector("q", n=4))
 
 
 def _add_relative(col: Collector, kind: str, key: str, data: dict, sensor: str, order, rows) -> int:
