@@ -132,3 +132,50 @@ def ulog_reader_dtype(formats):
     from mavattitude.readers.ulogdata import topic_dtype
 
     return topic_dtype(formats, "outer")
+
+
+def _nested_ulog(n: int) -> bytes:
+    """A ULog with a nested format (arrays of formats, bool, char, trailing padding) and many
+    small data messages of two topics, an info string and two parameters."""
+    from mavattitude.sim.ulog import HEADER, _message
+
+    def param(kind, key, raw):
+        text = f"{kind} {key}".encode()
+        return bytes([len(text)]) + text + raw
+
+    body = [_message(b"B", bytes(40)),
+            _message(b"I", param("char[5]", "sys_name", b"PX4\x00\x00")),
+            _message(b"P", param("int32_t", "MAV_TYPE", struct.pack("<i", 2))),
+            _message(b"P", param("float", "EKF2_MAG_DECL", struct.pack("<f", 5.5))),
+            _message(b"F", b"inner:float[2] v;char c;"),
+            _message(b"F", b"outer:uint64_t timestamp;inner[2] part;bool ok;uint8_t[3] _padding0;"),
+            _message(b"F", b"small:uint64_t timestamp;"),
+            _message(b"A", struct.pack("<BH", 1, 7) + b"outer"),
+            _message(b"A", struct.pack("<BH", 0, 9) + b"small")]
+    rng = np.random.default_rng(5)
+    for i in range(n):
+        parts = rng.standard_normal(4).astype("<f4").tobytes()
+        row = struct.pack("<Q", i) + parts[:8] + b"a" + parts[8:] + b"b" + bytes([i % 2])
+        body.append(_message(b"D", struct.pack("<H", 7) + row))
+        body += [_message(b"D", struct.pack("<HQ", 9, 10 * i + k)) for k in range(4)]
+        if i == n // 2:
+            body.append(_message(b"O", struct.pack("<H", 12)))
+    return HEADER + struct.pack("<Q", 0) + b"".join(body)
+
+
+def test_a_nested_format_with_many_small_messages_decodes_as_pyulog_does(tmp_path):
+    path = tmp_path / "nested.ulg"
+    path.write_bytes(_nested_ulog(3000))  # data messages average < 32 bytes: the offsets' array grows
+    data = path.read_bytes()
+    framing = frame(data)
+    assert not framing.damage and len(framing.data_at) == 5 * 3000
+    ours = read_topics(data, framing, ["outer", "small"])
+    theirs = ULog(str(path), message_name_filter_list=["outer", "small"], disable_str_exceptions=True)
+    assert [(d.name, d.multi_id) for d in ours.data_list] == [("outer", 1), ("small", 0)]
+    for mine, other in zip(ours.data_list, theirs.data_list):
+        assert list(mine.data) == list(other.data)
+        for name, values in other.data.items():
+            assert mine.data[name].dtype == values.dtype and mine.data[name].tobytes() == values.tobytes()
+    assert ours.initial_parameters == theirs.initial_parameters == {"MAV_TYPE": 2, "EKF2_MAG_DECL": 5.5}
+    assert ours.msg_info_dict == theirs.msg_info_dict == {"sys_name": "PX4\x00\x00"}  # pyulog keeps the NULs
+    assert [d.duration for d in ours.dropouts] == [d.duration for d in theirs.dropouts] == [12]
