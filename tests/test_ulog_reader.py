@@ -179,3 +179,18 @@ def test_a_nested_format_with_many_small_messages_decodes_as_pyulog_does(tmp_pat
     assert ours.initial_parameters == theirs.initial_parameters == {"MAV_TYPE": 2, "EKF2_MAG_DECL": 5.5}
     assert ours.msg_info_dict == theirs.msg_info_dict == {"sys_name": "PX4\x00\x00"}  # pyulog keeps the NULs
     assert [d.duration for d in ours.dropouts] == [d.duration for d in theirs.dropouts] == [12]
+
+
+def test_a_damaged_ulog_reads_into_the_same_flight_both_ways(simulated, tmp_path, monkeypatch):
+    """Damage is cut out before either decoder: ours reads the valid messages where they lie,
+    pyulog the repaired copy, and the flights agree."""
+    data = bytearray(simulated.read_bytes())
+    for at in (len(data) // 3, len(data) // 2):
+        data[at:at + 16] = bytes(16)  # where pyulog alone would stop reading (issue 23)
+    path = tmp_path / "damaged.ulg"
+    path.write_bytes(bytes(data))
+    ours, theirs = _flights_both_ways(path, monkeypatch)
+    assert any("skipped" in w for w in ours.warnings) and ours.warnings == theirs.warnings
+    _assert_same_series(ours.imu["sensor_combined"], theirs.imu["sensor_combined"], "imu")
+    _assert_same_series(ours.attitude, theirs.attitude, "attitude")
+    _assert_same_series(ours.gps, theirs.gps, "gps")

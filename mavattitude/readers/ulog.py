@@ -1,4 +1,6 @@
-"""PX4 ULog flight logs (.ulg), decoded by pyulog (the PX4 project's reader) into columns.
+"""PX4 ULog flight logs (.ulg), decoded into columns by our bulk decoder (``ulogdata``: the
+values pyulog gives, tested against it), or by pyulog (the PX4 project's reader) for what that
+one does not follow (appended data, an unknown flag, a damaged format; said in a note).
 
 Every topic is a series on PX4's clock (µs since boot; SITL may count from the Unix epoch),
 taken at ``timestamp_sample`` where the topic has it set (when the sensor sampled), else at

@@ -9,6 +9,9 @@ ULog defines, its payload is not empty and ends inside the file, and a data mess
 a subscribed id ('A') with the payload size of that topic's format ('F'), the size pyulog
 accepts. Past damage, reading resumes where ``RESYNC_CHAIN`` valid messages follow each other.
 ``repaired`` is the file without its damage (the header mended), for pyulog to read.
+The walk keeps where each valid message starts (``data_at`` with ``data_ids``, ``other_at``)
+for ``ulogdata`` to decode; the data messages of a known size, nearly all of a log, are passed
+by one compiled loop (``_pass_data``).
 """
 from __future__ import annotations
 
@@ -124,11 +127,14 @@ def frame(data: bytes) -> Framing:
     # subscribed id -> its data payload size, -1 where not known: the compiled pass takes the
     # data messages of a known size (nearly all), ``message`` the rest
     sizes = np.full(1 << 16, -1, np.int64)
-    data_at = np.empty(len(data) // DATA_HEADER.size + 1, np.int64)  # 5 bytes: the smallest data message
+    data_at = np.empty(len(data) // 32 + 16, np.int64)  # doubled when full (IMU samples take ~50 bytes)
     data_ids = np.empty(len(data_at), np.uint16)
     n_data = 0
     while pos < len(data):
         pos, n_data = _pass_data(buffer, pos, sizes, data_at, data_ids, n_data)
+        if n_data == len(data_at):
+            data_at, data_ids = np.concatenate([data_at, data_at]), np.concatenate([data_ids, data_ids])
+            continue
         if pos >= len(data):
             break
         end = walk.message(pos, learn=True)
@@ -161,9 +167,10 @@ def _last_data(walk: "_Walk", data_at: np.ndarray, n_data: int) -> int:
 @njit(cache=True)
 def _pass_data(data, pos, sizes, data_at, data_ids, n_data):
     """Step over data messages of their topic's known size from ``pos``, keeping where each
-    starts and its topic id; returns where it stopped (a message of another kind or size) and the count kept."""
+    starts and its topic id; returns where it stopped (a message of another kind or size, or
+    ``data_at`` full) and the count kept."""
     n = len(data)
-    while pos + 5 <= n:
+    while pos + 5 <= n and n_data < len(data_at):
         size = data[pos] | (data[pos + 1] << 8)
         msg_id = data[pos + 3] | (data[pos + 4] << 8)
         if data[pos + 2] != DATA or sizes[msg_id] != size - 2 or pos + 3 + size > n:
