@@ -29,6 +29,7 @@ read. Parameters are kept as PX4 names them (the declination is ``EKF2_MAG_DECL`
 from __future__ import annotations
 
 import io
+import mmap
 
 import numpy as np
 
@@ -50,8 +51,7 @@ def read_ulog(path: str, progress=None, use_pyulog: bool = False) -> Decoded:
     """Decode a .ulg (the topics of ``TOPICS``); InputError for a file that cannot be read.
     Damage is cut out first (``ulogrecords``), and said in the warnings. Our bulk decoder
     (``ulogdata``) reads it; pyulog where that one cannot (said in a note), or when asked."""
-    with open(path, "rb") as f:
-        data = f.read()
+    data = _mapped(path)
     framing = frame(data)
     warnings = framing.notes()
     fallback = None
@@ -98,6 +98,15 @@ def read_ulog(path: str, progress=None, use_pyulog: bool = False) -> Decoded:
            if d.name in ("vehicle_gps_position", "sensor_gps") and "time_utc_usec" in d.data]
     return Decoded(col, params, [], counts, notes=notes, warnings=warnings, identity=_identify(ulog, params),
                    utc_s=min((u for u in utc if u is not None), default=None))
+
+
+def _mapped(path: str) -> bytes | mmap.mmap:
+    """The file's bytes, memory-mapped (a read would copy them first: a third of the decode's time)."""
+    with open(path, "rb") as f:
+        try:
+            return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        except ValueError:  # an empty file cannot be mapped
+            return b""
 
 
 def _read_pyulog(path: str, data: bytes, framing):
