@@ -194,3 +194,13 @@ def test_a_damaged_ulog_reads_into_the_same_flight_both_ways(simulated, tmp_path
     _assert_same_series(ours.imu["sensor_combined"], theirs.imu["sensor_combined"], "imu")
     _assert_same_series(ours.attitude, theirs.attitude, "attitude")
     _assert_same_series(ours.gps, theirs.gps, "gps")
+
+
+def test_a_damaged_header_is_read_by_our_decoder(simulated, tmp_path):
+    data = bytearray(simulated.read_bytes())
+    data[0], data[7] = ord("X"), 0  # one magic byte; version 0 (an older PX4's)
+    path = tmp_path / "header.ulg"
+    path.write_bytes(bytes(data))
+    damaged, sound = read_log(str(path)), read_log(str(simulated))
+    assert not any("pyulog" in n for n in damaged.notes) and any("magic byte 0" in w for w in damaged.warnings)
+    _assert_same_series(damaged.imu["sensor_combined"], sound.imu["sensor_combined"], "imu")

@@ -55,12 +55,12 @@ def read_ulog(path: str, progress=None, use_pyulog: bool = False) -> Decoded:
     framing = frame(data)
     warnings = framing.notes()
     fallback = None
-    if not use_pyulog and not framing.header:
+    if not use_pyulog:
         try:
             ulog = read_topics(data, framing, TOPICS)
         except Unsupported as exc:
             fallback = f"read by pyulog ({exc})"
-    if use_pyulog or framing.header or fallback:
+    if use_pyulog or fallback:
         ulog = _read_pyulog(path, data, framing)
     if progress is not None:
         progress(0.5)
