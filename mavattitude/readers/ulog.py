@@ -47,20 +47,18 @@ TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_magnetometer", "vehicle_gps
           "estimator_attitude"]
 
 
-def read_ulog(path: str, progress=None, use_pyulog: bool = False) -> Decoded:
+def read_ulog(path: str, progress=None) -> Decoded:
     """Decode a .ulg (the topics of ``TOPICS``); InputError for a file that cannot be read.
     Damage is cut out first (``ulogrecords``), and said in the warnings. Our bulk decoder
-    (``ulogdata``) reads it; pyulog where that one cannot (said in a note), or when asked."""
+    (``ulogdata``) reads it; pyulog where that one cannot (said in a note)."""
     data = _mapped(path)
     framing = frame(data)
     warnings = framing.notes()
     fallback = None
-    if not use_pyulog:
-        try:
-            ulog = read_topics(data, framing, TOPICS)
-        except Unsupported as exc:
-            fallback = f"read by pyulog ({exc})"
-    if use_pyulog or fallback:
+    try:
+        ulog = read_topics(data, framing, TOPICS)
+    except Unsupported as exc:
+        fallback = f"read by pyulog ({exc})"
         ulog = _read_pyulog(path, data, framing)
     if progress is not None:
         progress(0.5)
