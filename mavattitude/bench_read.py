@@ -7,17 +7,20 @@ hour-long replay costs end to end.
   same run: on a simulated 1-hour 400 Hz log the simulator writes, and on any ``--log`` given.
 - ``.tlog``: our reader (``readers.tlog.read_tlog``) against pymavlink's ``mavmmaplog`` with
   ``recv_match(type=...)`` of the types replay uses, on any ``--log`` given.
+- ``.ulg``: our reader (``readers.ulog.read_ulog``: the topics replay uses, into SI columns)
+  against pyulog's read of the same topics (``ULog(path, message_name_filter_list=TOPICS)``), on
+  the simulated log written as a ULog too, and on any ``--log`` given.
 - ``load()``: ``mavattitude.load`` end to end (the reader, then the clock, the checks and the
-  series of a ``Flight``) against the same pymavlink read (``x_pymavlink_load``), per log.
+  series of a ``Flight``) against the same reference read (``x_pymavlink_load``, ``x_pyulog_load``), per log.
 - End to end: ``mavattitude replay LOG --estimators all --rrd`` on the 1-hour log, in a child
   process (kernels compiled beforehand): wall time and peak RSS, next to the size of the
   arrays the reader decoded.
 
 Ours: best of ``repeat`` runs (the first compiles or loads the scan kernels); pymavlink's: one
-run (it takes seconds to minutes).
+run (it takes seconds to minutes), pyulog's likewise.
 
 Targets: ``.bin`` decode at least ``MIN_X_PYMAVLINK`` times pymavlink's, ``load()`` of a ``.bin`` at
-least ``MIN_X_LOAD`` times; the hour through all
+least ``MIN_X_LOAD`` times; ``.ulg`` at least ``MIN_X_PYULOG`` times pyulog's; the hour through all
 seven estimators, metrics and recording within ``MAX_END_TO_END_S`` (a shorter simulated log:
 its share of it); its peak RSS is reported
 against ``MAX_RSS_X_DECODED`` times the decoded arrays.
@@ -33,6 +36,7 @@ from pathlib import Path
 
 MIN_X_PYMAVLINK = 15.0
 MIN_X_LOAD = 10.0  # load() does more than decode: the clock, the checks, the Flight's series
+MIN_X_PYULOG = 10.0
 MAX_END_TO_END_S = 30.0
 MAX_RSS_X_DECODED = 3.0
 
@@ -72,22 +76,35 @@ def _pymavlink_tlog(path: str) -> int:
     return n
 
 
+def _pyulog(path: str) -> int:
+    from pyulog import ULog
+
+    from .readers.ulog import TOPICS
+
+    return len(ULog(path, message_name_filter_list=TOPICS, disable_str_exceptions=True).data_list)
+
+
 def read_figures(path: str, repeat: int = 3) -> dict:
-    """Our reader and pymavlink's on one log: CPU seconds, MB/s and the ratio."""
+    """Our reader and the reference one (pymavlink's, or pyulog for a ULog) on one log: CPU
+    seconds, MB/s and the ratio, under keys that name the reference (``x_pymavlink``, ``x_pyulog``)."""
     from . import load
     from .readers import sniff_format
     from .readers.dataflash import read_dataflash
     from .readers.tlog import read_tlog
+    from .readers.ulog import read_ulog
 
     kind = sniff_format(path)
-    ours = _cpu(lambda: (read_dataflash if kind == "bin" else read_tlog)(path), repeat)
+    reader, reference, theirs_fn = {"bin": (read_dataflash, "pymavlink", _pymavlink_bin),
+                                    "tlog": (read_tlog, "pymavlink", _pymavlink_tlog),
+                                    "ulg": (read_ulog, "pyulog", _pyulog)}[kind]
+    ours = _cpu(lambda: reader(path), repeat)
     loaded = _cpu(lambda: load(path), repeat)
-    theirs = _cpu(lambda: (_pymavlink_bin if kind == "bin" else _pymavlink_tlog)(path), 1)
+    theirs = _cpu(lambda: theirs_fn(path), 1)
     mb = os.path.getsize(path) / 1e6
-    return {"log": path, "format": kind, "mb": round(mb, 2), "ours_s": round(ours, 6),
-            "pymavlink_s": round(theirs, 6), "ours_mb_s": round(mb / ours, 1),
-            "pymavlink_mb_s": round(mb / theirs, 1), "x_pymavlink": round(theirs / ours, 1),
-            "load_s": round(loaded, 6), "x_pymavlink_load": round(theirs / loaded, 1)}
+    return {"log": path, "format": kind, "mb": round(mb, 2), "reference": reference, "ours_s": round(ours, 6),
+            f"{reference}_s": round(theirs, 6), "ours_mb_s": round(mb / ours, 1),
+            f"{reference}_mb_s": round(mb / theirs, 1), f"x_{reference}": round(theirs / ours, 1),
+            "load_s": round(loaded, 6), f"x_{reference}_load": round(theirs / loaded, 1)}
 
 
 def decoded_mb(path: str) -> float:
@@ -127,28 +144,34 @@ def run_read_bench(logs: list[str], scenario: str = "figure8", duration: float =
 
     precompile(needs_compile(list(ESTIMATORS))).wait()
     with tempfile.TemporaryDirectory(prefix="mavattitude-bench-") as tmp:
-        hour = str(Path(tmp) / "simulated.bin")
+        hour, hour_ulog = str(Path(tmp) / "simulated.bin"), str(Path(tmp) / "simulated.ulg")
         label = f"simulated {scenario} {duration / 60:g} min at {imu_rate:g} Hz"
-        say(f"{label}: writing it ...")
-        subprocess.run([sys.executable, "-m", "mavattitude", "simulate", "--scenario", scenario,
-                        "--duration", str(duration), "--imu-rate", str(imu_rate), "-o", hour],
-                       check=True, stdout=subprocess.DEVNULL)
+        say(f"{label}: writing it (.bin and .ulg) ...")
+        for path in (hour, hour_ulog):
+            subprocess.run([sys.executable, "-m", "mavattitude", "simulate", "--scenario", scenario,
+                            "--duration", str(duration), "--imu-rate", str(imu_rate), "-o", path],
+                           check=True, stdout=subprocess.DEVNULL)
         reads = []
-        for path in [*logs, hour]:
-            say(f"reading {path} (ours, then pymavlink's) ...")
+        for path in [*logs, hour_ulog, hour]:
+            say(f"reading {path} (ours, then the reference reader's) ...")
             reads.append(read_figures(path, repeat))
+        reads[-2]["log"] = f"{label} (.ulg)"
         reads[-1]["log"] = label
+        os.remove(hour_ulog)
         say(f"{label}: replaying it with every estimator ...")
         e2e = end_to_end(hour, tmp)
         e2e["decoded_mb"] = round(decoded_mb(hour), 1)
     e2e["rss_x_decoded"] = round(e2e["peak_rss_mb"] / e2e["decoded_mb"], 2)
     bins = [r for r in reads if r["format"] == "bin"]
+    ulogs = [r for r in reads if r["format"] == "ulg"]
     # the target is for an hour at 400 Hz; a shorter log gets its share
     end_to_end_s = MAX_END_TO_END_S * (duration * imu_rate) / (3600.0 * 400.0)
     return {"reads": reads, "end_to_end": e2e, "targets": {
-        "bin_x_pymavlink": MIN_X_PYMAVLINK, "x_pymavlink_load": MIN_X_LOAD, "end_to_end_s": round(end_to_end_s, 4), "rss_x_decoded": MAX_RSS_X_DECODED},
+        "bin_x_pymavlink": MIN_X_PYMAVLINK, "x_pymavlink_load": MIN_X_LOAD, "ulg_x_pyulog": MIN_X_PYULOG,
+        "end_to_end_s": round(end_to_end_s, 4), "rss_x_decoded": MAX_RSS_X_DECODED},
         "met": {"bin_x_pymavlink": all(r["x_pymavlink"] >= MIN_X_PYMAVLINK for r in bins),
                 "x_pymavlink_load": all(r["x_pymavlink_load"] >= MIN_X_LOAD for r in bins),
+                "ulg_x_pyulog": all(r["x_pyulog"] >= MIN_X_PYULOG for r in ulogs),
                 "end_to_end_s": e2e["wall_s"] <= end_to_end_s,
                 "rss_x_decoded": e2e["rss_x_decoded"] <= MAX_RSS_X_DECODED}}
 
@@ -156,14 +179,16 @@ def run_read_bench(logs: list[str], scenario: str = "figure8", duration: float =
 def format_read(result: dict) -> str:
     def met(key):
         return "yes" if result["met"][key] else "NO"
-    lines = ["", "Reading the message types replay uses (CPU s; ours best of several runs, pymavlink's one)",
-             f"{'log':58s} {'MB':>7s} {'ours s':>8s} {'MB/s':>7s} {'pymavlink s':>12s} {'MB/s':>6s} {'x':>6s}"
+    lines = ["", "Reading the message types replay uses (CPU s; ours best of several runs, the reference "
+                 "reader's one: pymavlink, pyulog for .ulg)",
+             f"{'log':58s} {'MB':>7s} {'ours s':>8s} {'MB/s':>7s} {'reference':>9s} {'s':>8s} {'MB/s':>6s} {'x':>6s}"
              f" {'load() s':>9s} {'x':>6s}"]
     for r in result["reads"]:
         name = r["log"] if len(r["log"]) <= 58 else "..." + r["log"][-55:]
-        lines.append(f"{name:58s} {r['mb']:7.1f} {r['ours_s']:8.3f} {r['ours_mb_s']:7.0f} "
-                     f"{r['pymavlink_s']:12.2f} {r['pymavlink_mb_s']:6.0f} {r['x_pymavlink']:5.1f}x"
-                     f" {r['load_s']:9.3f} {r['x_pymavlink_load']:5.1f}x")
+        ref = r["reference"]
+        lines.append(f"{name:58s} {r['mb']:7.1f} {r['ours_s']:8.3f} {r['ours_mb_s']:7.0f} {ref:>9s} "
+                     f"{r[ref + '_s']:8.2f} {r[ref + '_mb_s']:6.0f} {r['x_' + ref]:5.1f}x"
+                     f" {r['load_s']:9.3f} {r['x_' + ref + '_load']:5.1f}x")
     e = result["end_to_end"]
     t = result["targets"]
     lines += ["", f"End to end: replay --estimators all --rrd on the {result['reads'][-1]['log']} (a child process)",
@@ -171,6 +196,7 @@ def format_read(result: dict) -> str:
               f"{e['decoded_mb']:.0f} MB of decoded arrays, recording {e['rrd_mb']:.0f} MB",
               f"targets: .bin read >= {t['bin_x_pymavlink']:g}x pymavlink: {met('bin_x_pymavlink')}; "
               f".bin load() >= {t['x_pymavlink_load']:g}x pymavlink: {met('x_pymavlink_load')}; "
+              f".ulg read >= {t['ulg_x_pyulog']:g}x pyulog: {met('ulg_x_pyulog')}; "
               f"replay <= {t['end_to_end_s']:g} s ({MAX_END_TO_END_S:g} s for 1 h at 400 Hz): {met('end_to_end_s')}; "
               f"peak RSS <= {t['rss_x_decoded']:g}x decoded: {met('rss_x_decoded')}"]
     return "\n".join(lines) + "\n"

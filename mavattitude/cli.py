@@ -940,10 +940,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="how long the live figure streams (default 60)")
     p.add_argument("--read", action="store_true",
                    help="instead, the reading figures: .bin and .tlog read speed against pymavlink's "
-                        "type-filtered read (on a simulated .bin of --duration at --imu-rate, by default "
-                        "1 h at 400 Hz, and on each --log), and the wall time and peak memory of "
-                        "'replay --estimators all --rrd' on the simulated log (targets: .bin >= 15x "
-                        "pymavlink, 1 h at 400 Hz <= 30 s)")
+                        "type-filtered read, .ulg against pyulog's read of the same topics (on a simulated "
+                        ".bin and .ulg of --duration at --imu-rate, by default 1 h at 400 Hz, and on each "
+                        "--log), and the wall time and peak memory of 'replay --estimators all --rrd' on the "
+                        "simulated log (targets: .bin >= 15x pymavlink, .ulg >= 10x pyulog, 1 h at 400 Hz "
+                        "<= 30 s)")
     p.add_argument("--log", action="append", metavar="FILE",
                    help="with --read: a real log to read too (repeatable)")
     p.set_defaults(func=cmd_bench)

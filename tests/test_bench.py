@@ -241,18 +241,22 @@ def test_read_figures_run_and_report(capsys, tmp_path):
     result = json.loads(path.read_text())
     assert rc == 0, err  # whatever the speeds: a missed target is printed, not an exit status
     reads = {r["format"]: r for r in result["reads"]}
-    assert set(reads) == {"bin", "tlog"} and reads["bin"]["log"].startswith("simulated figure8")
+    assert set(reads) == {"bin", "tlog", "ulg"} and reads["bin"]["log"].startswith("simulated figure8")
+    assert reads["ulg"]["log"].endswith("(.ulg)") and reads["ulg"]["reference"] == "pyulog"
     for r in reads.values():
         # (rounded to 0.1: a cold compile inside the timed run makes a small x)
-        assert r["x_pymavlink"] == pytest.approx(r["pymavlink_s"] / r["ours_s"], rel=0.05, abs=0.05)
-        assert r["x_pymavlink_load"] == pytest.approx(r["pymavlink_s"] / r["load_s"], rel=0.05, abs=0.05)
+        ref = r["reference"]
+        assert r[f"x_{ref}"] == pytest.approx(r[f"{ref}_s"] / r["ours_s"], rel=0.05, abs=0.05)
+        assert r[f"x_{ref}_load"] == pytest.approx(r[f"{ref}_s"] / r["load_s"], rel=0.05, abs=0.05)
         assert r["load_s"] > 0
     e2e = result["end_to_end"]
     assert e2e["wall_s"] > 0 and e2e["peak_rss_mb"] > e2e["decoded_mb"] > 0 and e2e["rrd_mb"] > 0
     assert result["targets"]["end_to_end_s"] == pytest.approx(30.0 * 30 * 100 / (3600 * 400))
     assert "Reading the message types replay uses" in out and "End to end" in out
-    assert "targets:" in out and set(result["met"]) >= {"bin_x_pymavlink", "x_pymavlink_load", "end_to_end_s"}
+    assert "targets:" in out and set(result["met"]) >= {"bin_x_pymavlink", "x_pymavlink_load", "ulg_x_pyulog",
+                                                         "end_to_end_s"}
     assert result["targets"]["x_pymavlink_load"] == 10.0 and "load() >= 10x pymavlink" in out
+    assert ".ulg read >= 10x pyulog" in out
 
 
 def test_log_without_read_is_a_usage_error(capsys):

@@ -1,7 +1,8 @@
 """Log readers: a file in, a :class:`~mavattitude.flight.Flight` out (SI units, autopilot clock).
 
 ``read_log(path)`` picks the format from the file's first bytes, decodes it (``dataflash``:
-in bulk, ``dfrecords``; ``tlog``: in bulk, ``tlogrecords``; ``ulog``: pyulog), follows the clock (``collect``) and builds the
+in bulk, ``dfrecords``; ``tlog``: in bulk, ``tlogrecords``; ``ulog``: in bulk, ``ulogdata``, pyulog where that one
+cannot), follows the clock (``collect``) and builds the
 flight's series (``series``): one clock segment (the longest, unless asked), each sample newer
 than the one before it, plausible values. ``sources`` chooses the IMU and compass.
 """

@@ -9,12 +9,18 @@ ULog defines, its payload is not empty and ends inside the file, and a data mess
 a subscribed id ('A') with the payload size of that topic's format ('F'), the size pyulog
 accepts. Past damage, reading resumes where ``RESYNC_CHAIN`` valid messages follow each other.
 ``repaired`` is the file without its damage (the header mended), for pyulog to read.
+The walk keeps where each valid message starts (``data_at`` with ``data_ids``, ``other_at``)
+for ``ulogdata`` to decode; the data messages of a known size, nearly all of a log, are passed
+by one compiled loop (``_pass_data``).
 """
 from __future__ import annotations
 
 import re
 import struct
 from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
 
 MAGIC = b"ULog\x01\x12\x35"
 VERSION = 1
@@ -58,6 +64,11 @@ class Framing:
     # the log's clock (s) at the last data before each damaged stretch and the first after it
     # (None where not known, or nothing follows)
     times: list[tuple[float | None, float | None]] = field(default_factory=list)
+    # where the valid messages start: data ('D') of a known size, and every other one (in order)
+    data_at: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+    data_ids: np.ndarray = field(default_factory=lambda: np.empty(0, np.uint16))  # the topic id of each
+    other_at: list[int] = field(default_factory=list)
+    formats: dict[str, list[tuple[str, int, str]]] = field(default_factory=dict)  # name -> (type, count, field)
 
     @property
     def skipped(self) -> int:
@@ -112,16 +123,28 @@ def frame(data: bytes) -> Framing:
     framing = Framing(len(data), header_damage(data[:HEADER_SIZE]) or [])
     walk = _Walk(data)
     pos = run_start = HEADER_SIZE
-    data_header, sizes, n = DATA_HEADER.unpack_from, walk.data_sizes, len(data) - DATA_HEADER.size
+    buffer = np.frombuffer(data, np.uint8)
+    # subscribed id -> its data payload size, -1 where not known: the compiled pass takes the
+    # data messages of a known size (nearly all), ``message`` the rest
+    sizes = np.full(1 << 16, -1, np.int64)
+    data_at = np.empty(len(data) // 32 + 16, np.int64)  # doubled when full (IMU samples take ~50 bytes)
+    data_ids = np.empty(len(data_at), np.uint16)
+    n_data = 0
     while pos < len(data):
-        if pos <= n:  # most messages are data of a known size: passed here, the rest by ``message``
-            size, kind, msg_id = data_header(data, pos)
-            if kind == DATA and sizes.get(msg_id, -1) == size - 2 and pos + 3 + size <= len(data):
-                walk.last_data = pos
-                pos += 3 + size
-                continue
+        if data[pos + 2:pos + 3] == b"D":  # (a compiled call costs microseconds: not for each definition)
+            pos, n_data = _pass_data(buffer, pos, sizes, data_at, data_ids, n_data)
+        if n_data == len(data_at):
+            data_at, data_ids = np.concatenate([data_at, data_at]), np.concatenate([data_ids, data_ids])
+            continue
+        if pos >= len(data):
+            break
         end = walk.message(pos, learn=True)
         if end > 0:
+            framing.other_at.append(pos)
+            if data[pos + 2] == ord("A") and end - pos > 6:
+                msg_id, = struct.unpack_from("<H", data, pos + 4)
+                known = walk.data_sizes.get(msg_id)
+                sizes[msg_id] = -1 if known is None else known
             pos = end
             continue
         if end == _CUT:  # the last message cut short: where a log stopped, not damage
@@ -129,10 +152,35 @@ def frame(data: bytes) -> Framing:
         framing.runs.append((run_start, pos))
         resume = walk.resync(pos + 1)
         framing.damage.append((pos, resume))
-        framing.times.append((walk.time_of(walk.last_data), walk.first_time(resume)))
+        framing.times.append((walk.time_of(_last_data(walk, data_at, n_data)), walk.first_time(resume)))
         pos = run_start = resume
     framing.runs.append((run_start, min(pos, len(data))))
+    framing.data_at, framing.data_ids = data_at[:n_data].copy(), data_ids[:n_data].copy()
+    framing.formats = walk.formats
     return framing
+
+
+def _last_data(walk: "_Walk", data_at: np.ndarray, n_data: int) -> int:
+    """Where the last valid data message seen starts (either pass), -1 if none."""
+    return max(walk.last_data, int(data_at[n_data - 1]) if n_data else -1)
+
+
+@njit(cache=True)
+def _pass_data(data, pos, sizes, data_at, data_ids, n_data):
+    """Step over data messages of their topic's known size from ``pos``, keeping where each
+    starts and its topic id; returns where it stopped (a message of another kind or size, or
+    ``data_at`` full) and the count kept."""
+    n = len(data)
+    while pos + 5 <= n and n_data < len(data_at):
+        size = data[pos] | (data[pos + 1] << 8)
+        msg_id = data[pos + 3] | (data[pos + 4] << 8)
+        if data[pos + 2] != DATA or sizes[msg_id] != size - 2 or pos + 3 + size > n:
+            break
+        data_at[n_data] = pos
+        data_ids[n_data] = msg_id
+        n_data += 1
+        pos += 3 + size
+    return pos, n_data
 
 
 _INVALID, _CUT = -1, -2
