@@ -966,10 +966,21 @@ def main(argv=None) -> int:
     if program and code == signals.exit_code():
         # stopped wherever it was (an import, LLVM mid-compile, Rerun's start): the interpreter's
         # exit can crash on what was left half done (SIGSEGV seen); end here, everything closed
+        _release_pool_semaphores()
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)
     return code
+
+
+def _release_pool_semaphores() -> None:
+    """Unlink the named semaphores of a process pool stopped mid-run, as the interpreter's exit
+    would (their multiprocessing finalizers): os._exit skips that, and multiprocessing's
+    resource tracker then printed a warning about leaked semaphores after 'interrupted'."""
+    if "multiprocessing" in sys.modules:
+        from multiprocessing import util
+
+        util._run_finalizers(0)  # only those of priority >= 0: the semaphores, not joining processes
 
 
 def _main(argv) -> int:
