@@ -183,6 +183,8 @@ def test_a_viewer_that_is_not_there_fails_at_once(capsys, no_reading):
 def test_spawn_without_a_display_fails_at_once(capsys, monkeypatch, no_reading):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    # the viewer installed beside this Python, as an activated environment has it on PATH
+    monkeypatch.setenv("PATH", os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]))
     if not sys.platform.startswith("linux"):
         pytest.skip("the display check is for Linux")
     code, _, err = run(capsys, "replay", LOG, "--spawn")
