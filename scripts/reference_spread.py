@@ -71,6 +71,15 @@ def spread(flight, warmup_s: float) -> list[dict]:
     return rows
 
 
+def readable(paths: list[Path]):
+    """(path, flight) for each log that reads; a table row with the reason for one that does not."""
+    for path in paths:
+        try:
+            yield path, load(path)
+        except InputError as exc:
+            print(f"| {path.name} | {exc} |")
+
+
 def print_flags(paths: list[Path]) -> None:
     """The disagreement check's measurements and flags on each log (--flags)."""
     limits = (5.0, refcheck.DISAGREE_DEG, 20.0)
@@ -78,12 +87,7 @@ def print_flags(paths: list[Path]) -> None:
           + " | ".join(f"longest > {limit:g}° (s)" for limit in limits) + " |")
     print("|---|---|---|---|---|" + "---|" * len(limits))
     flags = []
-    for path in paths:
-        try:
-            flight = load(path)
-        except InputError as exc:
-            print(f"| {path.name} | {exc} |")
-            continue
+    for path, flight in readable(paths):
         ref = flight.attitude
         if ref is None:
             continue
@@ -125,12 +129,7 @@ def main() -> int:
     print("|---|---|---|---|---|---|" + "---|" * len(THRESHOLDS_DEG))
     by_kind: dict[str, list[float]] = {}
     trims = []
-    for path in paths:
-        try:
-            flight = load(path)
-        except InputError as exc:
-            print(f"| {path.name} | {exc} |")
-            continue
+    for path, flight in readable(paths):
         rows = spread(flight, args.warmup)
         if not rows:
             print(f"| {path.name} | {flight.attitude.source if flight.attitude else '-'} | (no other stream) |")

@@ -123,16 +123,26 @@ def test_reference_ekf_without_an_ekf():
     assert choose_reference(flight, "autopilot").algorithm == "DCM"
 
 
-def test_evaluate_reference_ekf_picks_per_log_and_says_so(dcm_log, tmp_path, capsys):
+def two_logs(dcm_log, tmp_path):
+    """A folder with the DCM log (EKF1 beside ATT) and a sample log whose only attitude is EKF3."""
     logs = tmp_path / "logs"
     logs.mkdir()
     (logs / "dcm.bin").symlink_to(dcm_log)
     (logs / "figure8.bin").symlink_to(SAMPLE_LOGS / "figure8.bin")
-    out = tmp_path / "eval"
+    return logs
+
+
+def evaluated(out) -> dict:
+    """evaluate's records, by log file name."""
+    return {r["log"].split("/")[-1]: r for r in (json.loads(p.read_text()) for p in (out / "logs").glob("*.json"))}
+
+
+def test_evaluate_reference_ekf_picks_per_log_and_says_so(dcm_log, tmp_path, capsys):
+    logs, out = two_logs(dcm_log, tmp_path), tmp_path / "eval"
     assert main(["evaluate", str(logs), "--estimators", "mahony", "--reference", "ekf", "--out", str(out),
                  "-j", "1", "-q"]) == 0
     printed = capsys.readouterr().out
-    records = {r["log"].split("/")[-1]: r for r in (json.loads(p.read_text()) for p in (out / "logs").glob("*.json"))}
+    records = evaluated(out)
     dcm, ekf3 = records["dcm.bin"], records["figure8.bin"]
     assert (dcm["reference_stream"], dcm["reference_algorithm"]) == ("EKF1", "EKF1")  # not ATT: that is DCM
     assert dcm["reference"] == {"stream": "EKF1", "algorithm": "EKF1", "choice": "ekf"}
@@ -148,14 +158,10 @@ def test_evaluate_reference_ekf_picks_per_log_and_says_so(dcm_log, tmp_path, cap
 
 
 def test_evaluate_skips_a_log_without_the_stream(dcm_log, tmp_path, capsys):
-    logs = tmp_path / "logs"
-    logs.mkdir()
-    (logs / "dcm.bin").symlink_to(dcm_log)
-    (logs / "figure8.bin").symlink_to(SAMPLE_LOGS / "figure8.bin")
-    out = tmp_path / "eval"
+    logs, out = two_logs(dcm_log, tmp_path), tmp_path / "eval"
     assert main(["evaluate", str(logs), "--estimators", "mahony", "--reference", "AHR2", "--out", str(out),
                  "-j", "1", "-q"]) == 0
-    records = {r["log"].split("/")[-1]: r for r in (json.loads(p.read_text()) for p in (out / "logs").glob("*.json"))}
+    records = evaluated(out)
     assert records["dcm.bin"]["status"] == "ok" and records["dcm.bin"]["reference_algorithm"] == "EKF1"
     assert records["figure8.bin"]["status"] == "skipped"
     assert "has no attitude stream 'AHR2'" in records["figure8.bin"]["error"]
