@@ -114,8 +114,9 @@ def accel_scale_warning(norm: float | None, at_rest: bool, estimators) -> str | 
         return None
     error = norm / GRAVITY - 1.0
     where = "at rest" if at_rest else "over the whole log (no rest span found)"
-    effects = [f"{e.name}: {text}" for e in estimators if (text := e.accel_scale_effect(error))]
-    untouched = [e.name for e in estimators if not e.accel_scale_effect(error)]
+    texts = {e.name: e.accel_scale_effect(error) for e in estimators}
+    effects = [f"{name}: {text}" for name, text in texts.items() if text]
+    untouched = [name for name, text in texts.items() if not text]
     if not plausible_g(norm):
         effects.append(f"the start is not recognised as still (more than {100 * G_BOUND:g} % from g), so "
                        "every estimator starts with a gyro bias of 0 and takes standard gravity for g")

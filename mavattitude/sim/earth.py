@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..readers.collect import GPS_EPOCH_UNIX, GPS_LEAP_SECONDS  # the reader's, so writing and reading agree
+
 # Clocks. The autopilot clock (seconds since boot) is what every log timestamp is on; the first
 # sample is taken a little after boot, not at 0, as on a real autopilot (readers must not
 # assume a zero start). The boot happened at a fixed, fake UNIX time: tlog record stamps,
@@ -15,8 +17,6 @@ import numpy as np
 BOOT_TIME_AT_START = 1.0  # s on the autopilot clock at the first sample
 EPOCH_UNIX_AT_BOOT = 1_717_243_200.0  # s, 2024-06-01 12:00:00 UTC
 
-GPS_EPOCH_UNIX = 315_964_800  # s, 1980-01-06 00:00:00 UTC
-GPS_LEAP_SECONDS = 18  # GPS time runs ahead of UTC by this much (since 2017)
 
 # WGS-84 ellipsoid, for the radii of curvature at home.
 WGS84_A = 6_378_137.0  # m, semi-major axis
