@@ -345,7 +345,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
         phase = runner.phase_series()
         suspects = check_reference(ref, flight.imu[runner.imu_source], applied_trim,
                                    phase.on_clock if phase is not None else None, flight.gps)
-        suspects = sorted(suspects + autopilot_disagreement(ref, flight), key=lambda s: s.start)
+        suspects = sorted(suspects + autopilot_disagreement(ref, flight, named), key=lambda s: s.start)
         notes = whole_log_notes(ref, flight.repeated.get(ref.source, 0))
         events += [Event(s.start, "warn", f"reference not trusted {s.start:.1f}-{s.end:.1f} s: {s.detail} "
                          "(not scored there)", kind=f"reference not trusted ({s.kind}), not scored there")

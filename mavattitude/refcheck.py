@@ -94,13 +94,13 @@ def check_reference(ref: AttitudeSeries, imu: ImuSeries, trim, in_air_at=None,
     return sorted(suspects, key=lambda s: s.start)
 
 
-def autopilot_disagreement(ref: AttitudeSeries, flight: Flight) -> list[Suspect]:
+def autopilot_disagreement(ref: AttitudeSeries, flight: Flight, named=None) -> list[Suspect]:
     """Where ``ref`` and another of the autopilot's estimators (``flight.attitudes``, copies of
     ``ref`` or of a stream already compared left out) differ in tilt by more than DISAGREE_DEG for
     DISAGREE_MIN_S or longer, one Suspect per span and stream, in time order."""
     if ref.source not in flight.attitudes or len(flight.attitudes) < 2:
         return []
-    named = name_attitudes(flight)
+    named = name_attitudes(flight) if named is None else named
     algorithm = next(n.algorithm for n in named if n.key == ref.source)
     out = []
     for other in compared_streams(ref, named):
@@ -158,7 +158,7 @@ def disagreeing_spans(t: np.ndarray, apart: np.ndarray, limit: float = DISAGREE_
     out = []
     for a, b in runs:
         steps = np.diff(t[a:b])
-        above = np.diff(t[a:b])[(apart[a:b - 1] > limit) & (steps <= DISAGREE_MAX_GAP_S)]
+        above = steps[(apart[a:b - 1] > limit) & (steps <= DISAGREE_MAX_GAP_S)]
         out.append((float(t[a]), float(t[b - 1]), float(above.sum()), apart[a:b]))
     return out
 
