@@ -30,6 +30,7 @@ import numpy as np
 
 from ..flight import GRAVITY
 from ..kernel_cache import cached
+from . import inertial_accel
 
 # A step longer than this is a gap in the data, not an interval to integrate the gyro over.
 MAX_STEP_S = 1.5
@@ -57,6 +58,8 @@ class Estimator:
         self.declination = float(declination)  # rad, east positive: true = magnetic + declination
         self.initialized = False
         self.diagnostics: dict[str, np.ndarray] = {}  # per-sample series of the last update
+        self._accel_lowpass = None  # inertial_accel's state, when the filter takes the low-passed reading
+        self._accel_tau = 0.0
 
     def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         """Start from attitude ``q0`` with gyro bias ``gyro_bias`` (rad/s) already known, and
@@ -72,10 +75,21 @@ class Estimator:
 
     def _chunk(self, t, gyro, accel, mag, in_air=None) -> Samples:
         """The inputs as the compiled kernels want them (``as_chunk``), once ``initialize``
-        has given the filter a state to start from."""
+        has given the filter a state to start from; the accelerometer low-passed in an
+        almost-inertial frame where ``_start_accel_lowpass`` turned that on."""
         if not self.initialized:
             raise RuntimeError(f"{self.name}: call initialize(q0, gyro_bias) before update()")
-        return as_chunk(t, gyro, accel, mag, in_air)
+        s = as_chunk(t, gyro, accel, mag, in_air)
+        if self._accel_lowpass is None:
+            return s
+        return s._replace(accel=inertial_accel.lowpass_in_inertial_frame(
+            s.t, s.gyro, s.accel, self._accel_lowpass, self._accel_tau, MAX_STEP_S, np.empty_like(s.accel)))
+
+    def _start_accel_lowpass(self, q0, gyro_bias, tau: float) -> None:
+        """From ``initialize``: take the accelerometer low-passed with time constant ``tau`` (s) in
+        an almost-inertial frame (``inertial_accel``) from now on; 0: the reading as it is."""
+        self._accel_tau = float(tau)
+        self._accel_lowpass = inertial_accel.start(q0, gyro_bias) if tau > 0 else None
 
     @property
     def covariance(self) -> np.ndarray | None:

@@ -76,6 +76,8 @@ class EkfParams:
     r_accel: float = param(0.25, "[1e-12, 1e6]", "log [1e-4, 10]")  # noise variance per axis of the normalised accelerometer a/‖a‖, 1
     r_mag: float = param(0.01, "(0, inf)", "log [1e-4, 1]")  # compass heading noise variance, rad²
     use_mag: bool = param(True)  # measure heading from the magnetometer when the log has one
+    accel_tau: float = param(1.0, "[0, 60]", "linear [0, 5]")  # s: the accelerometer low-passed in an almost-inertial frame (inertial_accel); 0: the reading as it is
+    strict: bool = param(False)  # the filter as published: accel_tau = 0, whatever it says
 
 
 # ---------------------------------------------------------------- model functions (njit)
@@ -455,6 +457,7 @@ class Ekf(Estimator):
     Params = EkfParams
     uses_mag = True
     kernels = (ekf_run,)
+    PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads
     DIAGNOSTICS = {"cov_trace": "trace of the 4×4 quaternion covariance P (dimensionless)"}
 
     def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
@@ -462,6 +465,7 @@ class Ekf(Estimator):
         p = self.params
         self._settings = EkfSettings(float(p.q_gyro), float(p.r_accel), float(p.r_mag), self.declination,
                                      bool(p.use_mag), MAX_STEP_S)
+        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:

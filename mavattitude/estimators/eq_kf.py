@@ -237,6 +237,7 @@ class EqKfParams:
     cons_time: float = param(1.5, "[0, inf)")  # s: ... for this long
     use_mag: bool = param(True)  # correct heading from the magnetometer when the log has one
     airspeed: float = param(0.0, "[0, 300]")  # m/s, fixed-wing turn compensation: speed along body x (0: off)
+    accel_tau: float = param(0.0, "[0, 60]", "linear [0, 5]")  # s: the accelerometer low-passed in an almost-inertial frame (inertial_accel); 0: the reading as it is
     strict: bool = param(False)  # the paper's filter only: every addition of ours off, the fixed trust function STRICT
 
     ORDERED = (("norm_lo", "norm_hi"), ("rate_lo", "rate_hi"), ("gate_lo", "gate_hi"))  # each a ramp
@@ -707,6 +708,7 @@ class EqKf(Estimator):
     uses_mag = True
     kernels = (eqkf_run, picard_step, error_transition, accel_tangent, accel_jacobian,
                mag_jacobian, _ramp, _inject)
+    PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads (the rest of strict is in initialize)
     ACCEL_STATES = ACCEL_STATES
     DIAGNOSTICS = {
         "cov_trace": "trace of the 6×6 covariance of [e, β] (e: error-quaternion vector part, "
@@ -761,6 +763,7 @@ class EqKf(Estimator):
                 max(p.trust_lpf, 0.0), max(p.vib_time, 0.0), float(p.still_rate), float(p.still_accel),
                 float(p.still_time), float(p.cons_tol), float(p.cons_norm), float(p.cons_time), True,
                 self.declination, max(p.airspeed, 0.0), bool(p.use_mag), MAX_STEP_S)
+        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:

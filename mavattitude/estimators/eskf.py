@@ -67,6 +67,8 @@ class EskfParams:
     gyro_arw: float = param(1e-3, "(0, 1e3]", "log [1e-5, 0.1]")  # gyro rate noise density (angle random walk), rad/s/√Hz
     accel_noise: float = param(0.04, "[1e-6, 1e6]", "log [1e-3, 2]")  # accelerometer noise density, m/s²/√Hz
     p0_deg: float = param(2.0, "[0, 180]")  # initial 1σ of each attitude error angle, degrees
+    accel_tau: float = param(1.0, "[0, 60]", "linear [0, 5]")  # s: the accelerometer low-passed in an almost-inertial frame (inertial_accel); 0: the reading as it is
+    strict: bool = param(False)  # the filter as published: accel_tau = 0, whatever it says
 
 
 # ---------------------------------------------------------------- shared scalar kernels
@@ -247,12 +249,14 @@ class Eskf(Estimator):
     Params = EskfParams
     uses_mag = False
     kernels = (eskf_run,)
+    PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads
     DIAGNOSTICS = {"cov_trace": "trace of the attitude-error covariance P, rad²"}
 
     def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         p = self.params
         self._state = filter_state(q0, np.eye(3) * np.radians(p.p0_deg) ** 2, gyro_bias)
         self._settings = EskfSettings(p.gyro_arw ** 2, p.accel_noise ** 2, GRAVITY, MAX_STEP_S)
+        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:

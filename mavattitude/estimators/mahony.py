@@ -48,6 +48,8 @@ class MahonyParams:
     kp: float = param(0.2, "[0, 1e6]", "log [0.01, 10]")  # proportional gain, 1/s
     ki: float = param(0.0005, "[0, 1e6]", "log [1e-5, 0.1]")  # integral gain, 1/s²
     use_mag: bool = param(True)  # correct heading from the magnetometer when the log has one
+    accel_tau: float = param(1.0, "[0, 60]", "linear [0, 5]")  # s: the accelerometer low-passed in an almost-inertial frame (inertial_accel); 0: the reading as it is
+    strict: bool = param(False)  # the filter as published: accel_tau = 0, whatever it says
 
 
 @njit(cache=True, inline="always")
@@ -150,6 +152,7 @@ class Mahony(Estimator):
     Params = MahonyParams
     uses_mag = True
     kernels = (mahony_run,)
+    PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads
 
     def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         p = self.params
@@ -157,6 +160,7 @@ class Mahony(Estimator):
                                   np.array([np.nan]), np.zeros(3))
         self._settings = MahonySettings(float(p.kp), float(p.ki), math.cos(self.declination),
                                         math.sin(self.declination), bool(p.use_mag), MAX_STEP_S)
+        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:

@@ -144,6 +144,7 @@ class MahonyEkfParams:
     rest_ref_s: float = param(2.0, "(0, inf)")  # time constant of ā_ref (and ā's value at rest) at rest, s
     lock_s: float = param(100.0, "[0, inf)")  # gyro-only coasting allowed at 100 Hz (∝ rate²), s (0: no limit)
     ki_step: float = param(0.01, "[0, inf)")  # rotation per step halving the integral gain, rad (0: ki as is)
+    accel_tau: float = param(1.0, "[0, 60]", "linear [0, 5]")  # s: the accelerometer low-passed in an almost-inertial frame (inertial_accel); 0: the reading as it is
     strict: bool = param(False)  # the paper's Mahony-EKF: unweighted Mahony measurement, none of the additions
 
 
@@ -387,7 +388,7 @@ class MahonyEkf(Estimator):
     Params = MahonyEkfParams
     uses_mag = True
     kernels = (mahony_ekf_run,)
-    PAPER = dict(k_mahony=0.0)  # strict: the unweighted Mahony measurement (eq 16-17); the additions act on the weight
+    PAPER = dict(k_mahony=0.0, accel_tau=0.0)  # strict: the unweighted Mahony measurement (eq 16-17); the additions act on the weight
     keep_mahony = False  # set True to keep the internal Mahony attitude of each chunk in ``mahony_q``
     DIAGNOSTICS = {
         "cov_trace": "trace of the 4×4 quaternion covariance P (dimensionless)",
@@ -422,6 +423,7 @@ class MahonyEkf(Estimator):
             GRAVITY if p.strict else float(accel_g),  # eq 17's g: the reading at rest (strict: the paper's)
             float(np.cos(self.declination)), float(np.sin(self.declination)), MAX_STEP_S)
         self.mahony_q = np.empty((0, 4))  # the internal Mahony attitude over the last chunk
+        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:

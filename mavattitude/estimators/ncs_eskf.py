@@ -196,6 +196,7 @@ class NcsEskfParams:
     cons_rate: float = param(1.0, "[0, inf)")  # rad/s: ... and the rotation below this ...
     cons_time: float = param(1.5, "[0, inf)")  # s: ... for this long (0: no consistency test)
     noise_gate: float = param(3.0, "[0, inf)", "linear [0, 6]")  # σ of measured residual noise added (root-sum-square) to the thresholds; 0: off
+    accel_tau: float = param(0.0, "[0, 60]", "linear [0, 5]")  # s: the accelerometer low-passed in an almost-inertial frame (inertial_accel); 0: the reading as it is
     strict: bool = param(False)  # the paper's filter: published thresholds, every addition off, whatever the values above
 
 
@@ -651,7 +652,7 @@ class NcsEskf(Estimator):
     uses_mag = False
     kernels = (ncs_eskf_run,)
     # strict: the published thresholds (§1.3, §3.2 Table 2) and every addition off
-    PAPER = dict(total_threshold=0.2, h_threshold_air=0.01, h_threshold_ground=0.1, gate_sigma=0.0, taper=0.0,
+    PAPER = dict(accel_tau=0.0, total_threshold=0.2, h_threshold_air=0.01, h_threshold_ground=0.1, gate_sigma=0.0, taper=0.0,
                  estimate_bias=False, step_noise=0.0, cons_time=0.0, noise_gate=0.0)
     ACCEL_STATES = ("used",
                     "skipped: |a|-g above total threshold",
@@ -706,6 +707,7 @@ class NcsEskf(Estimator):
             p.total_threshold, p.h_threshold_air, p.h_threshold_ground, bool(p.segmented),
             p.accel_lpf_hz, p.gate_sigma, p.taper, MAX_STEP_S, p.cons_tol, p.cons_norm, p.cons_rate,
             p.cons_time, p.noise_gate)
+        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
