@@ -6,7 +6,7 @@ import pytest
 
 from mavattitude import quaternion as quat
 from mavattitude.estimators import create, inertial_accel
-from mavattitude.estimators.base import MAX_STEP_S
+from mavattitude.estimators.base import MAX_STEP_S, as_chunk
 from mavattitude.flight import GRAVITY
 
 RATE = 200.0
@@ -15,7 +15,8 @@ TILT = quat.from_euler(0.2, -0.1, 0.5)
 
 def lowpassed(t, gyro, accel, tau=1.0, q0=TILT, bias=(0.0, 0.0, 0.0)):
     state = inertial_accel.start(q0, np.array(bias))
-    return inertial_accel.lowpass_in_inertial_frame(t, gyro, accel, state, tau, MAX_STEP_S, np.empty_like(accel))
+    return inertial_accel.lowpass_in_inertial_frame(as_chunk(t, gyro, accel, None), state, tau, MAX_STEP_S,
+                                                    np.empty_like(accel))
 
 
 def spinning(seconds=20.0, rate=np.array([0.3, -0.5, 1.1])):
@@ -74,8 +75,8 @@ def test_chunks_give_the_same_numbers_as_one_call():
     t, gyro, accel = circling(seconds=10.0)
     whole = lowpassed(t, gyro, accel)
     state = inertial_accel.start(TILT, np.zeros(3))
-    parts = [inertial_accel.lowpass_in_inertial_frame(t[a:b], gyro[a:b], accel[a:b], state, 1.0, MAX_STEP_S,
-                                                      np.empty((b - a, 3)))
+    parts = [inertial_accel.lowpass_in_inertial_frame(as_chunk(t[a:b], gyro[a:b], accel[a:b], None), state, 1.0,
+                                                      MAX_STEP_S, np.empty((b - a, 3)))
              for a, b in ((0, 1), (1, 777), (777, len(t)))]
     np.testing.assert_array_equal(np.vstack(parts), whole)
 

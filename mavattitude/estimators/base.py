@@ -47,6 +47,9 @@ class Estimator:
     PAPER: dict = {}  # parameter values ``strict`` forces: the paper's filter as published
     requires: str = ""  # the Python package a filter from another project runs on (imported when created)
     in_all: bool = True  # one of '--estimators all' (a filter from another project is named explicitly)
+    # the gyro's samples are means over the step ending at each (ImuSeries.rate_over_step): the
+    # runner sets it from the series before ``initialize``
+    rate_over_step: bool = False
 
     def run_params(self):
         """The parameters the filter runs with: ``params``, or with ``strict`` set, ``params``
@@ -79,11 +82,11 @@ class Estimator:
         almost-inertial frame where ``_start_accel_lowpass`` turned that on."""
         if not self.initialized:
             raise RuntimeError(f"{self.name}: call initialize(q0, gyro_bias) before update()")
-        s = as_chunk(t, gyro, accel, mag, in_air)
+        s = as_chunk(t, gyro, accel, mag, in_air, self.rate_over_step)
         if self._accel_lowpass is None:
             return s
         return s._replace(accel=inertial_accel.lowpass_in_inertial_frame(
-            s.t, s.gyro, s.accel, self._accel_lowpass, self._accel_tau, MAX_STEP_S, np.empty_like(s.accel)))
+            s, self._accel_lowpass, self._accel_tau, MAX_STEP_S, np.empty_like(s.accel)))
 
     def _start_accel_lowpass(self, q0, gyro_bias, tau: float) -> None:
         """From ``initialize``: take the accelerometer low-passed with time constant ``tau`` (s) in
@@ -136,9 +139,10 @@ class Samples(NamedTuple):
     accel: np.ndarray  # (N, 3) m/s²
     mag: np.ndarray  # (N, 3) tesla, NaN where none
     in_air: np.ndarray  # (N,) 1.0 air, 0.0 ground, NaN unknown
+    rate_over_step: bool  # each gyro sample is the mean rate over the step ending at it (see step_rate)
 
 
-def as_chunk(t, gyro, accel, mag, in_air=None) -> Samples:
+def as_chunk(t, gyro, accel, mag, in_air=None, rate_over_step: bool = False) -> Samples:
     """Contiguous float64 arrays, as the compiled kernels want them; absent inputs become NaN."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     n = len(t)
@@ -150,4 +154,5 @@ def as_chunk(t, gyro, accel, mag, in_air=None) -> Samples:
     if in_air is None:
         in_air = np.full(n, np.nan)
     in_air = np.ascontiguousarray(in_air, dtype=np.float64).reshape(n)
-    return Samples(t, gyro, accel, mag, in_air)
+    return Samples(t, gyro, accel, mag, in_air, bool(rate_over_step))
+

@@ -10,8 +10,8 @@ IMU orientation estimation with bias estimation and magnetic disturbance rejecti
 Fusion 91, 2023, §3.1: the accelerometer is low-passed "in an almost inertial frame" given by
 gyroscope strapdown integration). Here it is a step in front of a filter, not a filter of its own:
 
-1. strapdown: q_I ← q_I ⊗ Exp((ω - b) dt), with ω the mean of the samples at both ends of the
-   step (as our filters integrate) and b the gyro bias known at the start (the alignment's);
+1. strapdown: q_I ← q_I ⊗ Exp((ω - b) dt), with ω the step's rate as our filters take it
+   (``timestep.step_rate``) and b the gyro bias known at the start (the alignment's);
 2. into that frame: a_I = C(q_I) a;
 3. low-pass: two first-order lags in series, each exact for its own step, time constant τ/2
    each, so τ in all (a critically damped second order);
@@ -38,6 +38,7 @@ import numpy as np
 from numba import njit
 
 from ..quaternion import integrate_gyro_scalar
+from .timestep import step_rate
 
 
 class InertialAccelState(NamedTuple):
@@ -58,11 +59,13 @@ def start(q0, gyro_bias) -> InertialAccelState:
 
 
 @njit(cache=True)
-def lowpass_in_inertial_frame(t, gyro, accel, state, tau, max_step, out):
-    """Steps 1-4 of the module docstring over a chunk: the low-passed accelerometer into
-    ``out`` (N, 3); ``state`` (``InertialAccelState``) updated in place."""
+def lowpass_in_inertial_frame(s, state, tau, max_step, out):
+    """Steps 1-4 of the module docstring over a chunk of samples ``s`` (``base.Samples``): the
+    low-passed accelerometer into ``out`` (N, 3); ``state`` (``InertialAccelState``) updated in place."""
+    t, gyro, accel = s.t, s.gyro, s.accel
+    over_step = s.rate_over_step  # each gyro sample the mean over its step (timestep.step_rate)
     q0, q1, q2, q3 = state.q[0], state.q[1], state.q[2], state.q[3]
-    f, s, bias = state.first, state.second, state.bias
+    lag1, lag2, bias = state.first, state.second, state.bias
     gp0, gp1, gp2 = state.gyro_prev[0], state.gyro_prev[1], state.gyro_prev[2]
     tp = state.t_prev[0]
     half_tau = 0.5 * tau
@@ -71,8 +74,8 @@ def lowpass_in_inertial_frame(t, gyro, accel, state, tau, max_step, out):
         tp = t[i]
         g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
         if 0.0 < dt <= max_step:
-            q0, q1, q2, q3 = integrate_gyro_scalar(q0, q1, q2, q3, 0.5 * (g0 + gp0) - bias[0],
-                                                   0.5 * (g1 + gp1) - bias[1], 0.5 * (g2 + gp2) - bias[2], dt)
+            r0, r1, r2 = step_rate(g0, g1, g2, gp0, gp1, gp2, dt, over_step)
+            q0, q1, q2, q3 = integrate_gyro_scalar(q0, q1, q2, q3, r0 - bias[0], r1 - bias[1], r2 - bias[2], dt)
         gp0, gp1, gp2 = g0, g1, g2
         # C(q): body -> inertial
         c00 = 1 - 2 * (q2 * q2 + q3 * q3)
@@ -89,24 +92,24 @@ def lowpass_in_inertial_frame(t, gyro, accel, state, tau, max_step, out):
         x1 = c10 * a0 + c11 * a1 + c12 * a2
         x2 = c20 * a0 + c21 * a1 + c22 * a2
         if x0 == x0 and x1 == x1 and x2 == x2:  # a non-finite reading leaves the lags as they are
-            if dt > max_step or s[0] != s[0]:  # the first reading, or after a gap: start from it
-                f[0], f[1], f[2] = x0, x1, x2
-                s[0], s[1], s[2] = x0, x1, x2
+            if dt > max_step or lag2[0] != lag2[0]:  # the first reading, or after a gap: start from it
+                lag1[0], lag1[1], lag1[2] = x0, x1, x2
+                lag2[0], lag2[1], lag2[2] = x0, x1, x2
             elif dt > 0.0:
                 k = -math.expm1(-dt / half_tau)  # 1 - exp(-dt / (τ/2)), exact for the step
-                f[0] += k * (x0 - f[0])
-                f[1] += k * (x1 - f[1])
-                f[2] += k * (x2 - f[2])
-                s[0] += k * (f[0] - s[0])
-                s[1] += k * (f[1] - s[1])
-                s[2] += k * (f[2] - s[2])
-        if s[0] != s[0]:  # no finite reading yet: pass the reading on as it is
+                lag1[0] += k * (x0 - lag1[0])
+                lag1[1] += k * (x1 - lag1[1])
+                lag1[2] += k * (x2 - lag1[2])
+                lag2[0] += k * (lag1[0] - lag2[0])
+                lag2[1] += k * (lag1[1] - lag2[1])
+                lag2[2] += k * (lag1[2] - lag2[2])
+        if lag2[0] != lag2[0]:  # no finite reading yet: pass the reading on as it is
             out[i, 0], out[i, 1], out[i, 2] = a0, a1, a2
             continue
         # back into the body frame: C(q)ᵀ
-        out[i, 0] = c00 * s[0] + c10 * s[1] + c20 * s[2]
-        out[i, 1] = c01 * s[0] + c11 * s[1] + c21 * s[2]
-        out[i, 2] = c02 * s[0] + c12 * s[1] + c22 * s[2]
+        out[i, 0] = c00 * lag2[0] + c10 * lag2[1] + c20 * lag2[2]
+        out[i, 1] = c01 * lag2[0] + c11 * lag2[1] + c21 * lag2[2]
+        out[i, 2] = c02 * lag2[0] + c12 * lag2[1] + c22 * lag2[2]
     state.q[0], state.q[1], state.q[2], state.q[3] = q0, q1, q2, q3
     state.gyro_prev[0], state.gyro_prev[1], state.gyro_prev[2] = gp0, gp1, gp2
     state.t_prev[0] = tp
