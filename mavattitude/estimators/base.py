@@ -136,10 +136,11 @@ class Samples(NamedTuple):
     """A chunk of inputs as every compiled kernel takes them: contiguous float64, SI."""
     t: np.ndarray  # (N,) s
     gyro: np.ndarray  # (N, 3) rad/s
-    accel: np.ndarray  # (N, 3) m/s²
+    accel: np.ndarray  # (N, 3) m/s²: what the filter takes (low-passed where inertial_accel is on)
     mag: np.ndarray  # (N, 3) tesla, NaN where none
     in_air: np.ndarray  # (N,) 1.0 air, 0.0 ground, NaN unknown
     rate_over_step: bool  # each gyro sample is the mean rate over the step ending at it (see step_rate)
+    accel_read: np.ndarray  # (N, 3) m/s²: the reading as it is, where ``accel`` is low-passed (inertial_accel)
 
 
 def as_chunk(t, gyro, accel, mag, in_air=None, rate_over_step: bool = False) -> Samples:
@@ -154,5 +155,5 @@ def as_chunk(t, gyro, accel, mag, in_air=None, rate_over_step: bool = False) -> 
     if in_air is None:
         in_air = np.full(n, np.nan)
     in_air = np.ascontiguousarray(in_air, dtype=np.float64).reshape(n)
-    return Samples(t, gyro, accel, mag, in_air, bool(rate_over_step))
+    return Samples(t, gyro, accel, mag, in_air, bool(rate_over_step), accel)
 
