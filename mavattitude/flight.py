@@ -39,6 +39,16 @@ def imu_family(key: str) -> str:
     return "raw" if key.startswith("GYR[") else "delta" if key.startswith(("IMT[", "vehicle_imu[")) else "imu"
 
 
+def means_over_steps(key: str) -> bool:
+    """Whether a series' samples are means over the step ending at each (``ImuSeries.rate_over_step``):
+    the deltas, integrated over each logged interval. ArduPilot's IMU and MAVLink's *_IMU hold
+    samples of the filtered rate; PX4's sensor_combined holds means over the sensor's own period
+    (gyro_integral_dt, a few ms), which is the logged step only when logged at the sensor's rate:
+    taken as samples of the rate (its 10 Hz log, px4-real-fmuv3-1.9-escstatus: ncs-eskf 15.9° ->
+    17.8°, cpf-ekf 11.2° -> 13.4° against the autopilot when taken as means over the step)."""
+    return imu_family(key) == "delta"
+
+
 @dataclass
 class ImuSeries:
     source: str  # e.g. "IMU[0]", "RAW_IMU", "HIGHRES_IMU"
@@ -46,6 +56,10 @@ class ImuSeries:
     gyro: np.ndarray  # (N, 3) rad/s, FRD
     accel: np.ndarray  # (N, 3) m/s², specific force, FRD
     arrival: np.ndarray | None = None  # (N,) order in the log (see the module docstring)
+    # True: each sample is the mean over the step that ends at its time (delta angles and
+    # velocities over their intervals; see means_over_steps), integrated over that step alone;
+    # False: a sample of the rate at its time, integrated as the mean of the step's two ends
+    rate_over_step: bool = False
 
 
 @dataclass

@@ -111,6 +111,7 @@ class Runner:
         self.declination = declination
         self.use_mag = use_mag
         self.imu_source, self.mag_source = imu_source, mag_source
+        self.rate_over_step = False  # the IMU's samples are means over their steps (add_flight; a link's are not)
         self.store = {kind: Growing(width) for kind, width in WIDTH.items()}
         # kinds whose rows, in time order, also arrived in that order (a log's and a link's do)
         self._in_arrival_order = set(WIDTH)
@@ -160,6 +161,7 @@ class Runner:
         """A whole log (``flight.Flight``): its IMU and compass of the runner's sources, GPS and
         baro, in the order the log holds them (``arrival``; by time where a series lacks it)."""
         imu = flight.imu[self.imu_source]
+        self.rate_over_step = imu.rate_over_step
         mag = flight.mag.get(self.mag_source) if self.mag_source and self.use_mag else None
         series = [s for s in (imu, mag, flight.gps, flight.baro) if s is not None]
         by_time = any(s.arrival is None for s in series)
@@ -227,6 +229,7 @@ class Runner:
                 # no heading reference: carry the yaw over the gap rather than restart it at 0
                 roll, pitch, _ = quat.to_euler(q0)
                 q0 = quat.from_euler(roll, pitch, quat.to_euler(previous.last)[2])
+            e.rate_over_step = self.rate_over_step
             if _takes_accel_g(e):
                 e.initialize(q0, alignment.gyro_bias, alignment.accel_g)
             else:  # an estimator of a user's, written to the two-argument interface

@@ -63,6 +63,7 @@ def test_reader_turns_the_imu_frame_to_frd(tmp_path):
         np.testing.assert_array_equal(imu.gyro, f["imu_gyr"][:] * [1, -1, -1])
         np.testing.assert_allclose(flight.mag["imu"].field, f["imu_mag"][:] * [1e-6, -1e-6, -1e-6], rtol=1e-15)
     np.testing.assert_allclose(imu.t, np.arange(2000) / RATE)
+    assert imu.rate_over_step  # integrated sample by sample, as the dataset's own filters do
     # the truth (body -> NED) puts gravity where the accelerometer reads it: specific force (0, 0, -g) in NED
     np.testing.assert_allclose(rotate(conjugate(flight.truth.q), np.array([0, 0, -GRAVITY])), imu.accel, atol=1e-12)
 

@@ -210,7 +210,8 @@ def test_set_and_params_file_reach_the_estimator(tmp_path, capsys):
                        "--set", "mahony.use_mag=false", "--json", tmp_path / "m.json")
     assert code == 0, err
     params = json.loads((tmp_path / "m.json").read_text())["estimators"]["mahony"]["params"]
-    assert params == {"kp": 0.7, "ki": 0.002, "use_mag": False}  # --set wins over the file
+    assert params == {"kp": 0.7, "ki": 0.002, "use_mag": False, "accel_tau": 1.0,
+                      "strict": False}  # --set wins over the file
 
 
 def test_plane_log_supplies_the_eq_kf_airspeed_param_unless_the_user_sets_it():

@@ -117,11 +117,11 @@ def test_strict_is_the_papers_unweighted_mahony_ekf():
     f.keep_mahony = True
     f.initialize(a.q0, a.gyro_bias)
     q = f.update(t, gyro, accel, mag)
-    m = create("mahony", MahonyParams(kp=f.params.kp, ki=f.params.ki), sim.declination_rad)
+    m = create("mahony", MahonyParams(kp=f.params.kp, ki=f.params.ki, strict=True), sim.declination_rad)
     m.initialize(a.q0, a.gyro_bias)
     np.testing.assert_allclose(f.mahony_q, m.update(t, gyro, accel, mag), rtol=0, atol=1e-12)
     assert (f.diagnostics["mahony_weight"] == 1.0).all()
-    q0, _ = st.run("mahony-ekf", sim, MahonyEkfParams(k_mahony=0.0), accel_g=GRAVITY)  # strict: standard g
+    q0, _ = st.run("mahony-ekf", sim, MahonyEkfParams(k_mahony=0.0, accel_tau=0.0), accel_g=GRAVITY)  # strict: standard g
     np.testing.assert_array_equal(q, q0)
     params = build(["mahony-ekf"], None, ["mahony-ekf.strict=true"])
     assert params["mahony-ekf"].strict is True
@@ -141,14 +141,14 @@ def test_rest_trusts_the_accelerometer_again_after_a_long_lockout():
     """Linear acceleration with the gyro quiet is not rest (ā moved from its value at rest):
     the accelerometer stays weighted out; once back at rest the weight returns to 1."""
     sim = st.accel_110()
-    q, f = st.run("mahony-ekf", sim)
+    q, f = st.run("mahony-ekf", sim, MahonyEkfParams(accel_tau=0.0))  # the rest test on the reading itself
     w = f.diagnostics["mahony_weight"]
     dev = np.abs(np.linalg.norm(sim.imu[0].accel, axis=1) - GRAVITY)
     assert np.mean(w[dev > 0.2] < 0.2) > 0.8  # the accelerating runs are weighted out
     t = sim.t - sim.t[0]
     for a in (20.0, 90.0):  # at rest between the runs (after 15 s and 80 s of lockout)
         assert (w[(t >= a) & (t < a + 5.0)] == 1.0).all()
-    q_off, _ = st.run("mahony-ekf", sim, MahonyEkfParams(rest_gyro=0.0))
+    q_off, _ = st.run("mahony-ekf", sim, MahonyEkfParams(rest_gyro=0.0, accel_tau=0.0))
     assert st.errors_deg(sim, q)[:, :2].mean() < st.errors_deg(sim, q_off)[:, :2].mean()
 
 
@@ -185,7 +185,7 @@ def test_internal_mahony_is_mahony():
 def test_adaptive_r_is_eq_17():
     sim = st.figure8_120()
     t, gyro, accel, mag = st.inputs(sim)
-    p = MahonyEkfParams(k_accel=37.0, r0=2e-4)
+    p = MahonyEkfParams(k_accel=37.0, r0=2e-4, accel_tau=0.0)  # eq 17 on the reading itself
     _, f = st.run("mahony-ekf", sim, p)
     g = align(t, gyro, accel, mag, sim.declination_rad).accel_g  # the reading at the still start, not GRAVITY
     assert abs(g - GRAVITY) > 0.01

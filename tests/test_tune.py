@@ -56,9 +56,9 @@ def test_a_search_range_is_checked_where_it_is_declared():
 
 
 def test_set_fixes_a_field_and_strict_or_nothing_left_is_refused():
-    replay = ReplaySettings(names=("mahony",), assignments=("mahony.ki=0",))
+    replay = ReplaySettings(names=("mahony",), assignments=("mahony.ki=0", "mahony.accel_tau=0"))
     assert list(space_for(TuneSettings("mahony", replay))) == ["kp"]
-    replay = ReplaySettings(names=("mahony",), assignments=("mahony.ki=0", "mahony.kp=1"))
+    replay = ReplaySettings(names=("mahony",), assignments=("mahony.ki=0", "mahony.kp=1", "mahony.accel_tau=0"))
     with pytest.raises(UsageError, match="nothing to tune"):
         space_for(TuneSettings("mahony", replay))
     replay = ReplaySettings(names=("ncs-eskf",), assignments=("ncs-eskf.strict=true",))
@@ -188,7 +188,7 @@ def test_tune_finds_mahonys_best_kp_from_the_noise(still_flights, tmp_path, caps
     folder, best_kp = still_flights
     out = tmp_path / "tuned.toml"
     assert main(["tune", str(folder), "--estimator", "mahony", "--reference", "truth", "--set", "mahony.ki=0",
-                 "--set", "mahony.use_mag=false", "--folds", "0", "--trials", "25", "-j", "1", "-q",
+                 "--set", "mahony.use_mag=false", "--set", "mahony.accel_tau=0", "--folds", "0", "--trials", "25", "-j", "1", "-q",
                  "-o", str(out)]) == 0
     tuned = load_file(str(out))["mahony"]
     assert tuned["ki"] == 0 and tuned["use_mag"] is False  # what --set fixed is written too
@@ -208,7 +208,8 @@ def test_bad_commands_fail_with_one_line(tmp_path, capsys):
     log = SAMPLE_LOGS / "static.bin"
     assert run(log, "--estimator", "nosuch") == 2
     assert run(log, "--estimator", "mahony,eskf") == 2
-    assert run(log, "--estimator", "mahony", "--set", "mahony.kp=1", "--set", "mahony.ki=0") == 2
+    assert run(log, "--estimator", "mahony", "--set", "mahony.kp=1", "--set", "mahony.ki=0",
+               "--set", "mahony.accel_tau=0") == 2
     assert run(log, "--estimator", "mahony", "--ship-logs") == 2
     not_a_study = tmp_path / "notes.db"
     not_a_study.write_text("my notes")

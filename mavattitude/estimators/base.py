@@ -30,6 +30,7 @@ import numpy as np
 
 from ..flight import GRAVITY
 from ..kernel_cache import cached
+from . import inertial_accel
 
 # A step longer than this is a gap in the data, not an interval to integrate the gyro over.
 MAX_STEP_S = 1.5
@@ -46,6 +47,9 @@ class Estimator:
     PAPER: dict = {}  # parameter values ``strict`` forces: the paper's filter as published
     requires: str = ""  # the Python package a filter from another project runs on (imported when created)
     in_all: bool = True  # one of '--estimators all' (a filter from another project is named explicitly)
+    # the gyro's samples are means over the step ending at each (ImuSeries.rate_over_step): the
+    # runner sets it from the series before ``initialize``
+    rate_over_step: bool = False
 
     def run_params(self):
         """The parameters the filter runs with: ``params``, or with ``strict`` set, ``params``
@@ -57,6 +61,8 @@ class Estimator:
         self.declination = float(declination)  # rad, east positive: true = magnetic + declination
         self.initialized = False
         self.diagnostics: dict[str, np.ndarray] = {}  # per-sample series of the last update
+        self._accel_lowpass = None  # inertial_accel's state, when the filter takes the low-passed reading
+        self._accel_tau = 0.0
 
     def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         """Start from attitude ``q0`` with gyro bias ``gyro_bias`` (rad/s) already known, and
@@ -72,10 +78,21 @@ class Estimator:
 
     def _chunk(self, t, gyro, accel, mag, in_air=None) -> Samples:
         """The inputs as the compiled kernels want them (``as_chunk``), once ``initialize``
-        has given the filter a state to start from."""
+        has given the filter a state to start from; the accelerometer low-passed in an
+        almost-inertial frame where ``_start_accel_lowpass`` turned that on."""
         if not self.initialized:
             raise RuntimeError(f"{self.name}: call initialize(q0, gyro_bias) before update()")
-        return as_chunk(t, gyro, accel, mag, in_air)
+        s = as_chunk(t, gyro, accel, mag, in_air, self.rate_over_step)
+        if self._accel_lowpass is None:
+            return s
+        return s._replace(accel=inertial_accel.lowpass_in_inertial_frame(
+            s, self._accel_lowpass, self._accel_tau, MAX_STEP_S, np.empty_like(s.accel)))
+
+    def _start_accel_lowpass(self, q0, gyro_bias, tau: float) -> None:
+        """From ``initialize``: take the accelerometer low-passed with time constant ``tau`` (s) in
+        an almost-inertial frame (``inertial_accel``) from now on; 0: the reading as it is."""
+        self._accel_tau = float(tau)
+        self._accel_lowpass = inertial_accel.start(q0, gyro_bias) if tau > 0 else None
 
     @property
     def covariance(self) -> np.ndarray | None:
@@ -119,12 +136,14 @@ class Samples(NamedTuple):
     """A chunk of inputs as every compiled kernel takes them: contiguous float64, SI."""
     t: np.ndarray  # (N,) s
     gyro: np.ndarray  # (N, 3) rad/s
-    accel: np.ndarray  # (N, 3) m/s²
+    accel: np.ndarray  # (N, 3) m/s²: what the filter takes (low-passed where inertial_accel is on)
     mag: np.ndarray  # (N, 3) tesla, NaN where none
     in_air: np.ndarray  # (N,) 1.0 air, 0.0 ground, NaN unknown
+    rate_over_step: bool  # each gyro sample is the mean rate over the step ending at it (see step_rate)
+    accel_read: np.ndarray  # (N, 3) m/s²: the reading as it is, where ``accel`` is low-passed (inertial_accel)
 
 
-def as_chunk(t, gyro, accel, mag, in_air=None) -> Samples:
+def as_chunk(t, gyro, accel, mag, in_air=None, rate_over_step: bool = False) -> Samples:
     """Contiguous float64 arrays, as the compiled kernels want them; absent inputs become NaN."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     n = len(t)
@@ -136,4 +155,5 @@ def as_chunk(t, gyro, accel, mag, in_air=None) -> Samples:
     if in_air is None:
         in_air = np.full(n, np.nan)
     in_air = np.ascontiguousarray(in_air, dtype=np.float64).reshape(n)
-    return Samples(t, gyro, accel, mag, in_air)
+    return Samples(t, gyro, accel, mag, in_air, bool(rate_over_step), accel)
+

@@ -166,6 +166,7 @@ from ..flight import GRAVITY
 from ..params import param
 from ..quaternion import euler_s, left_matrix_into, normalize_head, right_matrix_into, rotate_into, wrap_pi_s
 from .base import MAX_STEP_S, Estimator
+from .timestep import step_rate
 from .mahony import mahony_step
 
 NX = 20
@@ -1013,6 +1014,7 @@ def cpf_ekf_run(s, aid, state, cfg, out, diag):
     filter, the prediction, the compass, baro and GPS updates (or a synthetic zero velocity),
     the watchdog."""
     t, gyro, accel, mag = s.t, s.gyro, s.accel, s.mag
+    over_step = s.rate_over_step  # each gyro sample the mean over its step (timestep.step_rate)
     x, P, qc, bc, aux, ring = state.x, state.P, state.qc, state.bc, state.aux, state.ring
     use_mag = cfg.use_mag > 0.5
     north_x, north_y = math.cos(cfg.declination), math.sin(cfg.declination)
@@ -1035,15 +1037,9 @@ def cpf_ekf_run(s, aid, state, cfg, out, diag):
         a0, a1, a2 = accel[i, 0], accel[i, 1], accel[i, 2]
         if not (a0 == a0 and a1 == a1 and a2 == a2):  # a missing reading drives the velocity: hold the last
             a0, a1, a2 = aux[A_ACC], aux[A_ACC + 1], aux[A_ACC + 2]
-        if dt > 0.0:  # trapezoidal means over the step
-            w0 = 0.5 * (g0 + aux[A_GYRO])
-            w1 = 0.5 * (g1 + aux[A_GYRO + 1])
-            w2 = 0.5 * (g2 + aux[A_GYRO + 2])
-            am0 = 0.5 * (a0 + aux[A_ACC])
-            am1 = 0.5 * (a1 + aux[A_ACC + 1])
-            am2 = 0.5 * (a2 + aux[A_ACC + 2])
-        else:
-            w0, w1, w2, am0, am1, am2 = g0, g1, g2, a0, a1, a2
+        # the step's rate and specific force (means over the step, in a series that holds them)
+        w0, w1, w2 = step_rate(g0, g1, g2, aux[A_GYRO], aux[A_GYRO + 1], aux[A_GYRO + 2], dt, over_step)
+        am0, am1, am2 = step_rate(a0, a1, a2, aux[A_ACC], aux[A_ACC + 1], aux[A_ACC + 2], dt, over_step)
         aux[A_GYRO], aux[A_GYRO + 1], aux[A_GYRO + 2] = g0, g1, g2
         aux[A_ACC], aux[A_ACC + 1], aux[A_ACC + 2] = a0, a1, a2
         drow = diag[i]

@@ -39,6 +39,11 @@ Choices the paper leaves open, made here:
 
 The small numba kernels here (quaternion products on scalars, the 3-state Kalman update)
 are shared with ``ncs_eskf``.
+- The accelerometer low-passed in an almost-inertial frame (``inertial_accel``,
+  ``accel_tau``, 1 s; strict: the reading as it is).
+  As in mahony (its numbers there). 0 -> 1 s: BROAD 0.87° -> 0.62° (worst 7.3× -> 1.6× VQF),
+  SITL 2.30° -> 2.24°; a cost against the autopilot: corpus median 1.11° -> 1.25° (DCM logs 1.43° ->
+  1.38°, BlueROV logs +0.3°). Kept: the truth (BROAD, SITL) says gain.
 """
 from __future__ import annotations
 
@@ -60,6 +65,8 @@ from ..quaternion import (
     qmul_s,
 )
 from .base import MAX_STEP_S, Estimator, filter_state
+from .inertial_accel import lowpass_in_inertial_frame
+from .timestep import step_rate
 
 
 @dataclass
@@ -67,6 +74,8 @@ class EskfParams:
     gyro_arw: float = param(1e-3, "(0, 1e3]", "log [1e-5, 0.1]")  # gyro rate noise density (angle random walk), rad/s/√Hz
     accel_noise: float = param(0.04, "[1e-6, 1e6]", "log [1e-3, 2]")  # accelerometer noise density, m/s²/√Hz
     p0_deg: float = param(2.0, "[0, 180]")  # initial 1σ of each attitude error angle, degrees
+    accel_tau: float = param(1.0, "[0, 60]", "linear [0, 5]")  # s: the accelerometer low-passed in an almost-inertial frame (inertial_accel); 0: the reading as it is
+    strict: bool = param(False)  # the filter as published: accel_tau = 0, whatever it says
 
 
 # ---------------------------------------------------------------- shared scalar kernels
@@ -188,6 +197,7 @@ def eskf_run(s, state, cfg, out, cov_trace):
     (``base.FilterState``) is updated in place; its ``bias`` is subtracted from the gyro.
     Writes the attitude after each sample to ``out`` and trace(P) to ``cov_trace``."""
     t, gyro, accel = s.t, s.gyro, s.accel
+    over_step = s.rate_over_step  # each gyro sample the mean over its step (timestep.step_rate)
     q, P, t_prev, gyro_prev, bias = state.q, state.P, state.t_prev, state.gyro_prev, state.bias
     arw2, acc2, gravity, max_step = cfg.arw2, cfg.acc2, cfg.gravity, cfg.max_step
     F = np.empty((3, 3))
@@ -200,10 +210,7 @@ def eskf_run(s, state, cfg, out, cov_trace):
         dt = step_dt(t[i], t_prev[0])
         t_prev[0] = t[i]
         g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
-        if dt > 0.0:  # trapezoidal mean rate over the step
-            w0, w1, w2 = 0.5 * (g0 + gyro_prev[0]), 0.5 * (g1 + gyro_prev[1]), 0.5 * (g2 + gyro_prev[2])
-        else:
-            w0, w1, w2 = g0, g1, g2
+        w0, w1, w2 = step_rate(g0, g1, g2, gyro_prev[0], gyro_prev[1], gyro_prev[2], dt, over_step)
         gyro_prev[0], gyro_prev[1], gyro_prev[2] = g0, g1, g2
         if 0.0 < dt <= max_step:
             w0, w1, w2 = w0 - bias[0], w1 - bias[1], w2 - bias[2]
@@ -246,13 +253,15 @@ class Eskf(Estimator):
     name = "eskf"
     Params = EskfParams
     uses_mag = False
-    kernels = (eskf_run,)
+    kernels = (lowpass_in_inertial_frame, eskf_run)
+    PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads
     DIAGNOSTICS = {"cov_trace": "trace of the attitude-error covariance P, rad²"}
 
     def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         p = self.params
         self._state = filter_state(q0, np.eye(3) * np.radians(p.p0_deg) ** 2, gyro_bias)
         self._settings = EskfSettings(p.gyro_arw ** 2, p.accel_noise ** 2, GRAVITY, MAX_STEP_S)
+        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:

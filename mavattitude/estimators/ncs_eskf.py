@@ -155,6 +155,20 @@ No magnetometer: yaw is the gyro's, from the shared alignment's initial yaw.
 Reported (paper 001): Table 1, 50 Hz aircraft data, roll / pitch MAE: NCS-ESKF 0.809° /
 0.934°, ESKF 1.151° / 1.403°, EKF 1.713° / 2.058°, Mahony 3.602° / 5.400°. Table 2, DA40 flight:
 0.01 g only 1.231° / 0.985°, 0.1 g only 2.866° / 1.665°, segmented 0.954° / 0.867°.
+- The accelerometer low-passed in an almost-inertial frame (``inertial_accel``, ``accel_tau``
+  1 s; strict: off) as a stand-in: the gates test the reading as it is, and only where they
+  refuse it is the low-passed reading tried, through the same gates (accel_state "used the
+  low-passed reading"). A vibration or a circle the reading cannot pass averages out in it; a
+  sustained manoeuvre stays in it and is refused as before, and after a manoeuvre the reading
+  itself passes first, so no lingering acceleration is taken. Measured
+  (``scripts/judge_estimators.py``: BROAD 6D median inclination RMSE and worst trial × VQF; corpus
+  median tilt error against the autopilot; SITL logs' median), 0 -> 1 s: BROAD 1.90° -> 0.72°
+  (fast translation 15.7° -> 0.73°, phone vibration 11.4° -> 1.27°; worst 33× -> 3.4× VQF),
+  corpus 0.92° -> 0.90°, SITL 0.31° -> 0.34°, worst 2.76× -> 2.23× mahony. 3 s: BROAD 0.67°,
+  corpus 0.87°, SITL 0.41°. Tried first and dropped: the low-passed reading in place of the
+  reading (gates and update alike; 1 s: BROAD 0.87°, SITL 0.66°; 3 s: SITL 1.83°: the gates pass a
+  manoeuvre's lingering acceleration), and gating on the reading while updating with the
+  low-passed one (SITL 1.26-1.44°).
 """
 from __future__ import annotations
 
@@ -171,6 +185,8 @@ from ..quaternion import exp_s, gravity_in_body_s, normalize_into, qmul_s
 from .consistency import attitude_error, carried, step_rotation_into, track_stillness
 from .gravity import learn_gravity, scale_effect
 from .base import MAX_STEP_S, Estimator
+from .inertial_accel import lowpass_in_inertial_frame
+from .timestep import step_rate
 from .eskf import set_q, step_dt
 
 
@@ -196,10 +212,11 @@ class NcsEskfParams:
     cons_rate: float = param(1.0, "[0, inf)")  # rad/s: ... and the rotation below this ...
     cons_time: float = param(1.5, "[0, inf)")  # s: ... for this long (0: no consistency test)
     noise_gate: float = param(3.0, "[0, inf)", "linear [0, 6]")  # σ of measured residual noise added (root-sum-square) to the thresholds; 0: off
+    accel_tau: float = param(1.0, "[0, 60]", "linear [0, 5]")  # s: the accelerometer low-passed in an almost-inertial frame (inertial_accel); 0: the reading as it is
     strict: bool = param(False)  # the paper's filter: published thresholds, every addition off, whatever the values above
 
 
-ACCEL_USED, ACCEL_TOTAL, ACCEL_HORIZONTAL, ACCEL_NONE = 0, 1, 2, 3
+ACCEL_USED, ACCEL_TOTAL, ACCEL_HORIZONTAL, ACCEL_NONE, ACCEL_LOWPASSED = 0, 1, 2, 3, 4
 CONS_LPF_S = 0.1  # s, time constant of the accelerometer low-pass the consistency test uses
 STILL_RATE = 0.05  # rad/s: still when rotating slower than this ...
 STILL_ACCEL = 0.2  # m/s²: ... with the accelerometer within this of where it was ...
@@ -308,6 +325,7 @@ class NcsEskfSettings(NamedTuple):
     cons_rate: float
     cons_time: float
     noise_gate: float
+    fallback: bool  # where the reading is refused, try the low-passed one (accel_tau > 0)
 
 
 class NcsEskfDiagnostics(NamedTuple):
@@ -323,7 +341,9 @@ def ncs_eskf_run(s, state, cfg, out, diag):
     """Run NCS-ESKF over a chunk of samples ``s`` (``base.Samples``, the phase in
     ``in_air``); ``state`` (``NcsEskfState``) is updated in place. Writes the attitude after
     each sample to ``out`` and the diagnostics to ``diag``."""
-    t, gyro, accel, in_air = s.t, s.gyro, s.accel, s.in_air
+    # the gates read the reading as it is; where it is refused, the low-passed one (s.accel) may stand in
+    t, gyro, accel, accel_low, in_air = s.t, s.gyro, s.accel_read, s.accel, s.in_air
+    over_step = s.rate_over_step  # each gyro sample the mean over its step (timestep.step_rate)
     q, P, bias_est, t_prev, gyro_prev = state.q, state.P, state.bias_est, state.t_prev, state.gyro_prev
     accel_lp, bias, cons = state.accel_lp, state.bias, state.cons
     arw2, acc2, walk2, step_noise = cfg.arw2, cfg.acc2, cfg.walk2, cfg.step_noise
@@ -341,12 +361,8 @@ def ncs_eskf_run(s, state, cfg, out, diag):
         dt = step_dt(t[i], t_prev[0])
         t_prev[0] = t[i]
         g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
-        if dt > 0.0:  # trapezoidal mean rate over the step
-            w0, w1, w2 = 0.5 * (g0 + gyro_prev[0]), 0.5 * (g1 + gyro_prev[1]), 0.5 * (g2 + gyro_prev[2])
-            dw2 = (g0 - gyro_prev[0]) ** 2 + (g1 - gyro_prev[1]) ** 2 + (g2 - gyro_prev[2]) ** 2
-        else:
-            w0, w1, w2 = g0, g1, g2
-            dw2 = 0.0
+        w0, w1, w2 = step_rate(g0, g1, g2, gyro_prev[0], gyro_prev[1], gyro_prev[2], dt, over_step)
+        dw2 = (g0 - gyro_prev[0]) ** 2 + (g1 - gyro_prev[1]) ** 2 + (g2 - gyro_prev[2]) ** 2 if dt > 0.0 else 0.0
         gyro_prev[0], gyro_prev[1], gyro_prev[2] = g0, g1, g2
         stepped = 0.0 < dt <= max_step
         if stepped:
@@ -395,6 +411,10 @@ def ncs_eskf_run(s, state, cfg, out, diag):
                     else:
                         state = ACCEL_USED
                         ncs_update(q, P, bias_est, r0, r1, r2, acc2 / (dt * weight), gravity)
+                if state != ACCEL_USED and cfg.fallback and _low_passed_update(
+                        q, P, bias_est, accel_low[i, 0], accel_low[i, 1], accel_low[i, 2], gravity,
+                        total_threshold, gate, taper, acc2, dt):
+                    state = ACCEL_LOWPASSED
         if stepped:  # one normalisation per sample, after the last product
             normalize_into(q, q[0], q[1], q[2], q[3])
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q[0], q[1], q[2], q[3]
@@ -403,6 +423,27 @@ def ncs_eskf_run(s, state, cfg, out, diag):
         h_residual[i] = resid_h
         h_gate[i] = gate
     return out
+
+
+@njit(cache=True, inline="always")
+def _low_passed_update(q, P, bias_est, ax, ay, az, gravity, total_threshold, gate, taper, acc2, dt):
+    """The update from the low-passed reading (``inertial_accel``) where the reading itself was
+    refused, if it passes the same two gates; True when it was used. A vibration or a circle the
+    reading cannot pass averages out in it; a sustained manoeuvre stays in it and is refused."""
+    if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):
+        return False
+    if abs(math.sqrt(ax * ax + ay * ay + az * az) - gravity) > total_threshold * gravity:
+        return False
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    r0 = ax + gravity * 2.0 * (x * z - w * y)
+    r1 = ay + gravity * 2.0 * (y * z + w * x)
+    r2 = az + gravity * (1.0 - 2.0 * (x * x + y * y))
+    resid_h = math.sqrt(r0 * r0 + r1 * r1) / gravity
+    weight = 1.0 - taper * resid_h / gate if resid_h < gate else 0.0
+    if weight <= 0.0:
+        return False
+    ncs_update(q, P, bias_est, r0, r1, r2, acc2 / (dt * weight), gravity)
+    return True
 
 
 @njit(cache=True, inline="always")
@@ -649,14 +690,15 @@ class NcsEskf(Estimator):
     name = "ncs-eskf"
     Params = NcsEskfParams
     uses_mag = False
-    kernels = (ncs_eskf_run,)
+    kernels = (lowpass_in_inertial_frame, ncs_eskf_run)
     # strict: the published thresholds (§1.3, §3.2 Table 2) and every addition off
-    PAPER = dict(total_threshold=0.2, h_threshold_air=0.01, h_threshold_ground=0.1, gate_sigma=0.0, taper=0.0,
+    PAPER = dict(accel_tau=0.0, total_threshold=0.2, h_threshold_air=0.01, h_threshold_ground=0.1, gate_sigma=0.0, taper=0.0,
                  estimate_bias=False, step_noise=0.0, cons_time=0.0, noise_gate=0.0)
     ACCEL_STATES = ("used",
                     "skipped: |a|-g above total threshold",
                     "skipped: horizontal maneuver above threshold",
-                    "skipped: no step (first sample, gap) or no valid reading")
+                    "skipped: no step (first sample, gap) or no valid reading",
+                    "used the low-passed reading (the reading itself refused; accel_tau)")
     DIAGNOSTICS = {
         "cov_trace": "trace of the attitude-error block of P, rad² (includes the heading "
                      "variance, which only grows)",
@@ -705,7 +747,8 @@ class NcsEskf(Estimator):
             p.gyro_arw ** 2, p.accel_noise ** 2, p.bias_walk ** 2 if p.estimate_bias else 0.0, p.step_noise,
             p.total_threshold, p.h_threshold_air, p.h_threshold_ground, bool(p.segmented),
             p.accel_lpf_hz, p.gate_sigma, p.taper, MAX_STEP_S, p.cons_tol, p.cons_norm, p.cons_rate,
-            p.cons_time, p.noise_gate)
+            p.cons_time, p.noise_gate, p.accel_tau > 0.0)
+        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:

@@ -8,7 +8,7 @@ import numpy as np
 from numba import njit
 
 from .. import quaternion as quat
-from ..flight import AttitudeSeries, BaroSeries, Flight, GpsSeries, ImuSeries, MagSeries
+from ..flight import AttitudeSeries, BaroSeries, Flight, GpsSeries, ImuSeries, MagSeries, means_over_steps
 from .collect import Collector
 
 # Beyond what any autopilot IMU measures (ArduPilot: ±16 g, ±2000 °/s) or any magnetometer
@@ -55,7 +55,7 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
                 t, v, arrival = t[live], v[live], arrival[live]
             # each array its own and contiguous (a .tlog's t is a column of the collector's rows)
             flight.imu[key] = ImuSeries(key, np.ascontiguousarray(t), v[:, :3].copy(), v[:, 3:6].copy(),
-                                        arrival=np.ascontiguousarray(arrival))
+                                        arrival=np.ascontiguousarray(arrival), rate_over_step=means_over_steps(key))
         elif len(t):
             why = ("all zeros (no sensor fitted?)" if not fitted.any() else
                    "none within ±50 rad/s and ±50 g (saturated or corrupt)" if not live.any() else
