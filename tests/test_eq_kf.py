@@ -77,10 +77,11 @@ def test_sustained_linear_acceleration_holds_attitude():
     q, f = simtruth.run("eq-kf", sim)
     err = simtruth.errors_deg(sim, q)
     assert err[:, 0].max() < 1.5 and err[:, 1].max() < 1.5
-    # the accelerometer was skipped while the vehicle accelerated hard (> 0.1 g)
+    # the reading was skipped while the vehicle accelerated hard (> 0.1 g); the low-passed one
+    # stood in where it passed (3), mostly at the accelerations' onsets and ends
     f_b = sim.imu[0].accel
     hard = np.hypot(f_b[:, 0], f_b[:, 1]) > 0.1 * 9.80665
-    assert hard.sum() > 1000 and np.mean(f.diagnostics["accel_state"][hard] == 2) > 0.95
+    assert hard.sum() > 1000 and np.mean(np.isin(f.diagnostics["accel_state"][hard], (2, 3))) > 0.95
     w = f.diagnostics["accel_weight"]
     assert np.all((w >= 0.0) & (w <= 1.0))
     assert np.all((w > 0.0) == (f.diagnostics["accel_state"] < 2))

@@ -131,3 +131,23 @@ def test_ncs_eskf_takes_the_low_passed_reading_only_where_the_reading_is_refused
         states[tau] = np.bincount(f.diagnostics["accel_state"].astype(int), minlength=5)
     assert states[0.0][4] == 0 and states[1.0][4] > 0.5 * len(t), states
     assert errors[1.0] < 0.4 * errors[0.0], errors  # measured: 5.0° -> 1.5° (the bias learned meanwhile)
+
+
+def test_eq_kf_takes_the_low_passed_reading_only_where_the_reading_is_refused():
+    """As ncs-eskf's test: a still, tilted body shaken at 15 Hz, an unseen gyro bias; where the
+    trust tests skip the reading (w = 0) the low-passed one stands in (state 3)."""
+    t = np.arange(0.0, 60.0, 1.0 / RATE)
+    shake = 6.0 * np.sin(2 * np.pi * 15.0 * t)[:, None] * np.array([0.6, 0.0, 0.8])
+    accel = quat.rotate(quat.conjugate(TILT), np.array([0.0, 0.0, -GRAVITY])) + shake
+    gyro = np.tile([0.004, -0.003, 0.0], (len(t), 1))
+    mag = np.full((len(t), 3), np.nan)
+    errors, states = {}, {}
+    for tau in (0.0, 1.0):
+        f = create("eq-kf", accel_tau=tau)
+        f.initialize(TILT, np.zeros(3))
+        q = f.update(t, gyro, accel, mag)
+        errors[tau] = np.degrees(2 * np.arccos(np.clip(np.abs(q @ TILT), -1, 1)))[t > 50.0].max()
+        states[tau] = np.bincount(f.diagnostics["accel_state"].astype(int), minlength=4)
+    assert states[0.0][3] == 0 and states[1.0][3] > 0.2 * len(t), states
+    # measured 7.7° -> 3.2°: the reading's down-weighted updates (state 1) still pull it
+    assert errors[1.0] < 0.5 * errors[0.0], errors
