@@ -58,8 +58,8 @@ Choices the baseline leaves open, made here:
 - The accelerometer low-passed in an almost-inertial frame (``inertial_accel``,
   ``accel_tau``, 1 s; strict: the reading as it is).
   As in mahony (its numbers there). 0 -> 1 s: BROAD 1.16° -> 0.64° (worst 8.5× -> 1.6× VQF),
-  corpus 1.29° -> 1.30°, SITL 2.03° -> 2.01°; worst log real-sub-4.1.0 mohai009 1.70° -> 2.02°
-  (1.57× mahony's 0 s figure).
+  corpus 1.29° -> 1.30°, SITL 2.03° -> 2.01° (but the SITL plane circuit 6.45° -> 7.86°); worst
+  log real-sub-4.1.0 mohai009 1.70° -> 2.02° (1.57× mahony's 0 s figure).
 """
 from __future__ import annotations
 
