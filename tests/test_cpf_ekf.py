@@ -174,13 +174,15 @@ def test_sparse_covariance_step_equals_dense_f_p_ft_plus_q():
 
 def test_reset_on_every_cycle_gives_the_complementary_filter_itself():
     """With N < 0 and one cycle, the watchdog resets the EKF to its CPF on every sample: the
-    output is then the CPF, which is the project's mahony on the accelerometer as it reads
-    (``strict``: cpf-ekf takes no low-passed reading), bit for bit."""
+    output is then the CPF, which is the project's mahony, bit for bit (its low-passed
+    accelerometer included; with accel_tau = 0, mahony's strict)."""
     sim = st.figure8_120()
     params = CpfEkfParams(reset_threshold=-1.0, reset_cycles=1, watchdog_period_s=0.0)
     q, f = st.run_aided("cpf-ekf", sim, params)
-    q_mahony, _ = st.run("mahony", sim, MahonyParams(strict=True))
+    q_mahony, _ = st.run("mahony", sim)
     np.testing.assert_array_equal(q, q_mahony)
+    q_raw, _ = st.run_aided("cpf-ekf", sim, replace(params, accel_tau=0.0))
+    np.testing.assert_array_equal(q_raw, st.run("mahony", sim, MahonyParams(strict=True))[0])
     assert f.resets == len(sim.t)
     assert np.all(f.diagnostics["reset"] == 1.0)
 

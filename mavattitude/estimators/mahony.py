@@ -36,6 +36,9 @@ Choices the paper leaves open, made here:
   SITL logs' median), 0 -> 1 s: BROAD 1.01° -> 0.61° (worst 10.0× -> 1.6× VQF; stationary-magnet
   trial 7.28° -> 1.60°), corpus 1.22° -> 1.25°, SITL 1.94° -> 1.92°; the cost is on two BlueROV logs
   (1.29° -> 1.61°, 1.51° -> 1.76°). 0.3 s: BROAD 0.75°; 3 s: BROAD 0.66°, but 1.76× on a BlueROV log.
+  The gains swept again with it (Kp 0.2/0.5 × Ki 0.0005/0.005/0.02): the defaults stay best on
+  BROAD and SITL (Ki 0.005: corpus 1.25° -> 1.05° against the autopilot, but BROAD 0.56°, SITL
+  2.09°, a BlueROV log 2.0× its old figure; Kp 0.5: BROAD 0.57°, SITL 2.91°).
 """
 from __future__ import annotations
 

@@ -115,7 +115,9 @@ shared logs; the numbers are in the issue-3 report):
   reading too. 0 -> 1 s: BROAD 1.47° -> 0.80° (worst 5.7× -> 1.9× VQF), corpus 1.07° -> 1.10°,
   SITL 0.84° -> 1.00° (sitl-copter-4.7-400hz 0.65° -> 0.99°, wind 1.22° -> 1.43° against their
   near-truth EKF3: a cost, said here), worst 1.53× -> 1.58× mahony (real-copter-3.3dev alt-issue,
-  0.11°).
+  0.11°). Tried: the weights and the rest test on the reading itself, the internal Mahony on the
+  low-passed one: BROAD 0.73° (worst 2.2× VQF), corpus 1.05°, SITL 0.97° (400 Hz 0.70°, but the
+  plane circuit 4.16° -> 5.18°): no clear gain, not kept.
 """
 from __future__ import annotations
 
