@@ -504,7 +504,7 @@ def cmd_live(args) -> int:
             imu_rate=args.imu_rate, request=not args.no_request, imu_source=args.imu, window=args.window,
             timeout=args.timeout, record=str(record) if record else None, warmup=args.warmup,
             declination=args.declination, home=args.home, reference=args.reference, use_mag=not args.no_mag,
-            duration=args.duration, sink=sink))
+            trim=not args.no_trim, duration=args.duration, sink=sink))
         print(f"session: {result.seconds:.1f} s, {result.monitor.packets} packets ("
               + loss_text(result.monitor, result.estimation.samples_lost, result.kernel_drops)
               + f"), {result.estimation.samples} IMU samples estimated"
@@ -889,6 +889,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sysid", type=_number(1, 255, whole=True), default=None, metavar="ID",
                    help="the vehicle's MAVLink system id (default: the first autopilot heard)")
     _estimation_args(p, "vehicle")
+    trim_arg(p)
     p.add_argument("--imu-rate", type=POSITIVE, default=50.0, metavar="HZ",
                    help="IMU rate to ask the vehicle for (default 50; ATTITUDE up to 50 Hz, GPS 5 Hz, "
                         "baro up to 10 Hz)")

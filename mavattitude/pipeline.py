@@ -10,7 +10,6 @@ import numpy as np
 
 from . import aiding as aid
 from . import declination as decl
-from . import quaternion as quat
 from . import estimators as est
 from .broadscore import broad_measures
 from .errors import InputError, UsageError
@@ -24,6 +23,8 @@ from .refcheck import autopilot_disagreement, check_reference, excluded_spans, w
 from .readers import best_imu_source, imu_rate, mag_for_imu
 from .readers.attitudes import SECONDARY_KEYS, NamedAttitude, name_attitudes
 from .runner import REINIT_GAP_S, Runner
+from .trim import board_trim as trim_of
+from .trim import trimmed  # noqa: F401  (replay's callers and tests take it from here)
 
 
 REFERENCE_WORDS = ("autopilot", "truth", "ekf")  # --reference besides a stream's name
@@ -148,22 +149,8 @@ class ReplayResult:
 
 
 def board_trim(flight: Flight) -> tuple[float, float] | None:
-    """The log's AHRS_TRIM_X / AHRS_TRIM_Y (rad: roll, pitch), when either is non-zero.
-
-    ArduPilot reports the attitude of the vehicle body, the board's turned by the trim
-    (AP_AHRS: body DCM = DCM · R(trim)ᵀ, R(trim) from the Euler angles (trim_x, trim_y, 0);
-    AHRS_TRIM_Z is unused there); the estimators estimate the board's. The IMU is logged after
-    AHRS_ORIENTATION is applied, so that needs nothing here. The names are the same from
-    ArduPilot 3.1 on."""
-    roll, pitch = flight.params.get("AHRS_TRIM_X", 0.0), flight.params.get("AHRS_TRIM_Y", 0.0)
-    if not (math.isfinite(roll) and math.isfinite(pitch)) or (roll == 0.0 and pitch == 0.0):
-        return None
-    return float(roll), float(pitch)
-
-
-def trimmed(series: AttitudeSeries, trim: tuple[float, float]) -> AttitudeSeries:
-    """The attitude of the vehicle body from the board's, as the autopilot does (``quaternion.trimmed``)."""
-    return AttitudeSeries(series.source, series.t, quat.trimmed(series.q, *trim))
+    """The log's board trim (``trim.board_trim``: AHRS_TRIM_X / AHRS_TRIM_Y, rad), or None."""
+    return trim_of(flight.params)
 
 
 def is_ekf(algorithm: str) -> bool:

@@ -782,3 +782,33 @@ def test_an_interrupt_numba_could_only_report_is_raised_after_the_compile():
         with _noticing_interrupts():
             sys.unraisablehook(SimpleNamespace(exc_value=KeyboardInterrupt(), exc_type=KeyboardInterrupt))
     assert sys.unraisablehook is before
+
+
+@pytest.mark.slow  # a session stepped packet by packet
+def test_a_vehicle_with_a_board_trim_and_a_declination_scores_as_replay_of_its_recording(tmp_path):
+    """A simulated board mounted off level (AHRS_TRIM_X/Y), its autopilot reporting the vehicle's
+    attitude, with COMPASS_DEC: live waits for the parameters it asked for, turns its estimates
+    by the trim as replay does, and scores what replay of the recording scores."""
+    from mavattitude import quaternion as quat
+    from mavattitude.live.estimation import LiveEstimation
+    from mavattitude.sim import simulate, write_log
+
+    trim = (math.radians(2.5), math.radians(-1.5))
+    sim = simulate("figure8", 60.0, seed=5, imu_rate=50.0)
+    q_trim = np.broadcast_to(quat.conjugate(quat.from_euler(trim[0], trim[1], 0.0)), sim.autopilot_q.shape)
+    sim = replace(sim, autopilot_q=quat.multiply(sim.autopilot_q, q_trim),
+                  extra_params={"AHRS_TRIM_X": trim[0], "AHRS_TRIM_Y": trim[1]})
+    path = write_log(sim, tmp_path / "trimmed.tlog")
+    names = ["mahony", "ekf"]
+    est = _feed(LiveEstimation(names, expect_declination=True), path)
+    est.step(final=True)
+    comparisons, seg = est.final_comparisons()
+    assert est.trim == pytest.approx(trim)
+    assert any(e.text.startswith("board trim roll 2.50°, pitch -1.50°") for e in est.events)
+    assert any(e.text.startswith("declination 5.00° (vehicle parameter COMPASS_DEC") for e in est.events)
+    assert_live_equals_replay(est, seg.index, comparisons, path, names)
+    untrimmed = _feed(LiveEstimation(names, expect_declination=True, trim=False), path)
+    untrimmed.step(final=True)
+    # without the trim every estimate is off by about it (the figure-eight's own error besides)
+    off = untrimmed.final_comparisons()[0]["mahony"].axes["roll"].mae
+    assert off > comparisons["mahony"].axes["roll"].mae + 1.5

@@ -23,7 +23,10 @@ On the autopilot's clock, per clock segment:
   the two;
 - the declination is chosen then too, as a log's is (``declination.choose``: the vehicle's
   parameters, its first good GPS fix so far, its date, else today's). It stays for the session: when the
-  vehicle has no fix yet, the first good one later gets an event with the model's value there.
+  vehicle has no fix yet, the first good one later gets an event with the model's value there;
+- so is the board trim (``trim.board_trim``, AHRS_TRIM_X/Y, asked for with the declination and
+  waited for as long): scored against the autopilot's attitude, the estimates are turned by it
+  first, as replay turns them, and shown turned.
 
 Memory stays flat however long a session runs: each estimate is scored as it comes
 (``running_metrics``: the final metrics are replay's of the same data, the quantiles within
@@ -50,6 +53,7 @@ from ..readers.tlog import MessageDecoder
 from ..imucheck import rate_not_meaningful
 from ..runner import IMU, Chunk, Runner
 from ..running_metrics import RunningComparison, joined
+from ..trim import TRIM_PARAMS, board_trim, describe, trimmed
 from .loss import SampleLoss
 
 ALIGN_S = 3.0  # s of IMU data before the sources are chosen
@@ -98,7 +102,8 @@ class LiveEstimation:
     def __init__(self, names: list[str], params: dict | None = None, declination_deg: float | None = None,
                  use_mag: bool = True, imu_source: str | None = None, reference: str = "autopilot",
                  warmup_s: float = 10.0, record_latency: bool = False, expect_declination: bool = False,
-                 history_s: float = HISTORY_S, errors_for_view: bool = False, home: decl.Fix | None = None):
+                 history_s: float = HISTORY_S, errors_for_view: bool = False, home: decl.Fix | None = None,
+                 trim: bool = True):
         self.names = list(names)
         self.params = params or {}
         self.declination_deg = declination_deg
@@ -119,7 +124,9 @@ class LiveEstimation:
         self.samples = 0  # IMU samples estimated
         self.record_latency = record_latency
         self.latency: list[tuple[float, float, float]] = []  # (t autopilot s, arrival, estimated) monotonic s
-        self.expect_declination = expect_declination  # COMPASS_DEC was asked for: wait a little for it
+        self.expect_declination = expect_declination  # COMPASS_DEC and the trim were asked for: wait a little for them
+        self.apply_trim = trim and reference == "autopilot"  # as replay: the trim turns the estimates only against it
+        self.trim: tuple[float, float] | None = None  # rad (roll, pitch), chosen when the estimators first start
         self._now = 0.0
         self._warned_imu = False
         self.imu_loss: dict[str, SampleLoss] = {}  # IMU samples lost by the autopilot clock, per stream
@@ -272,6 +279,9 @@ class LiveEstimation:
                 self._forget(seg, latest)
         if final:
             self._score(seg)
+        if chunk is not None and self.trim is not None:  # shown as scored: the vehicle's attitude
+            chunk = Chunk(chunk.t, {n: quat.trimmed(q, *self.trim) for n, q in chunk.q.items()}, chunk.diagnostics,
+                          chunk.in_air)
         return chunk
 
     def _start(self, seg: _Segment) -> bool:
@@ -283,8 +293,12 @@ class LiveEstimation:
         if span < ALIGN_S:
             return False  # let every source (and the compass, and COMPASS_DEC) show up first
         asked = ("COMPASS_DEC", "COMPASS_AUTODEC")  # both: COMPASS_DEC alone is read as set by hand
+        waiting = span < ALIGN_S + DECLINATION_WAIT_S
         if (self.expect_declination and self.declination_deg is None and seg.mag and self.use_mag
-                and not all(name in self.decoder.params for name in asked) and span < ALIGN_S + DECLINATION_WAIT_S):
+                and not all(name in self.decoder.params for name in asked) and waiting):
+            return False
+        trim_missing = not all(name in self.decoder.params for name in TRIM_PARAMS)
+        if self.expect_declination and self.apply_trim and trim_missing and waiting:
             return False
         if self.imu_choice is not None:
             if self.imu_choice not in seg.imu:
@@ -299,6 +313,7 @@ class LiveEstimation:
         seg.mag_key = pick_mag(list(seg.mag), seg.imu_key) if self.use_mag else None
         if self.declination is None:
             self._choose_declination(first + span, bool(seg.mag_key))
+            self._choose_trim(first + span, trim_missing)
         seg.runner = Runner(self.names, self.params, self.declination, self.use_mag, seg.imu_key, seg.mag_key,
                             keep_history=False)  # the view takes diagnostics from each step
         return True
@@ -314,6 +329,21 @@ class LiveEstimation:
         self.events.append(Event(t, "info", f"declination {chosen.text()}"))
         if has_mag and not chosen.known:
             self.events.append(Event(t, "warn", decl.NO_DECLINATION))
+
+    def _choose_trim(self, t: float, missing: bool) -> None:
+        """The session's board trim, on the parameters the vehicle sent so far (replay: the log's)."""
+        if not self.apply_trim:
+            return
+        self.trim = board_trim(self.decoder.params)
+        if self.trim is not None:
+            self.events.append(Event(t, "info", f"board trim {describe(self.trim)} (AHRS_TRIM_X/Y): the estimates are "
+                                                "turned by it, as the autopilot turns its own attitude"))
+        elif missing and self.expect_declination:
+            self.events.append(Event(t, "info", "no AHRS_TRIM_X/Y from the vehicle: no board trim applied "
+                                                "(an ArduPilot vehicle with a trim scores off by it)"))
+
+    def _trimmed(self, series: AttitudeSeries) -> AttitudeSeries:
+        return series if self.trim is None else trimmed(series, self.trim)
 
     def _date(self) -> datetime.datetime:
         """The vehicle's date (SYSTEM_TIME, as the replay of the recording takes it), else today's."""
@@ -336,7 +366,7 @@ class LiveEstimation:
         if runner is None or not runner.done or ref is None:
             return
         restarts = [t for t, _ in runner.restarts]
-        pairs = [(name, runner.estimate(name), restarts, [not r.has_heading[name] for r in runner.runs])
+        pairs = [(name, self._trimmed(runner.estimate(name)), restarts, [not r.has_heading[name] for r in runner.runs])
                  for name in self.names]
         autopilot = self.autopilot_series(seg) if self.reference == "truth" else None
         if autopilot is not None:
@@ -428,7 +458,7 @@ class LiveEstimation:
         seg = seg or self.seg
         if seg.runner is None or not seg.runner.done:
             return None
-        return seg.runner.estimate(name)
+        return self._trimmed(seg.runner.estimate(name))
 
     def rolling_mae(self, window_s: float) -> dict[str, tuple[float, float, float]]:
         """Per estimator, MAE (degrees) of roll, pitch, yaw over the last ``window_s`` of the

@@ -447,16 +447,19 @@ class RateRequester:
 
 
 def request_identity(conn, target: tuple[int, int]) -> None:
-    """Ask for AUTOPILOT_VERSION (firmware) and the declination parameters with the ones that
-    say whether the autopilot computes it (``declination.DECLINATION_PARAMS``; a vehicle
-    answers those it has)."""
+    """Ask for AUTOPILOT_VERSION (firmware), the declination parameters with the ones that
+    say whether the autopilot computes it (``declination.DECLINATION_PARAMS``) and the board
+    trim (``trim.TRIM_PARAMS``); a vehicle answers those it has."""
     from ..declination import DECLINATION_PARAMS
+    from ..trim import TRIM_PARAMS
 
     conn.mav.command_long_send(*target, mavlink2.MAV_CMD_REQUEST_MESSAGE, 0,
                                mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 0, 0, 0, 0, 0, 0)
     for name, _, auto_name, _ in DECLINATION_PARAMS:
         conn.mav.param_request_read_send(*target, name.encode(), -1)
         conn.mav.param_request_read_send(*target, auto_name.encode(), -1)
+    for name in TRIM_PARAMS:
+        conn.mav.param_request_read_send(*target, name.encode(), -1)
 
 
 def wait_readable(conn, timeout: float) -> None:

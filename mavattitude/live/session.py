@@ -80,6 +80,7 @@ class LiveOptions:
     home: Fix | None = None  # --home
     reference: str = "autopilot"
     use_mag: bool = True
+    trim: bool = True  # turn the estimates by the vehicle's board trim (AHRS_TRIM_X/Y) before scoring, as replay
     duration: float | None = None  # s of wall time, then stop
     sink: Sink | None = None  # where the Rerun view goes (sink.plan_sink), if anywhere
     record_latency: bool = False
@@ -195,7 +196,7 @@ class _Session:
         self.est = LiveEstimation(opts.names, opts.params, opts.declination, opts.use_mag, opts.imu_source,
                                   opts.reference, opts.warmup, record_latency=opts.record_latency,
                                   expect_declination=opts.request, history_s=max(HISTORY_S, 2 * opts.window),
-                                  errors_for_view=bool(opts.sink), home=opts.home)
+                                  errors_for_view=bool(opts.sink), home=opts.home, trim=opts.trim)
         self.rec = self.live_view = None
         if opts.sink:
             from ..sink import open_sink
