@@ -156,4 +156,3 @@ def as_chunk(t, gyro, accel, mag, in_air=None, rate_over_step: bool = False) -> 
         in_air = np.full(n, np.nan)
     in_air = np.ascontiguousarray(in_air, dtype=np.float64).reshape(n)
     return Samples(t, gyro, accel, mag, in_air, bool(rate_over_step), accel)
-
