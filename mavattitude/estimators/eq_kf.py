@@ -204,7 +204,9 @@ compensation removes most of that). Still above 1.5× mahony on the shared logs:
   plane circuit 1.00° -> 1.29°; vibration gains, 2.15° -> 1.45°): where gusts refuse the reading,
   the low-passed one still holds the gusts' mean acceleration (passing it only when fully inside
   the tests did not help: wind 2.12°, BROAD 0.91°). 3 s: BROAD 0.69° (worst 2.0×), corpus 0.90°,
-  SITL 0.46°. The low-passed reading
+  SITL 0.46°. Tried and not kept: ncs-eskf's rule, the closer of the two readings first (BROAD
+  0.67°, phone vibration 0.76° -> 0.32° but slow translation 0.88° -> 0.99°, worst 3.3× VQF;
+  corpus 0.85°; SITL 0.45°, plane circuit 0.69°, 400 Hz 0.44°): no gain on the whole. The low-passed reading
   in place of the reading, tried first: 1 s BROAD 0.99°, SITL 0.67°; 3 s SITL 1.95°.
 """
 from __future__ import annotations
