@@ -63,9 +63,10 @@ def _compile(names: list[str], quiet: bool = False, log: str | None = None):
     """Start compiling what these estimators need and is not cached yet (said on stderr, and
     then, but for ``quiet``, each as it is done and the time so far). ``log``: the log to be
     read here, whose reader compiles as it reads (the caller says ``done("log reader")``)."""
-    from .estimators import needs_compile, precompile
+    from .estimators import needs_compile
     from .progress import StepsLine
     from .readers import reader_needs_compile
+    from .warmup import precompile
 
     pending = needs_compile(names)
     also = ["log reader"] if log is not None and reader_needs_compile(log) else []
@@ -478,8 +479,8 @@ def _simulate_live(args) -> int:
 
 
 def cmd_live(args) -> int:
-    from .estimators import warm_up
     from .live import LiveOptions, default_record_path, run_live
+    from .warmup import warm_up
     from .live.session import check_ended_with_vehicle, loss_text
     from .params import build, load_file
     from .report import format_table, nothing_scored, write_json

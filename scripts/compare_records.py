@@ -5,8 +5,9 @@ A refactor that claims "bit-identical" runs evaluate before and after into two f
     python scripts/compare_records.py BEFORE_DIR AFTER_DIR
 
 Every value of every per-log record (logs/*.json) must be equal to the letter, floats included
-(JSON keeps a float's shortest round-trip form, so equal text is equal bits). Only the record's wall
-time (`seconds`) is left out. Prints the count of records and values compared and every difference;
+(JSON keeps a float's shortest round-trip form, so equal text is equal bits). Left out: the
+record's wall time (`seconds`) and `settings`, the key that says which options and which source
+made it (evaluate.settings_key hashes the package's source, so any change to the code changes it). Prints the count of records and values compared and every difference;
 exit status 1 when there is one.
 """
 
@@ -16,7 +17,7 @@ import json
 import sys
 from pathlib import Path
 
-IGNORED = {("seconds",)}  # wall time: differs from run to run by design
+IGNORED = {("seconds",), ("settings",)}  # wall time; the options-and-source key: differ by design
 
 
 def _leaves(value, path=()):

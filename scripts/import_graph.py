@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 LAYERS = [
-    ("foundation", ["quaternion", "flight", "earth", "errors", "events", "growing", "kernel_cache", "signals",
+    ("foundation", ["_version", "quaternion", "flight", "earth", "errors", "events", "growing", "kernel_cache", "signals",
                     "progress", "outputs", "declination", "phase", "aiding", "paramspec", "readers", "estimators",
                     "sim", "live.link", "live.loss", "live.recorder"]),
     ("core", ["runner", "warmup", "params", "live.estimation", "metrics", "running_metrics", "refcheck",
@@ -116,7 +116,7 @@ def edges(root: Path, package: str) -> tuple[dict[str, Path], list[Edge]]:
             for target in targets:
                 if target in modules and target != name:
                     found.append(Edge(name, target, node.lineno, lazy))
-    return modules, found
+    return modules, sorted(set(found), key=lambda e: (e.source, e.line, e.target))  # one per line
 
 
 def layer_of(name: str) -> int:

@@ -129,7 +129,7 @@ def test_a_second_process_loads_the_compiled_kernels_from_the_cache(tmp_path):
     import sys
 
     env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path)}
-    probe = ("import sys; from mavattitude.estimators import ESTIMATORS, compile_kernels, needs_compile; "
+    probe = ("import sys; from mavattitude.estimators import ESTIMATORS, needs_compile; from mavattitude.warmup import compile_kernels; "
              "names = ['mahony', 'eskf']; print(needs_compile(names)); compile_kernels(names); "
              "misses = sum(sum(k.stats.cache_misses.values()) for n in names for k in ESTIMATORS[n].kernels); "
              "print(misses)")

@@ -171,7 +171,7 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from ..quaternion import euler_s, left_matrix_into, normalize_head, right_matrix_into, rotate_into, wrap_pi_s
 from .base import MAX_STEP_S, Estimator
 from .timestep import step_rate

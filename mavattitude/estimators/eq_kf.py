@@ -216,7 +216,7 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from ..quaternion import dcm_into, qmul_into
 from .base import MAX_STEP_S, Estimator
 from .inertial_accel import lowpass_in_inertial_frame

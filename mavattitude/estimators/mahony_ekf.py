@@ -128,7 +128,7 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from .alignment import STILL_GYRO_RAD_S
 from .base import MAX_STEP_S, Estimator
 from .inertial_accel import lowpass_in_inertial_frame

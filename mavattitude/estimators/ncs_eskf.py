@@ -180,7 +180,7 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from ..quaternion import exp_s, gravity_in_body_s, normalize_into, qmul_s
 from .consistency import attitude_error, carried, step_rotation_into, track_stillness
 from .gravity import learn_gravity, scale_effect

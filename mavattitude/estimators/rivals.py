@@ -43,7 +43,7 @@ import numpy as np
 from .. import quaternion as quat
 from ..errors import UsageError
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from .base import MAX_STEP_S, Estimator
 
 INSTALL = "pip install 'mavattitude[rivals]'"
