@@ -60,15 +60,6 @@ def test_registered_with_its_parameters():
 # ---------------------------------------------------------------- accuracy on simulated truth
 
 
-def test_static_roll_pitch_within_0_2_deg_and_heading_from_the_magnetometer():
-    sim = st.static_300()
-    q, f = st.run("ekf", sim)
-    err = st.errors_deg(sim, q)
-    assert err[:, 0].max() < 0.2 and err[:, 1].max() < 0.2
-    assert err[:, 2].max() < 1.0  # declination applied
-    assert set(f.diagnostics) == set(Ekf.DIAGNOSTICS)
-
-
 def test_sustained_acceleration_tilts_it():
     """The contrast of the issue: the plain EKF takes the apparent gravity of a 0.25 g
     acceleration for the vertical and tilts by degrees, where ncs-eskf and eq-kf hold 1.5°."""

@@ -47,16 +47,6 @@ def test_registered_with_its_interface():
 # ---------------------------------------------------------------- accuracy on simulated truth
 
 
-def test_static_300s_roll_pitch_within_0_2_deg():
-    sim = simtruth.static_300()
-    q, f = simtruth.run("eq-kf", sim)
-    err = simtruth.errors_deg(sim, q)
-    assert err[:, 0].max() < 0.2 and err[:, 1].max() < 0.2
-    assert err[:, 2].max() < 1.0  # heading from the magnetometer, declination applied
-    # at rest the accelerometer is trusted throughout
-    assert np.mean(f.diagnostics["accel_state"] == 0) > 0.99
-
-
 def test_figure8_coordinated_turns_roll_pitch_mae_below_1_deg():
     """The accelerometer of a multirotor in coordinated turns reads 'level' (thrust-aligned):
     the residual test keeps it out of the turns."""

@@ -30,14 +30,6 @@ def test_registered_with_the_interface():
     assert est.kernels and set(est.DIAGNOSTICS) == {"cov_trace"}
 
 
-def test_static_roll_pitch_within_0_2_deg():
-    sim = st.static_300()
-    q, f = st.run("eskf", sim)
-    err = st.errors_deg(sim, q)
-    assert err[:, 0].max() < 0.2 and err[:, 1].max() < 0.2
-    assert set(f.diagnostics) == {"cov_trace"} and f.diagnostics["cov_trace"].dtype == np.float64
-
-
 def test_accelerometer_jacobian_matches_finite_differences():
     rng = np.random.default_rng(1)
     eps = 1e-6

@@ -48,17 +48,6 @@ def test_registered_with_its_parameters_and_diagnostics():
 # ---------------------------------------------------------------- accuracy on simulated truth
 
 
-def test_static_300_s_roll_pitch_within_0_1_deg():
-    """Paper 000 §3.1: static roll error within 0.1° over 300 s."""
-    sim = st.static_300()
-    q, f = st.run("mahony-ekf", sim)
-    err = st.errors_deg(sim, q)
-    assert err[:, 0].max() < 0.1 and err[:, 1].max() < 0.1
-    assert err[:, 2].max() < 1.0  # heading from the magnetometer, declination applied
-    assert set(f.diagnostics) == set(MahonyEkf.DIAGNOSTICS)
-    assert np.isfinite(f.diagnostics["cov_trace"]).all()
-
-
 def test_figure8_coordinated_turns_roll_pitch_mae_below_1_deg():
     """Paper 000 §3.2: dynamic error within 1°. Thrust-aligned turns read 'level' on the
     accelerometer: mahony is pulled several degrees; weighted by ‖a‖, the internal Mahony

@@ -88,16 +88,6 @@ def test_registered_with_its_parameters_and_diagnostics():
 # ---------------------------------------------------------------- accuracy on simulated truth
 
 
-def test_static_roll_pitch_within_0_2_deg():
-    sim = st.static_300()
-    q, f = st.run("ncs-eskf", sim)
-    err = st.errors_deg(sim, q)
-    assert err[:, 0].max() < 0.2 and err[:, 1].max() < 0.2
-    assert set(f.diagnostics) == set(NcsEskf.DIAGNOSTICS)
-    assert f.diagnostics["accel_state"].dtype == np.int8
-    assert np.mean(f.diagnostics["accel_state"] == 0) > 0.99  # at rest every sample is used
-
-
 def test_figure8_coordinated_turns_roll_pitch_mae_below_1_deg():
     """Thrust-aligned turns: the accelerometer reads 'level' at 25° bank. The horizontal gate
     refuses those readings (most of the flight), so the tilt is the gyro's, corrected in the

@@ -29,7 +29,6 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from .. import earth
 from .. import quaternion as quat
 from ..flight import GRAVITY
-from . import world
 
 _STAMP = struct.Struct(">Q")
 STATUSTEXT_MAX = 50  # characters in a STATUSTEXT
