@@ -5,6 +5,8 @@ integration across a gap, and the static accuracy on simulated truth (a bound pe
 Each estimator's own file tests what is particular to it."""
 from __future__ import annotations
 
+from dataclasses import fields
+
 import numpy as np
 import pytest
 
@@ -14,6 +16,7 @@ from mavattitude import quaternion as quat
 from mavattitude.aiding import Aiding, from_sim
 from mavattitude.estimators import ESTIMATORS, align, create
 from mavattitude.flight import GRAVITY
+from mavattitude.params import build
 
 NAMES = estimator_params()
 
@@ -43,6 +46,38 @@ def hostile(n: int = 200_000, seed: int = 5, accel_noise: float = 3.0):
 @pytest.fixture(scope="module")
 def noisy():
     return hostile()
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_registered_under_its_name_with_the_interface(name):
+    """The registry's name is the class's; a heading reference exactly where the estimator takes
+    the compass and one is there, and none once ``--set NAME.use_mag=false``; accel state 0 is
+    "used"; our estimators name their numba kernels. After a short update: the attitudes, the
+    documented diagnostics with a value per sample and their dtypes, and a covariance that is a
+    copy."""
+    cls = ESTIMATORS[name]
+    assert cls.name == name and cls.Params is not None
+    est = create(name)
+    assert est.has_heading_reference(True) == cls.uses_mag and not est.has_heading_reference(False)
+    if "use_mag" in {f.name for f in fields(cls.Params)}:
+        off = build([name], None, [f"{name}.use_mag=false"])[name]
+        assert off.use_mag is False and not create(name, off).has_heading_reference(True)
+    assert not cls.ACCEL_STATES or cls.ACCEL_STATES[0] == "used"
+    assert cls.requires or cls.kernels
+    est.initialize(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.01, -0.02, 0.003]))
+    n = 50
+    q = est.update(np.arange(n) * 0.01, np.zeros((n, 3)), np.tile([0.0, 0.0, -9.8], (n, 1)), None)
+    assert q.shape == (n, 4)
+    assert set(est.diagnostics) == set(cls.DIAGNOSTICS)
+    assert all(series.shape == (n,) for series in est.diagnostics.values())
+    if "accel_state" in est.diagnostics:
+        assert est.diagnostics["accel_state"].dtype == np.int8
+    if "cov_trace" in est.diagnostics:
+        assert est.diagnostics["cov_trace"].dtype == np.float64
+    cov = est.covariance
+    if cov is not None:
+        cov[0, 0] = 123.0
+        assert est.covariance[0, 0] != 123.0  # a copy
 
 
 @pytest.mark.parametrize("name", NAMES)
