@@ -15,7 +15,7 @@ group ``mavattitude.estimators``).
 """
 from __future__ import annotations
 
-__version__ = "0.1.0"
+from ._version import __version__
 
 
 def load(path, segment: int | None = None):

@@ -13,7 +13,7 @@ one IMU period after it was taken (that latency is not compensated here; at 50 H
 - GPS accuracy: the reported horizontal (and vertical) 1σ position accuracy in metres, NaN
   where the log does not give it;
 - baro height: metres up, from the pressure through the standard atmosphere
-  (``phase.pressure_height``), relative to the first good sample.
+  (``earth.pressure_height``), relative to the first good sample.
 
 Each measurement is fused at the first IMU sample to arrive with or after it (``Placer``; by
 time where there is no arrival order) whose time is not earlier than its own. Dropped, not
@@ -28,11 +28,10 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from .earth import geodetic_to_ned, pressure_height
+from .earth import ned_to_geodetic  # noqa: F401 - the view draws the GPS track with it, from here
 from .flight import BaroSeries, GpsSeries
-from .phase import pressure_height
 
-WGS84_A = 6_378_137.0  # m, semi-major axis
-WGS84_E2 = 6.694_379_990_14e-3  # first eccentricity squared
 MAX_LATENCY_S = 0.5  # s: a measurement reaching the IMU clock later than this is stale
 MIN_PRESSURE_PA = 1e3  # below this a pressure reading is not plausible
 
@@ -75,33 +74,6 @@ class Aiding:
         """No aiding at all for ``n`` IMU samples."""
         return cls(np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.full(n, np.nan),
                    np.full(n, np.nan), np.full(n, np.nan))
-
-
-def radii(lat0_deg: float) -> tuple[float, float]:
-    """Meridian and prime-vertical radii of curvature (m) at a latitude."""
-    s = np.sin(np.radians(lat0_deg))
-    w = np.sqrt(1.0 - WGS84_E2 * s * s)
-    return WGS84_A * (1.0 - WGS84_E2) / w ** 3, WGS84_A / w
-
-
-def geodetic_to_ned(origin, lat_deg, lon_deg, alt_m) -> np.ndarray:
-    """(N, 3) NED metres of geodetic points relative to ``origin`` (lat °, lon °, alt m)."""
-    lat0, lon0, alt0 = origin
-    r_m, r_n = radii(lat0)
-    north = np.radians(np.asarray(lat_deg, dtype=float) - lat0) * r_m
-    east = np.radians(np.asarray(lon_deg, dtype=float) - lon0) * r_n * np.cos(np.radians(lat0))
-    down = -(np.asarray(alt_m, dtype=float) - alt0)
-    return np.stack([north, east, down], axis=-1)
-
-
-def ned_to_geodetic(origin, ned) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Inverse of ``geodetic_to_ned``: latitude, longitude (degrees) and altitude (m)."""
-    lat0, lon0, alt0 = origin
-    r_m, r_n = radii(lat0)
-    ned = np.asarray(ned, dtype=float)
-    lat = lat0 + np.degrees(ned[..., 0] / r_m)
-    lon = lon0 + np.degrees(ned[..., 1] / (r_n * np.cos(np.radians(lat0))))
-    return lat, lon, alt0 - ned[..., 2]
 
 
 GPS_COLUMNS = ("t", "lat", "lon", "alt", "vn", "ve", "vd", "fix", "sats", "h_acc", "v_acc", "arrival")

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
+from ._version import __version__
 from .errors import UsageError, reraise_interrupt
 from .flight import MagSeries
 from .outputs import json_text

@@ -153,7 +153,7 @@ def rate_probe(names: list[str], speed: float = RATE_PROBE_SPEED, seconds: float
 
 
 def _rate_probe(names: list[str], speed: float, seconds: float) -> dict:
-    from .estimators import warm_up
+    from .warmup import warm_up
 
     warm_up(names)
     rss: list[tuple[float, float]] = []  # (monotonic s, MB)
@@ -201,7 +201,7 @@ def _rss_figures(rss: list[tuple[float, float]], start: float, end: float, sampl
 def run_live_bench(names: list[str], seconds: float = 60.0, say=print, probe_seconds: float = RATE_PROBE_S) -> dict:
     """Stream ``seconds`` of 1 kHz IMU to a live session running ``names``, then probe the rate
     it holds for ``probe_seconds``; the figures as a dict."""
-    from .estimators import warm_up
+    from .warmup import warm_up
 
     warm_up(names)
     say(f"live: streaming {seconds:g} s of RAW_IMU at {LIVE_IMU_HZ:g} Hz and ATTITUDE at "

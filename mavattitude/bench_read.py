@@ -10,8 +10,8 @@ hour-long replay costs end to end.
 - ``.ulg``: our reader (``readers.ulog.read_ulog``: the topics replay uses, into SI columns)
   against pyulog's read of the same topics (``ULog(path, message_name_filter_list=TOPICS)``), on
   the simulated log written as a ULog too, and on any ``--log`` given.
-- ``load()``: ``mavattitude.load`` end to end (the reader, then the clock, the checks and the
-  series of a ``Flight``) against the same reference read (``x_pymavlink_load``, ``x_pyulog_load``), per log.
+- ``load()``: ``mavattitude.load`` end to end, timed as the ``readers.read_log`` it calls (the
+  reader, then the clock, the checks and the series of a ``Flight``) against the same reference read (``x_pymavlink_load``, ``x_pyulog_load``), per log.
 - End to end: ``mavattitude replay LOG --estimators all --rrd`` on the 1-hour log, in a child
   process (kernels compiled beforehand): wall time and peak RSS, next to the size of the
   arrays the reader decoded.
@@ -87,8 +87,7 @@ def _pyulog(path: str) -> int:
 def read_figures(path: str, repeat: int = 3) -> dict:
     """Our reader and the reference one (pymavlink's, or pyulog for a ULog) on one log: CPU
     seconds, MB/s and the ratio, under keys that name the reference (``x_pymavlink``, ``x_pyulog``)."""
-    from . import load
-    from .readers import sniff_format
+    from .readers import read_log, sniff_format
     from .readers.dataflash import read_dataflash
     from .readers.tlog import read_tlog
     from .readers.ulog import read_ulog
@@ -98,7 +97,7 @@ def read_figures(path: str, repeat: int = 3) -> dict:
                                     "tlog": (read_tlog, "pymavlink", _pymavlink_tlog),
                                     "ulg": (read_ulog, "pyulog", _pyulog)}[kind]
     ours = _cpu(lambda: reader(path), repeat)
-    loaded = _cpu(lambda: load(path), repeat)
+    loaded = _cpu(lambda: read_log(path), repeat)
     theirs = _cpu(lambda: theirs_fn(path), 1)
     mb = os.path.getsize(path) / 1e6
     return {"log": path, "format": kind, "mb": round(mb, 2), "reference": reference, "ours_s": round(ours, 6),
@@ -140,7 +139,8 @@ def run_read_bench(logs: list[str], scenario: str = "figure8", duration: float =
                    imu_rate: float = 400.0, repeat: int = 3, say=print) -> dict:
     """Every figure (see the module docstring); ``logs``: real logs to read besides the
     simulated one (``duration`` s of ``scenario`` at ``imu_rate``: by default, the hour)."""
-    from .estimators import ESTIMATORS, needs_compile, precompile
+    from .estimators import ESTIMATORS, needs_compile
+    from .warmup import precompile
 
     precompile(needs_compile(list(ESTIMATORS))).wait()
     with tempfile.TemporaryDirectory(prefix="mavattitude-bench-") as tmp:

@@ -63,9 +63,10 @@ def _compile(names: list[str], quiet: bool = False, log: str | None = None):
     """Start compiling what these estimators need and is not cached yet (said on stderr, and
     then, but for ``quiet``, each as it is done and the time so far). ``log``: the log to be
     read here, whose reader compiles as it reads (the caller says ``done("log reader")``)."""
-    from .estimators import needs_compile, precompile
+    from .estimators import needs_compile
     from .progress import StepsLine
     from .readers import reader_needs_compile
+    from .warmup import precompile
 
     pending = needs_compile(names)
     also = ["log reader"] if log is not None and reader_needs_compile(log) else []
@@ -133,8 +134,8 @@ def _replay_settings(args, names: list[str]):
     from .pipeline import ReplaySettings
 
     settings = ReplaySettings(
-        names=tuple(names), reference=args.reference, imu=args.imu, imu_family=args.imu_source, warmup_s=args.warmup,
-        declination_deg=args.declination, home=args.home, use_mag=not args.no_mag, trim=not args.no_trim,
+        names=tuple(names), reference=args.reference, imu=args.imu, imu_family=args.imu_family, warmup_s=args.warmup,
+        declination_deg=args.declination_deg, home=args.home, use_mag=not args.no_mag, trim=not args.no_trim,
         segment=args.segment,
         file_values=load_file(args.params) if args.params else None,
         assignments=tuple(args.set or ()), params_source=args.params or "--params")
@@ -478,8 +479,8 @@ def _simulate_live(args) -> int:
 
 
 def cmd_live(args) -> int:
-    from .estimators import warm_up
     from .live import LiveOptions, default_record_path, run_live
+    from .warmup import warm_up
     from .live.session import check_ended_with_vehicle, loss_text
     from .params import build, load_file
     from .report import format_table, nothing_scored, write_json
@@ -503,7 +504,7 @@ def cmd_live(args) -> int:
             url=args.url, baud=args.baud, sysid=args.sysid, names=names, params=params,
             imu_rate=args.imu_rate, request=not args.no_request, imu_source=args.imu, window=args.window,
             timeout=args.timeout, record=str(record) if record else None, warmup=args.warmup,
-            declination=args.declination, home=args.home, reference=args.reference, use_mag=not args.no_mag,
+            declination_deg=args.declination_deg, home=args.home, reference=args.reference, use_mag=not args.no_mag,
             trim=not args.no_trim, duration=args.duration, sink=sink))
         print(f"session: {result.seconds:.1f} s, {result.monitor.packets} packets ("
               + loss_text(result.monitor, result.estimation.samples_lost, result.kernel_drops)
@@ -672,13 +673,13 @@ def _estimation_args(p, source: str, estimators: bool = True) -> None:
     if source == "log":
         quiet_arg(p)
         from .flight import DEFAULT_FAMILIES, IMU_FAMILIES
-        p.add_argument("--imu-source", choices=list(IMU_FAMILIES), default=None,
+        p.add_argument("--imu-source", choices=list(IMU_FAMILIES), default=None, dest="imu_family",
                        help="which kind of IMU data to estimate from: " + "; ".join(
                            f"{k}: {v}" for k, v in IMU_FAMILIES.items()) + " (default: the first of "
                            f"{', '.join(DEFAULT_FAMILIES)} the log has; --imu picks one series)")
     p.add_argument("--warmup", type=SECONDS, default=10.0, metavar="S",
                    help="seconds at the start not scored while estimators converge (default 10)")
-    p.add_argument("--declination", type=DEGREES, default=None, metavar="DEG",
+    p.add_argument("--declination", type=DEGREES, default=None, metavar="DEG", dest="declination_deg",
                    help=f"magnetic declination in degrees, east positive, -180 to 180 (default: the "
                         f"{source}'s COMPASS_DEC where set by hand (COMPASS_AUTODEC=0; PX4: EKF2_MAG_DECL), "
                         "else the World Magnetic Model at --home or the first good GPS fix on the "

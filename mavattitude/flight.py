@@ -24,6 +24,12 @@ GRAVITY = 9.80665  # m/s², standard gravity
 
 
 # The IMU families a log can hold (``--imu-source``), told apart by their series' names.
+# Names: an "IMU source" (``imu_source``, ``--imu``) is one series, a key of ``Flight.imu``
+# ("IMU[0]", "RAW_IMU"); a family is ``imu_family``. Two user-facing names keep the older
+# meaning for compatibility: the ``--imu-source`` option and ``mavattitude.replay(imu_source=)``
+# take a family. Likewise ``declination`` is radians east inside (estimators, ``Runner``),
+# ``declination_deg`` the user's degrees, except ``mavattitude.replay(declination=)`` (degrees);
+# a result's or a report's ``declination`` is a ``declination.Declination``: value and source.
 IMU_FAMILIES = {
     "imu": "the main loop's samples (IMU, RAW_IMU, SCALED_IMU*, HIGHRES_IMU; PX4's sensor_combined)",
     "raw": "the sensor-rate samples (GYR with ACC, 1-8 kHz)",

@@ -38,6 +38,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from ._version import __version__
 from .errors import InputError, special_file
 
 if sys.version_info >= (3, 11):
@@ -71,8 +72,6 @@ OPTUNA_TABLES = {"studies", "version_info", "study_directions", "study_user_attr
 def json_text(data: dict, indent: int = 2, **options) -> str:
     """``data`` as our JSON files hold it: after a first key saying who wrote it (how
     ``is_kind`` tells our files from a user's)."""
-    from . import __version__
-
     return json.dumps({"written_by": f"{WRITTEN_BY} {__version__}", **data}, indent=indent, **options) + "\n"
 
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .earth import pressure_height
 from .flight import BaroSeries, Flight, GpsSeries
 from .growing import Growing
 
@@ -30,7 +31,6 @@ GROUND_BELOW_M = 1.5  # m above the start: back on the ground
 SMOOTH_S = 1.0  # s: heights are median-filtered over this span first
 START_S = 3.0  # s: the start height is the median over this first span
 STALE_S = 2.0  # s: beyond this from the last height sample, the phase is unknown
-SEA_LEVEL_PA = 101325.0
 
 
 @dataclass
@@ -47,21 +47,6 @@ class PhaseSeries:
         age = t - self.t[np.clip(idx, 0, None)]
         out[(idx < 0) | (age > STALE_S)] = np.nan
         return out
-
-
-def pressure_height(pressure_pa: np.ndarray) -> np.ndarray:
-    """Height (m) in the ICAO standard atmosphere; only differences are used. NaN for a
-    pressure not above 0 (a corrupt sample), without numpy's warning."""
-    pressure = np.asarray(pressure_pa, dtype=float)
-    return 44330.77 * (1.0 - (np.where(pressure > 0, pressure, np.nan) / SEA_LEVEL_PA) ** 0.190263)
-
-
-def height_pressure(height_m: np.ndarray) -> np.ndarray:
-    """``pressure_height``'s inverse: the pressure (Pa) at a standard-atmosphere height (m).
-    NaN at or above the formula's top, 44331 m, where the pressure would be 0 or less (a
-    corrupt height: "invalid value in power" was numpy's warning)."""
-    base = 1.0 - np.asarray(height_m, dtype=float) / 44330.77
-    return SEA_LEVEL_PA * np.where(base > 0, base, np.nan) ** (1 / 0.190263)
 
 
 def detect_phase(flight: Flight) -> PhaseSeries | None:

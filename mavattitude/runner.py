@@ -1,6 +1,7 @@
 """The estimation core: estimators run over one clock segment's samples, as they arrive.
 
-Replay, live, bench, evaluate and tune all run the estimators through a ``Runner``. Replay
+Replay, live, evaluate, tune and the Python API run the estimators through a ``Runner``;
+plain ``bench`` times each estimator's own ``update()`` instead, on purpose. Replay
 hands it a whole log at once, live a few packets at a time; either way every IMU sample is
 given exactly what had *arrived* before it (``arrival``: a log's file order, a link's packet
 order), so the two give the same estimates to the last bit:

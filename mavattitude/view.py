@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rerun as rr
@@ -73,9 +74,11 @@ from .declination import NO_DECLINATION
 from .flight import AttitudeSeries, GpsSeries
 from .metrics import AXES
 from .events import Event
-from .pipeline import ReplayResult
 from .report import spread_lines
 from .runner import REINIT_GAP_S, STEP_ROWS
+
+if TYPE_CHECKING:  # for types only: replay (pipeline) is above the view and draws through it
+    from .pipeline import ReplayResult
 
 TIMELINE = "time"
 

@@ -20,9 +20,10 @@ from pathlib import Path
 
 def main() -> None:
     from mavattitude.bench_live import LIVE_IMU_HZ, _probe_sender, _session_against
-    from mavattitude.estimators import ESTIMATORS, warm_up
+    from mavattitude.estimators import ESTIMATORS
     from mavattitude.live.display import FILE
     from mavattitude.sink import plan_sink
+    from mavattitude.warmup import warm_up
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--estimators", default="all", help="comma-separated names, or all")

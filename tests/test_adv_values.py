@@ -301,7 +301,7 @@ def test_standard_atmosphere_out_of_its_range_is_nan_without_a_warning():
 
     import numpy as np
 
-    from mavattitude.phase import height_pressure, pressure_height
+    from mavattitude.earth import height_pressure, pressure_height
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mavattitude import aiding
+from mavattitude import aiding, earth
+from mavattitude.earth import pressure_height
 from mavattitude.flight import BaroSeries, GpsSeries
-from mavattitude.phase import pressure_height
-from mavattitude.sim import earth, simulate
+from mavattitude.sim import simulate
 
 ORIGIN = (47.4, 8.5, 500.0)
 
@@ -16,18 +16,18 @@ ORIGIN = (47.4, 8.5, 500.0)
 def _gps(t, ned, fix=3, vel=None, h_acc=np.nan):
     t = np.asarray(t, dtype=float)
     n = len(t)
-    lat, lon, alt = earth.ned_to_geodetic(earth.Home(*ORIGIN), np.asarray(ned, dtype=float))
+    lat, lon, alt = earth.ned_to_geodetic(ORIGIN, np.asarray(ned, dtype=float))
     vel = np.zeros((n, 3)) if vel is None else np.asarray(vel, dtype=float)
     return GpsSeries("gps", t, lat, lon, alt, vel, np.broadcast_to(fix, (n,)).astype(int),
                      np.full(n, 10), np.broadcast_to(h_acc, (n,)).astype(float))
 
 
-def test_geodetic_round_trip_and_agreement_with_the_simulator():
+def test_geodetic_round_trip_and_the_wgs84_radii():
     ned = np.array([[0.0, 0.0, 0.0], [120.0, -340.0, -25.0], [-900.0, 1500.0, 3.0]])
-    lat, lon, alt = aiding.ned_to_geodetic(ORIGIN, ned)
-    np.testing.assert_allclose(aiding.geodetic_to_ned(ORIGIN, lat, lon, alt), ned, atol=1e-9)
-    sim_lat, sim_lon, sim_alt = earth.ned_to_geodetic(earth.Home(*ORIGIN), ned)
-    np.testing.assert_allclose(aiding.geodetic_to_ned(ORIGIN, sim_lat, sim_lon, sim_alt), ned, atol=1e-6)
+    lat, lon, alt = earth.ned_to_geodetic(ORIGIN, ned)
+    np.testing.assert_allclose(earth.geodetic_to_ned(ORIGIN, lat, lon, alt), ned, atol=1e-9)
+    # the radii of curvature at 45°, as geodesy tables give them (m)
+    np.testing.assert_allclose(earth.radii(45.0), (6_367_381.8, 6_388_838.3), atol=0.1)
 
 
 def test_each_fix_lands_once_on_the_first_imu_sample_at_or_after_it():
@@ -42,7 +42,7 @@ def test_each_fix_lands_once_on_the_first_imu_sample_at_or_after_it():
     np.testing.assert_allclose(a.gps_vel[rows], [[1, 2, 3]] * 3)
     np.testing.assert_allclose(a.gps_h_acc[rows], 0.7)
     assert np.isnan(a.gps_v_acc).all()  # GpsSeries has no vertical accuracy
-    assert a.origin == pytest.approx(tuple(np.array(earth.ned_to_geodetic(earth.Home(*ORIGIN), ned[0]))))
+    assert a.origin == pytest.approx(tuple(np.array(earth.ned_to_geodetic(ORIGIN, ned[0]))))
     assert np.count_nonzero(np.isfinite(a.gps_vel[:, 0])) == 3 and not a.has_baro and a.has_gps
 
 
@@ -56,7 +56,7 @@ def test_fixes_below_3d_out_of_order_stale_and_superseded_are_dropped():
     # 0.5 s: 2D fix (and not the origin); 1.4 s: older than 1.5 s; 2.001 and 2.002 s: the IMU
     # sample at 2.02 s gets only the newest of three; 6.0 s: inside the gap, 2 s stale by 8.0 s.
     np.testing.assert_allclose(imu_t[kept], [1.02, 1.5, 2.02, 9.02], atol=1e-6)
-    first = aiding.geodetic_to_ned(a.origin, *earth.ned_to_geodetic(earth.Home(*ORIGIN), ned[1]))
+    first = earth.geodetic_to_ned(a.origin, *earth.ned_to_geodetic(ORIGIN, ned[1]))
     np.testing.assert_allclose(first, 0.0, atol=1e-6)  # the origin is the first good 3D fix
     np.testing.assert_allclose(a.gps_pos[kept[2]], ned[6] - ned[1], atol=1e-4)  # radii at another latitude
 
@@ -73,7 +73,7 @@ def test_baro_height_is_up_from_the_first_sample():
     imu_t = np.arange(0.0, 20.0, 0.01)
     t = np.arange(0.05, 20.0, 0.1)
     height = np.where(t > 10.0, 12.0, 0.0)
-    pressure = earth.pressure_from_altitude(400.0 + height)
+    pressure = earth.height_pressure(400.0 + height)
     a = aiding.build(imu_t, None, BaroSeries("baro", t, pressure, np.full(len(t), np.nan)))
     rows = np.flatnonzero(np.isfinite(a.baro_height))
     assert len(rows) == len(t)

@@ -14,7 +14,7 @@ from conftest import SAMPLE_LOGS, shared_log
 from mavattitude import declination as decl
 from mavattitude.cli import main
 from mavattitude.readers import read_log
-from mavattitude.sim.earth import EPOCH_UNIX_AT_BOOT, Home
+from mavattitude.sim.world import EPOCH_UNIX_AT_BOOT, Home
 
 UTC = datetime.timezone.utc
 HOME = Home()  # where the simulator flies: 47.397742° N, 8.545594° E

@@ -10,7 +10,7 @@ from test_contract import hostile
 from filterpy.kalman import ExtendedKalmanFilter
 
 from mavattitude import quaternion as quat
-from mavattitude.estimators import ESTIMATORS, align, create
+from mavattitude.estimators import ESTIMATORS, align
 from mavattitude.estimators.ekf import (Ekf, EkfParams, accel_model, heading_model, level_field,
                                         transition)
 from mavattitude.params import build
@@ -47,26 +47,14 @@ def _fd(f, q, eps=1e-7):
 
 
 def test_registered_with_its_parameters():
-    assert ESTIMATORS["ekf"] is Ekf
-    est = create("ekf")
-    assert est.uses_mag and est.has_heading_reference(True) and not est.has_heading_reference(False)
+    """What is particular to ekf; the interface every estimator has is test_contract.py's."""
+    assert ESTIMATORS["ekf"] is Ekf and Ekf.uses_mag
     assert EkfParams().q_gyro == 1e-2  # paper 000's Q
-    params = build(["ekf"], None, ["ekf.r_accel=0.1", "ekf.use_mag=false"])
-    assert params["ekf"].r_accel == 0.1 and params["ekf"].use_mag is False
-    assert not create("ekf", params["ekf"]).has_heading_reference(True)
+    assert build(["ekf"], None, ["ekf.r_accel=0.1"])["ekf"].r_accel == 0.1
     assert set(Ekf.DIAGNOSTICS) == {"cov_trace"}
 
 
 # ---------------------------------------------------------------- accuracy on simulated truth
-
-
-def test_static_roll_pitch_within_0_2_deg_and_heading_from_the_magnetometer():
-    sim = st.static_300()
-    q, f = st.run("ekf", sim)
-    err = st.errors_deg(sim, q)
-    assert err[:, 0].max() < 0.2 and err[:, 1].max() < 0.2
-    assert err[:, 2].max() < 1.0  # declination applied
-    assert set(f.diagnostics) == set(Ekf.DIAGNOSTICS)
 
 
 def test_sustained_acceleration_tilts_it():
@@ -75,19 +63,6 @@ def test_sustained_acceleration_tilts_it():
     sim = st.accel_110()
     q, _ = st.run("ekf", sim)
     assert st.errors_deg(sim, q)[:, :2].max() > 1.5
-
-
-@pytest.mark.parametrize("axis", ["roll", "yaw"])
-def test_converges_from_a_30_degree_offset(axis):
-    sim = st.static_300()
-    truth0 = quat.to_euler(sim.truth.q[0])
-    offset = np.radians(30.0)
-    start = truth0 + (np.array([offset, 0, 0]) if axis == "roll" else np.array([0, 0, offset]))
-    q, _ = st.run("ekf", sim, q0=quat.from_euler(*start))
-    err = st.errors_deg(sim, q, after_s=0.0)
-    i = {"roll": 0, "yaw": 2}[axis]
-    assert err[0, i] == pytest.approx(30.0, abs=0.5)  # P₀ = I: the first updates take it in
-    assert err[sim.t >= sim.t[0] + 2.0, i].max() < {"roll": 0.2, "yaw": 1.0}[axis]
 
 
 # ---------------------------------------------------------------- the model

@@ -26,35 +26,15 @@ def _random_unit_quaternions(rng, n):
 
 
 def test_registered_with_its_interface():
-    assert ESTIMATORS["eq-kf"] is EqKf
+    """What is particular to eq-kf; the interface every estimator has is test_contract.py's."""
+    assert ESTIMATORS["eq-kf"] is EqKf and EqKf.uses_mag
+    assert EqKf.ACCEL_STATES == ACCEL_STATES and {"accel_state", "cov_trace"} <= set(EqKf.DIAGNOSTICS)
     f = create("eq-kf", declination=0.1)
-    assert f.uses_mag and f.has_heading_reference(True) and not f.has_heading_reference(False)
-    assert not create("eq-kf", EqKfParams(use_mag=False)).has_heading_reference(True)
-    assert EqKf.ACCEL_STATES == ACCEL_STATES and ACCEL_STATES[0] == "used"
     f.initialize(quat.from_euler(0.1, -0.2, 0.3), np.array([0.01, -0.02, 0.003]))
     np.testing.assert_allclose(f.gyro_bias, [0.01, -0.02, 0.003])
-    n = 50
-    q = f.update(np.arange(n) * 0.01, np.zeros((n, 3)), np.tile([0.0, 0.0, -9.8], (n, 1)), None)
-    assert q.shape == (n, 4)
-    assert set(f.diagnostics) == set(EqKf.DIAGNOSTICS)
-    assert f.diagnostics["accel_state"].dtype == np.int8
-    assert f.diagnostics["cov_trace"].dtype == np.float64 and len(f.diagnostics["cov_trace"]) == n
-    cov = f.covariance
-    cov[0, 0] = 123.0  # a copy
-    assert f.covariance[0, 0] != 123.0
 
 
 # ---------------------------------------------------------------- accuracy on simulated truth
-
-
-def test_static_300s_roll_pitch_within_0_2_deg():
-    sim = simtruth.static_300()
-    q, f = simtruth.run("eq-kf", sim)
-    err = simtruth.errors_deg(sim, q)
-    assert err[:, 0].max() < 0.2 and err[:, 1].max() < 0.2
-    assert err[:, 2].max() < 1.0  # heading from the magnetometer, declination applied
-    # at rest the accelerometer is trusted throughout
-    assert np.mean(f.diagnostics["accel_state"] == 0) > 0.99
 
 
 def test_figure8_coordinated_turns_roll_pitch_mae_below_1_deg():
@@ -88,20 +68,6 @@ def test_sustained_linear_acceleration_holds_attitude():
     assert np.all((w == 1.0) == (f.diagnostics["accel_state"] == 0))
     q_plain, _ = simtruth.run("eq-kf", sim, EqKfParams(**NO_TRUST))
     assert simtruth.errors_deg(sim, q_plain)[:, 1].max() > 10.0
-
-
-@pytest.mark.parametrize("axis,offset_deg", [("roll", 30.0), ("yaw", 30.0)])
-def test_converges_from_a_30_degree_offset(axis, offset_deg):
-    sim = simtruth.static_300()
-    truth0 = quat.to_euler(sim.truth.q[0])
-    i = {"roll": 0, "yaw": 2}[axis]
-    start = truth0.copy()
-    start[i] += np.radians(offset_deg)
-    q, _ = simtruth.run("eq-kf", sim, q0=quat.from_euler(*start))
-    err = simtruth.errors_deg(sim, q, after_s=0.0)
-    assert err[0, i] == pytest.approx(offset_deg, abs=0.5)
-    late = sim.t >= sim.t[0] + 30.0
-    assert err[late, :2].max() < 0.2 and err[late, 2].max() < 1.0
 
 
 def test_a_confident_filter_started_off_recovers_while_still():

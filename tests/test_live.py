@@ -775,7 +775,7 @@ def test_an_interrupt_numba_could_only_report_is_raised_after_the_compile():
     traceback on stderr, and the compile goes on): taken quietly, raised once it is over."""
     from types import SimpleNamespace
 
-    from mavattitude.estimators import _noticing_interrupts
+    from mavattitude.warmup import _noticing_interrupts
 
     before = sys.unraisablehook
     with pytest.raises(KeyboardInterrupt):

@@ -50,14 +50,6 @@ def figure8_sim():
     return simulate("figure8", 120.0, seed=12, imu_rate=100.0)
 
 
-def test_static_roll_pitch_within_0_2_deg(static_sim):
-    q, a = _run(static_sim)
-    assert a.still_span is not None and a.heading_from_mag
-    err = _errors_deg(static_sim, q)
-    assert err[:, 0].max() < 0.2 and err[:, 1].max() < 0.2
-    assert err[:, 2].max() < 1.0  # heading from the magnetometer with the declination applied
-
-
 def test_still_period_is_detected_not_assumed(static_sim, figure8_sim):
     sim = figure8_sim
     n = detect_still(sim.t, sim.imu[0].gyro, sim.imu[0].accel)
@@ -69,20 +61,6 @@ def test_still_period_is_detected_not_assumed(static_sim, figure8_sim):
     np.testing.assert_allclose(a.gyro_bias, true_bias, atol=2e-3)
     moving = slice(np.searchsorted(sim.t, sim.still_until + 20.0), None)
     assert detect_still(sim.t[moving], sim.imu[0].gyro[moving], sim.imu[0].accel[moving]) == 0
-
-
-@pytest.mark.parametrize("axis", ["roll", "yaw"])
-def test_converges_from_a_30_degree_offset(static_sim, axis):
-    truth0 = quat.to_euler(static_sim.truth.q[0])
-    offset = np.radians(30.0)
-    start = truth0 + (np.array([offset, 0, 0]) if axis == "roll" else np.array([0, 0, offset]))
-    q, _ = _run(static_sim, q0=quat.from_euler(*start))
-    err = _errors_deg(static_sim, q, after_s=0.0)
-    i = {"roll": 0, "yaw": 2}[axis]
-    assert err[0, i] == pytest.approx(30.0, abs=0.5)
-    late = static_sim.t >= static_sim.t[0] + 40.0  # ~8 time constants at Kp = 0.2
-    # What remains is the integral term's wind-up from the 30° transient, decaying slowly.
-    assert err[late, i].max() < {"roll": 0.5, "yaw": 1.0}[axis]
 
 
 def test_signs_converge_the_wrong_way_would_diverge(static_sim):

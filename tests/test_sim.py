@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
+from mavattitude import earth
 from mavattitude import quaternion as quat
 from mavattitude.flight import GRAVITY
 from mavattitude.sim import SCENARIOS, SensorParams, simulate, write_log
-from mavattitude.sim import dataflash, earth, trajectory
+from mavattitude.sim import dataflash, trajectory, world
 
 REAL_44_BIN = Path(__file__).resolve().parents[2] / "shared" / "logs" / "sitl-copter-4.4.bin"
 G_NED = np.array([0.0, 0.0, GRAVITY])
@@ -115,7 +116,7 @@ def test_sensors_match_the_truth(fig8):
     sim = fig8
     imu = sim.imu[0]
     assert np.array_equal(imu.t, sim.truth.t) and np.array_equal(sim.imu[1].t, sim.truth.t)
-    assert sim.t[0] == earth.BOOT_TIME_AT_START  # the autopilot clock does not start at 0
+    assert sim.t[0] == world.BOOT_TIME_AT_START  # the autopilot clock does not start at 0
     rate = sim.rates.imu
     gyro_noise = imu.gyro - sim.truth.omega_b - imu.gyro_bias
     assert np.std(gyro_noise) == pytest.approx(sim.params.gyro_noise_density * np.sqrt(rate), rel=0.1)
@@ -138,8 +139,8 @@ def test_sensors_match_the_truth(fig8):
 
     # GPS and baro follow the true position.
     assert len(sim.gps.t) == pytest.approx(sim.duration * sim.rates.gps, abs=1)
-    lat, lon, alt = earth.ned_to_geodetic(sim.home, trajectory.sample(
-        trajectory.REGISTRY["figure8"], sim.gps.t - earth.BOOT_TIME_AT_START).pos_ned)
+    lat, lon, alt = earth.ned_to_geodetic(sim.home.origin, trajectory.sample(
+        trajectory.REGISTRY["figure8"], sim.gps.t - world.BOOT_TIME_AT_START).pos_ned)
     north_err = (sim.gps.lat_deg - lat) * 111_000
     assert 0.1 < np.std(north_err) < 1.0
     assert np.abs(sim.baro.alt_m[-10:].mean() - trajectory.FIG8_HEIGHT) < 0.3

@@ -36,7 +36,7 @@ MAX_PLAUSIBLE_BIAS_RAD_S = 0.1  # ≈ 6 °/s: more than that at rest is motion, 
 MIN_STILL_S = 1.0
 MIN_STILL_SAMPLES = 5
 # The still period averaged at most. A live session waits for it before its first estimate,
-# and replay aligns on exactly what live does, so it is short. On the 31 shared logs (seven
+# and replay aligns on exactly what live does, so it is short. On the 31 shared logs then (48 now; seven
 # estimators, roll/pitch MAE against the autopilot, median / mean over the logs) 10 s loses
 # nothing against 60 s (mahony 1.526 / 2.185° both; cpf-ekf 1.539 / 1.851 -> 1.509 / 1.842°;
 # eq-kf 1.299 / 2.006 -> 1.283 / 2.005°; the others within 0.01°), where 3 s cost eq-kf 0.025°

@@ -112,8 +112,8 @@ Choices the paper leaves open, made here:
   with the throttle, so not white as R assumes), and through H_q the full update turned them
   into tilt: loggap-fyp-test1 after its gap (2-5° roll/pitch for 100 s, no resets: the CPF's
   compass-driven tilt was as wrong), tipover-quiver088 (compasses inconsistent), the BlueROV
-  dives (thrusters). Over the 31 shared logs (tilt, ° mean of roll and pitch MAE; mahony's
-  median 1.195): median 1.055 → 0.855, mean 1.566 → 1.395, worst log copter-4.1-flight.tlog
+  dives (thrusters). Over the 31 shared logs then (48 now; tilt, ° mean of roll and pitch MAE;
+  mahony's median 1.195): median 1.055 → 0.855, mean 1.566 → 1.395, worst log copter-4.1-flight.tlog
   8.28 → 7.88; logs over 1.5× mahony 3 → 0 (worst ratio 3.31 → 1.45, joeydouglas-flight-b,
   no compass, unchanged). Moved most: loggap-fyp-test1 2.195 → 0.943 (3.31 → 1.42×),
   tipover-quiver088 1.055 → 0.481 (2.81 → 1.28×), signalqual027 (sub, no GPS) 1.010 → 0.385
@@ -171,7 +171,7 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from ..quaternion import euler_s, left_matrix_into, normalize_head, right_matrix_into, rotate_into, wrap_pi_s
 from .base import MAX_STEP_S, Estimator
 from .timestep import step_rate

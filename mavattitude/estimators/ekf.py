@@ -70,7 +70,7 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from ..quaternion import wrap_pi_s
 from .base import MAX_STEP_S, Estimator, filter_state
 from .inertial_accel import lowpass_in_inertial_frame

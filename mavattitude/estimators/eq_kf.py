@@ -116,7 +116,7 @@ updates above, and a trust that falls as ‖a‖ departs from g and as the rate 
 always had). Off: the bias states (b̂ stays the still-period bias), the integration noise, the
 residual test, the rise limit, the low-pass, stillness, the learned g_a, the consistency test,
 the turn compensation. The noise densities, init_att_sigma and use_mag, which the copy leaves to
-the implementer, stay settable. On the 31 shared logs (roll/pitch-mean MAE): median 1.126°,
+the implementer, stay settable. On the 31 shared logs then (48 now; roll/pitch-mean MAE): median 1.126°,
 mean 1.851°, worst copter-4.1-flight 8.58° (1.05× mahony); > 1.5× mahony on sub-009 (1.73×),
 sub-016 (1.57×), copter-3.6.8 (1.65×).
 
@@ -131,8 +131,8 @@ DCM/EKF1 spread there is 1.5° / 2.2°, so against its DCM reference the order i
 DCM-reference median 2.510° → 2.505°, EKF-reference 0.825° → 0.816°, worst logs unchanged.
 BROAD inclination RMSE the same per trial but 10 slow translation 0.93° → 0.90°.
 
-Real logs (issue 10 part 5). Numbers: roll/pitch-mean MAE over the 31 logs of ../shared/logs
-(corpus included) against the autopilot, `evaluate --estimators mahony,eq-kf`; mahony's median
+Real logs (issue 10 part 5). Numbers: roll/pitch-mean MAE over the 31 logs ../shared/logs had
+then (corpus included; 48 now) against the autopilot, `evaluate --estimators mahony,eq-kf`; mahony's median
 is 1.195°. Before both changes: median 0.991°, mean 1.557°, worst real-plane-4.3.1-crash 6.22°;
 > 1.5× mahony on copter-3.3-loiter-rtl (2.14×), copter-3.4.6-forumlog0039 (2.43×),
 copter-3.6dev-suweipeng (5.33×), copter-4.5.7-tipover-quiver088 (1.76×). After: median 0.925°,
@@ -218,7 +218,7 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from ..quaternion import dcm_into, qmul_into
 from .base import MAX_STEP_S, Estimator
 from .inertial_accel import lowpass_in_inertial_frame

@@ -55,7 +55,7 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from ..quaternion import (
     cross_matrix_into,
     dcm_transposed_into,

@@ -51,7 +51,7 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..quaternion import integrate_gyro_scalar
-from ..params import param
+from ..paramspec import param
 from .base import MAX_STEP_S, Estimator
 from .inertial_accel import lowpass_in_inertial_frame
 from .timestep import step_rate

@@ -55,7 +55,7 @@ shared logs; the numbers are in the issue-3 report):
   rest, and the integral term (Ki 10× mahony's) had wound up on the integration error
   (2-3° left at rest, decaying over Kp/Ki ≈ 100 s). Three additions, each with a value
   that turns it off; ``strict = true`` turns all of them and the weight off (k_mahony = 0:
-  the paper's unweighted Mahony, eq 16-17 as published). On the 31 shared logs (tilt MAE,
+  the paper's unweighted Mahony, eq 16-17 as published). On the 31 shared logs then (48 now; tilt MAE,
   mean of roll and pitch, against the autopilot; mahony's median 1.195°), before → after:
   median 1.323 → 0.976°, mean 2.002 → 1.753°, worst log real-plane-4.3.1-kakutef7-crash
   8.920 → 7.850° (1.21 → 1.06× mahony; now copter-4.1-flight.tlog, 1 Hz, 8.068 → 7.980°,
@@ -128,7 +128,7 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from .alignment import STILL_GYRO_RAD_S
 from .base import MAX_STEP_S, Estimator
 from .inertial_accel import lowpass_in_inertial_frame

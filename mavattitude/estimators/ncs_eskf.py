@@ -59,7 +59,7 @@ Additions to the paper, each with a parameter value that turns it off (the paper
 gate_sigma=0 the consistency test has no gate to open and is off too). ``strict=true`` runs exactly
 that filter with the published thresholds (total 0.2 g, air 0.01 g, ground 0.1 g), whatever
 the other values (``PAPER``; the paper's own options, ``segmented`` and ``accel_lpf_hz``, and
-the noise densities it gives no values for stay as set). On the 31 shared logs it scores
+the noise densities it gives no values for stay as set). On the 31 shared logs then (48 now) it scores
 median 2.87°, mean 8.60°, worst 68.3° (copter-4.1 tlog, 1 Hz). Without them the paper's
 filter is fragile off the DA40: a residual gate cannot tell its own tilt error from a
 manoeuvre, so once the gyro has drifted past the 0.01 g air threshold (0.57°) the
@@ -112,8 +112,8 @@ and sustained-acceleration simulations cannot both be met by any choice of τ.
   low hovers judged "ground" (lowbatt, nogps-hover: never 3 m up): the accelerometer was used
   only when noise happened to cancel the residual (a bias, with ``taper``), or not at all.
   With 3σ the gate lets through what noise explains and nothing more; on clean data (SITL,
-  the BlueROV subs: σ_n < 0.005 g) it stays at the paper's threshold. Whole 31 logs
-  (``evaluate``, tilt = mean roll/pitch MAE against ATT): median 1.117° → 0.851°, mean
+  the BlueROV subs: σ_n < 0.005 g) it stays at the paper's threshold. The 31 logs of
+  the time (48 now; ``evaluate``, tilt = mean roll/pitch MAE against ATT): median 1.117° → 0.851°, mean
   1.775° → 1.602°, worst log plane-4.3.1 9.40° → 8.68°; aggressive-loggaps 4.47° → 2.51°,
   nogps-hover 1.82° → 0.64°, joeydouglas-a 1.43° → 0.81°, joeydouglas-b 1.31° → 0.79°,
   cubeblack-mission 1.11° → 1.00°, copter-3.3 2.53° → 2.41°; costs: sitl-vibration
@@ -129,7 +129,7 @@ and sustained-acceleration simulations cannot both be met by any choice of τ.
   copter-3.3 −0.11°, sub-4.1.0 +0.15°, mean unchanged.
   f̃ and the still reference are carried with each step's rotation, as in eq-kf (this test
   first had its own copy with a plain body-frame low-pass and stillness judged on f̃). On the
-  31 shared logs (``mavattitude evaluate ../shared/logs --estimators ncs-eskf``, tilt error =
+  31 shared logs then (48 now; ``mavattitude evaluate ../shared/logs --estimators ncs-eskf``, tilt error =
   mean roll/pitch MAE against ATT): median 1.287° unchanged, mean 1.997° → 1.989°, worst log
   (plane-4.3.1) 9.90° unchanged; copter-3.3 2.55° → 2.34°, sub-4.1.0 1.72° → 1.66°,
   sitl-quadplane-vtol 7.74° → 7.77°, copter-4.5.7 lane-switch 0.94° → 0.95°, five more within
@@ -181,7 +181,7 @@ import numpy as np
 from numba import njit
 
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from ..quaternion import exp_s, gravity_in_body_s, normalize_into, qmul_s
 from .consistency import attitude_error, carried, step_rotation_into, track_stillness
 from .gravity import learn_gravity, scale_effect

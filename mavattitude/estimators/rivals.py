@@ -24,7 +24,7 @@ heading from magnetic north: the declination turns it to true north (``yaw_turne
 Choices made here (neither package takes a time step per sample):
 - Each runs at a fixed sample time (the rate its time constants assume): the median of the
   first ``START_STEPS`` steps, which wait for it, the attitude held at the start meanwhile
-  (a log's very first step is 0.4-1.5× its usual one in 5 of the 11 shared logs); each
+  (a log's very first step is 0.4-1.5× its usual one in 5 of the 11 shared logs then, 48 now); each
   sample's gyro is scaled by its own step over that time, so the rotation integrated over a
   step is the measured one even where the log's rate jitters.
 - A step that is not a step (the first sample, a repeated time, a gap longer than
@@ -43,7 +43,7 @@ import numpy as np
 from .. import quaternion as quat
 from ..errors import UsageError
 from ..flight import GRAVITY
-from ..params import param
+from ..paramspec import param
 from .base import MAX_STEP_S, Estimator
 
 INSTALL = "pip install 'mavattitude[rivals]'"

@@ -76,7 +76,7 @@ class LiveOptions:
     timeout: float = 5.0  # s without packets: link lost
     record: str | None = None  # .tlog path (None: no recording)
     warmup: float = 10.0
-    declination: float | None = None  # degrees
+    declination_deg: float | None = None  # --declination (the estimators get radians)
     home: Fix | None = None  # --home
     reference: str = "autopilot"
     use_mag: bool = True
@@ -193,7 +193,7 @@ class _Session:
         self.datagrams = is_datagram_link(self.conn)  # each read a whole datagram (UDP)
         self.recorder = TlogRecorder(opts.record) if opts.record else None
         self.monitor = LinkMonitor(timeout_s=opts.timeout)
-        self.est = LiveEstimation(opts.names, opts.params, opts.declination, opts.use_mag, opts.imu_source,
+        self.est = LiveEstimation(opts.names, opts.params, opts.declination_deg, opts.use_mag, opts.imu_source,
                                   opts.reference, opts.warmup, record_latency=opts.record_latency,
                                   expect_declination=opts.request, history_s=max(HISTORY_S, 2 * opts.window),
                                   errors_for_view=bool(opts.sink), home=opts.home, trim=opts.trim)

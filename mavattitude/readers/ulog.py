@@ -33,8 +33,8 @@ import mmap
 
 import numpy as np
 
+from ..earth import height_pressure
 from ..errors import InputError
-from ..phase import height_pressure
 from .collect import Collector, Decoded, first_utc
 from .ulogdata import Unsupported, read_topics
 from .ulogrecords import frame

@@ -6,8 +6,8 @@
 ``simulate`` returns a ``SimFlight`` (truth and sensor arrays, SI); ``write_log`` writes it as a
 DataFlash .bin or a MAVLink 2 .tlog that pymavlink, and so our readers, read like a real log,
 or as a PX4 ULog that pyulog reads. Files: ``trajectory`` (scenarios, true motion), ``sensors``
-(error models), ``earth`` (home, field, atmosphere, clocks), ``simflight`` (``simulate``),
-``tlog``, ``dataflash`` and ``ulog`` (writers).
+(error models), ``world`` (home, field, clocks; the ellipsoid and the atmosphere are the
+package's ``earth``), ``simflight`` (``simulate``), ``tlog``, ``dataflash`` and ``ulog`` (writers).
 """
 from __future__ import annotations
 

@@ -41,8 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import earth
 from .. import quaternion as quat
-from . import earth
+from . import world
 
 HEAD = (0xA3, 0x95)
 
@@ -209,7 +210,7 @@ def _data(sim, imt: bool = False) -> list[np.ndarray]:
 
     gps = sim.gps
     t_us = _us(gps.t)
-    week, week_ms = earth.gps_week_ms(sim.epoch_unix_at_boot + gps.t)
+    week, week_ms = world.gps_week_ms(sim.epoch_unix_at_boot + gps.t)
     v = gps.vel_ned
     blocks.append(GPS.records(
         len(gps.t), TimeUS=t_us, I=0, Status=gps.fix_type, GMS=week_ms, GWk=week, NSats=gps.num_sats,
@@ -241,14 +242,14 @@ def _data(sim, imt: bool = False) -> list[np.ndarray]:
         ekf_yaw = _heading_deg(ekf[:, 2])
         blocks.append(EKF1.records(n, TimeUS=t_us, Roll=ekf[:, 0], Pitch=ekf[:, 1], Yaw=ekf_yaw, VN=0.0, VE=0.0,
                                    VD=0.0, dPD=0.0, PN=0.0, PE=0.0, PD=0.0, GX=0.0, GY=0.0, GZ=0.0))
-        lat, lon, alt = earth.ned_to_geodetic(sim.home, sim.truth.pos_ned[every])
+        lat, lon, alt = earth.ned_to_geodetic(sim.home.origin, sim.truth.pos_ned[every])
         q = sim.ekf_q[every] * np.where(sim.ekf_q[every][:, :1] < 0, -1.0, 1.0)
         blocks.append(AHR2.records(n, TimeUS=t_us, Roll=ekf[:, 0], Pitch=ekf[:, 1], Yaw=ekf_yaw, Alt=alt,
                                    Lat=lat, Lng=lon, Q1=q[:, 0], Q2=q[:, 1], Q3=q[:, 2], Q4=q[:, 3]))
     q = quat.normalize(sim.truth.q[every])
     q = q * np.where(q[:, :1] < 0, -1.0, 1.0)  # ArduPilot logs the quaternion with w >= 0
     true = np.degrees(quat.to_euler(q))
-    lat, lon, alt = earth.ned_to_geodetic(sim.home, sim.truth.pos_ned[every])
+    lat, lon, alt = earth.ned_to_geodetic(sim.home.origin, sim.truth.pos_ned[every])
     blocks.append(SIM.records(
         n, TimeUS=t_us, Roll=true[:, 0], Pitch=true[:, 1], Yaw=_heading_deg(true[:, 2]), Alt=alt,
         Lat=lat, Lng=lon, Q1=q[:, 0], Q2=q[:, 1], Q3=q[:, 2], Q4=q[:, 3]))

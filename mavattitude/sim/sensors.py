@@ -12,8 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import earth
 from .. import quaternion as quat
-from . import earth
+from . import world
 from .trajectory import TrajectorySample
 
 
@@ -143,7 +144,7 @@ def imu(truth: TrajectorySample, params: SensorParams, rate: float, rng: np.rand
     return ImuTrack(truth.t + t_offset, gyro, accel, gyro_bias, accel_bias, params.imu_temperature_c)
 
 
-def magnetometer(truth: TrajectorySample, field: earth.EarthField, params: SensorParams,
+def magnetometer(truth: TrajectorySample, field: world.EarthField, params: SensorParams,
                  rng: np.random.Generator, t_offset: float) -> MagTrack:
     """The earth field seen in the body frame, plus noise.
 
@@ -163,27 +164,27 @@ def magnetometer(truth: TrajectorySample, field: earth.EarthField, params: Senso
     return MagTrack(truth.t + t_offset, noisy, -hard_iron)
 
 
-def gps(truth: TrajectorySample, home: earth.Home, params: SensorParams,
+def gps(truth: TrajectorySample, home: world.Home, params: SensorParams,
         rng: np.random.Generator, t_offset: float) -> GpsTrack:
     """Position and NED velocity with white noise; a steady 3D fix. No latency is modelled."""
     n = len(truth.t)
     sigma = np.array([params.gps_pos_noise_h, params.gps_pos_noise_h, params.gps_pos_noise_v])
     pos = truth.pos_ned + rng.normal(0.0, 1.0, (n, 3)) * sigma
     vel = truth.vel_ned + rng.normal(0.0, params.gps_vel_noise, (n, 3))
-    lat, lon, alt = earth.ned_to_geodetic(home, pos)
+    lat, lon, alt = earth.ned_to_geodetic(home.origin, pos)
     return GpsTrack(truth.t + t_offset, lat, lon, alt, vel, fix_type=3,
                     num_sats=params.gps_satellites, hdop=1.2, vdop=2.0,
                     h_acc_m=params.gps_pos_noise_h, v_acc_m=params.gps_pos_noise_v,
                     speed_acc_ms=params.gps_vel_noise)
 
 
-def barometer(truth: TrajectorySample, home: earth.Home, params: SensorParams,
+def barometer(truth: TrajectorySample, home: world.Home, params: SensorParams,
               rng: np.random.Generator, t_offset: float) -> BaroTrack:
     """Standard-atmosphere pressure of the (noisy) altitude; Alt relative to the ground at home."""
     alt_amsl = home.alt_m - truth.pos_ned[:, 2] + rng.normal(0.0, params.baro_alt_noise, len(truth.t))
-    pressure = earth.pressure_from_altitude(alt_amsl)
-    ground = earth.altitude_from_pressure(earth.pressure_from_altitude(home.alt_m))
-    return BaroTrack(truth.t + t_offset, pressure, earth.altitude_from_pressure(pressure) - ground,
+    pressure = earth.height_pressure(alt_amsl)
+    ground = earth.pressure_height(earth.height_pressure(home.alt_m))
+    return BaroTrack(truth.t + t_offset, pressure, earth.pressure_height(pressure) - ground,
                      -truth.vel_ned[:, 2], params.baro_temperature_c)
 
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import earth, sensors
+from . import sensors, world
 from .sensors import BaroTrack, GpsTrack, ImuTrack, MagTrack, Rates, SensorParams
 from .trajectory import REGISTRY, TrajectorySample, sample
 
@@ -33,8 +33,8 @@ class SimFlight:
     duration: float  # s
     rates: Rates
     params: SensorParams
-    home: earth.Home
-    earth_field: earth.EarthField
+    home: world.Home
+    earth_field: world.EarthField
     epoch_unix_at_boot: float  # s: UNIX time at autopilot boot (t = 0)
     still_until: float  # s, autopilot clock: the vehicle is still, on the ground, before this
     truth: TrajectorySample  # at the IMU timestamps
@@ -93,9 +93,9 @@ def simulate(scenario: str, duration: float, seed: int = 0, *, imu_rate: float =
     check_length(duration, rates)
     spec = REGISTRY[scenario]
     params = replace(params or SensorParams(), **spec.sensor_overrides)
-    home, field = earth.Home(), earth.EarthField()
+    home, field = world.Home(), world.EarthField()
     rng_imus, rng_mag, rng_gps, rng_baro, rng_ap = _random_streams(seed)
-    t0 = earth.BOOT_TIME_AT_START
+    t0 = world.BOOT_TIME_AT_START
 
     truth = sample(spec, sensors.sample_times(duration, rates.imu))
     imus = [sensors.imu(truth, params, rates.imu, rng, t0) for rng in rng_imus]
@@ -114,7 +114,7 @@ def simulate(scenario: str, duration: float, seed: int = 0, *, imu_rate: float =
     baro = sensors.barometer(at_rate(rates.baro), home, params, rng_baro, t0)
     return SimFlight(
         scenario=scenario, seed=seed, duration=float(duration), rates=rates, params=params,
-        home=home, earth_field=field, epoch_unix_at_boot=earth.EPOCH_UNIX_AT_BOOT,
+        home=home, earth_field=field, epoch_unix_at_boot=world.EPOCH_UNIX_AT_BOOT,
         still_until=t0 + min(spec.still_until, duration), truth=truth, imu=imus,
         autopilot_q=autopilot_q, autopilot_error=autopilot_error, mag=mag, gps=gps, baro=baro,
         firmware=f"mavattitude-sim {SIM_VERSION} scenario {scenario}", ekf_q=ekf_q,

@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from .. import earth
 from .. import quaternion as quat
 from ..flight import GRAVITY
-from . import earth
 
 _STAMP = struct.Struct(">Q")
 STATUSTEXT_MAX = 50  # characters in a STATUSTEXT
@@ -113,7 +113,7 @@ def _imu_packets(sim, mav):
     per = imu_packers(sim, mav)
     if sim.ekf_q is not None:  # a DCM primary: the EKF's estimate as AHRS2, after ATTITUDE and SIMSTATE
         ekf = quat.to_euler(sim.ekf_q).tolist()
-        lat, lon, alt = earth.ned_to_geodetic(sim.home, sim.truth.pos_ned)
+        lat, lon, alt = earth.ned_to_geodetic(sim.home.origin, sim.truth.pos_ned)
         lat_e7, lon_e7, alt = _int_list(lat * 1e7), _int_list(lon * 1e7), alt.tolist()
         per["AHRS2"] = lambda i: mavlink2.MAVLink_ahrs2_message(*ekf[i], alt[i], lat_e7[i], lon_e7[i]).pack(mav)
     return lambda i: (pack(i) for pack in per.values())  # lazily: each packs with the next seq
@@ -137,7 +137,7 @@ def imu_packers(sim, mav) -> dict:
     rates = sim.truth.omega_b.tolist()  # the autopilot reports bias-corrected body rates
     true = quat.to_euler(sim.truth.q).tolist()
     force = sim.truth.specific_force_b.tolist()
-    lat, lon, _ = earth.ned_to_geodetic(sim.home, sim.truth.pos_ned)
+    lat, lon, _ = earth.ned_to_geodetic(sim.home.origin, sim.truth.pos_ned)
     lat_e7, lon_e7 = _int_list(lat * 1e7), _int_list(lon * 1e7)
     raw, second = scaled  # RAW_IMU carries IMU 0, SCALED_IMU2 IMU 1
     raw_t, second_t = temperature

@@ -1,4 +1,6 @@
-"""The simulated world: where home is, the magnetic field, the atmosphere and the clocks.
+"""The simulated world: where home is, the magnetic field and the clocks (the ellipsoid and the
+atmosphere are the package's one ``earth`` module, so the readers turn what the simulator
+writes back into the same metres).
 
 Fixed constants, so a given scenario and seed always give byte-identical logs.
 """
@@ -18,11 +20,6 @@ BOOT_TIME_AT_START = 1.0  # s on the autopilot clock at the first sample
 EPOCH_UNIX_AT_BOOT = 1_717_243_200.0  # s, 2024-06-01 12:00:00 UTC
 
 
-# WGS-84 ellipsoid, for the radii of curvature at home.
-WGS84_A = 6_378_137.0  # m, semi-major axis
-WGS84_E2 = 6.694_379_990_14e-3  # first eccentricity squared
-
-
 @dataclass(frozen=True)
 class Home:
     """Take-off point: the origin of the simulation's NED frame, on the ground."""
@@ -30,6 +27,11 @@ class Home:
     lat_deg: float = 47.397742
     lon_deg: float = 8.545594
     alt_m: float = 488.0  # above mean sea level
+
+    @property
+    def origin(self) -> tuple[float, float, float]:
+        """(lat °, lon °, alt m): the origin of ``earth``'s NED frame (``earth.ned_to_geodetic``)."""
+        return self.lat_deg, self.lon_deg, self.alt_m
 
 
 @dataclass(frozen=True)
@@ -46,40 +48,6 @@ class EarthField:
         return np.array([horizontal * np.cos(self.declination_rad),
                          horizontal * np.sin(self.declination_rad),
                          self.total_t * np.sin(self.inclination_rad)])
-
-
-def ned_to_geodetic(home: Home, pos_ned) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Latitude and longitude (degrees) and altitude above sea level (m) of NED positions (m).
-
-    Flat earth around home with the WGS-84 radii of curvature there: exact to millimetres over
-    the few hundred metres a scenario covers.
-    """
-    pos = np.asarray(pos_ned, dtype=float)
-    lat0 = np.radians(home.lat_deg)
-    w = np.sqrt(1.0 - WGS84_E2 * np.sin(lat0) ** 2)
-    r_meridian = WGS84_A * (1.0 - WGS84_E2) / w ** 3
-    r_normal = WGS84_A / w
-    lat = home.lat_deg + np.degrees(pos[..., 0] / r_meridian)
-    lon = home.lon_deg + np.degrees(pos[..., 1] / (r_normal * np.cos(lat0)))
-    return lat, lon, home.alt_m - pos[..., 2]
-
-
-# International Standard Atmosphere, troposphere.
-ISA_P0 = 101_325.0  # Pa at sea level
-ISA_T0 = 288.15  # K at sea level
-ISA_LAPSE = 0.0065  # K/m
-ISA_EXPONENT = 5.255_877  # g M / (R L)
-
-
-def pressure_from_altitude(alt_m):
-    """Static pressure (Pa) at an altitude above sea level (m), standard atmosphere."""
-    return ISA_P0 * (1.0 - ISA_LAPSE * np.asarray(alt_m, dtype=float) / ISA_T0) ** ISA_EXPONENT
-
-
-def altitude_from_pressure(pressure_pa):
-    """Inverse of ``pressure_from_altitude``: altitude above sea level (m)."""
-    ratio = np.asarray(pressure_pa, dtype=float) / ISA_P0
-    return ISA_T0 / ISA_LAPSE * (1.0 - ratio ** (1.0 / ISA_EXPONENT))
 
 
 def gps_week_ms(unix_s) -> tuple[np.ndarray, np.ndarray]:
