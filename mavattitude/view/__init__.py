@@ -64,7 +64,8 @@ from .columns import *  # noqa: F401,F403
 from .columns import (_bin_first, _bin_minmax, _break_lines, _gps_fix, _send_scalars, _thin,  # noqa: F401
                       _time)
 from .replay import *  # noqa: F401,F403
-from .replay import (_attitude_ranges, _error_ranges, _plotted_diagnostics, _reference_key,  # noqa: F401
-                     _scored, _scored_span, _series, _summary_events)
+from .marks import *  # noqa: F401,F403
+from .ranges import *  # noqa: F401,F403
+from .replay import _plotted_diagnostics, _reference_key, _scored, _series, _summary_events  # noqa: F401
 from .style import *  # noqa: F401,F403
 from .style import _part  # noqa: F401

@@ -27,7 +27,9 @@ def slot_position(slot: int) -> tuple[float, float, float]:
 
 
 def setup_world(rec: rr.RecordingStream) -> None:
-    rec.log("world", rr.ViewCoordinates.FRD, static=True)  # NED: x north, y east, z down
+    # NED at the root (x north, y east, z down): the 3D views open at "/", so that a series'
+    # subtree holds its box and its track beside its plots
+    rec.log("/", rr.ViewCoordinates.FRD, static=True)
 
 
 def setup_series(rec: rr.RecordingStream, name: str, *, color: Color, label: str | None = None,
@@ -50,7 +52,7 @@ def setup_series(rec: rr.RecordingStream, name: str, *, color: Color, label: str
                                    widths=[1.0], aggregation_policy="MinMax"), static=True)
     if slot is None:
         return
-    base = f"world/{_part(name)}"
+    base = slot_path(name)
     rec.log(base, rr.Transform3D(translation=slot_position(slot)), static=True)
     rec.log(body_path(name),
             rr.Boxes3D(half_sizes=[BOX_HALF_SIZES], colors=[(*color, 255)], fill_mode="Solid"),
@@ -221,46 +223,6 @@ def log_error_columns(rec: rr.RecordingStream, name: str, t, error_deg, scored, 
             _send_scalars(rec, error_path(axis, name, is_scored), tm[idx], em[idx, k])
 
 
-DIAGNOSTIC_TITLES = {
-    "cov_trace": "covariance trace",
-    "accel_state": "accelerometer update (0 used, 1+ skipped / down-weighted)",
-    "adaptive_r": "mahony-ekf adaptive R",
-    "accel_weight": "accelerometer trust w (1 full, 0 skipped)",
-    "reset": "watchdog reset (1 at a reset)",
-    "watchdog_distance": "EKF vs complementary filter, Σ Δangle² (rad²)",
-    "gyro_bias": "gyro bias (°/s)",
-    "accel_bias": "z-accelerometer bias (m/s²)",
-    "mag_bias": "magnetometer bias (mGauss)",
-    "earth_field": "earth field NED (mGauss)",
-    "vel": "velocity NED (m/s)",
-    "pos": "position NED (m)",
-    "innov_mag": "magnetometer innovation (mGauss)",
-    "innov_gps_vel": "GPS velocity innovation (m/s)",
-    "innov_gps_pos": "GPS position innovation (m)",
-    "innov_baro": "baro height innovation (m)",
-    "mahony_weight": "weight of the internal Mahony's gravity error (1 at rest, 0-1)",
-    "h_residual": "horizontal manoeuvre acceleration (g)",
-    "h_gate": "horizontal acceleration threshold applied (g)",
-}
-COMPASS_GROUPS = ("mag_bias", "earth_field", "innov_mag")  # not plotted without a compass
-AXIS_SUFFIXES = ("x", "y", "z", "n", "e", "d")
-AXIS_COLORS: dict[str, Color] = {"x": (220, 60, 60), "n": (220, 60, 60), "y": (50, 160, 60),
-                                  "e": (50, 160, 60), "z": (40, 100, 230), "d": (40, 100, 230)}
-
-
-def diagnostic_group(key: str) -> tuple[str, str | None]:
-    """("gyro_bias", "x") for "gyro_bias_x": the vector a key belongs to and its axis;
-    (key, None) for a key of its own."""
-    head, _, tail = key.rpartition("_")
-    return (head, tail) if head and tail in AXIS_SUFFIXES else (key, None)
-
-
-def diagnostic_path(key: str, name: str) -> str:
-    group, axis = diagnostic_group(key)
-    path = f"diagnostics/{_part(group)}/{_part(name)}"
-    return f"{path}/{axis}" if axis else path
-
-
 def setup_diagnostics(rec: rr.RecordingStream, name: str, keys: Iterable[str], *, color: Color) -> None:
     """Static styling of one estimator's diagnostic lines: its colour, a vector's axes red,
     green and blue (x, y, z or north, east, down; the estimator's tab names it)."""
@@ -296,46 +258,6 @@ def log_phase_columns(rec: rr.RecordingStream, t, in_air, height_m) -> None:
                      columns=rr.Scalars.columns(scalars=np.asarray(in_air, dtype=np.float64)))
     rec.send_columns("phase/height", indexes=[_time(t)],
                      columns=rr.Scalars.columns(scalars=np.asarray(height_m, dtype=np.float64)))
-
-
-_LEVELS = {"info": rr.TextLogLevel.INFO, "warn": rr.TextLogLevel.WARN,
-           "warning": rr.TextLogLevel.WARN, "error": rr.TextLogLevel.ERROR,
-           "debug": rr.TextLogLevel.DEBUG}
-
-
-def log_events(rec: rr.RecordingStream, events: Sequence[Event], path: str = "events") -> None:
-    """Events as a TextLog, in one columnar call."""
-    if not events:
-        return
-    ev = sorted(events, key=lambda e: e.t)
-    levels = [_LEVELS.get(e.level.lower(), e.level.upper()) for e in ev]
-    rec.send_columns(path, indexes=[_time([e.t for e in ev])],
-                     columns=rr.TextLog.columns(text=[e.text for e in ev], level=levels))
-
-
-EVENT_MARKERS = {  # which events get a marker on the attitude plots, and its look
-    "warnings": ((215, 40, 40), "Down"),  # gaps, restarts, resets, an untrusted reference, ...
-    "phase": ((120, 120, 120), "Circle"),  # take-off and landing
-}
-
-
-def log_event_markers(rec: rr.RecordingStream, events: Sequence[Event], top_deg: dict[str, float]) -> None:
-    """A marker on each attitude plot, near its top (``top_deg``: axis -> y), at each warning and
-    each change of the ground/air phase: where to look; the events tab says what happened."""
-    kinds = {"warnings": [e.t for e in events if e.level == "warn"],
-             "phase": [e.t for e in events if e.text.startswith(("in the air", "on the ground"))]}
-    for kind, times in kinds.items():
-        if not times:
-            continue
-        color, marker = EVENT_MARKERS[kind]
-        t = np.sort(np.asarray(times, dtype=np.float64))
-        for axis in AXES:
-            path = f"attitude/{axis}/events/{kind}"
-            rec.log(path, rr.SeriesPoints(colors=[color], markers=[marker], marker_sizes=[5.0],
-                                          names=[f"{kind} (events tab)" if kind == "warnings" else "take-off, landing"]),
-                    static=True)
-            rec.send_columns(path, indexes=[_time(t)],
-                             columns=rr.Scalars.columns(scalars=np.full(len(t), top_deg.get(axis, 175.0))))
 
 
 def _gps_fix(gps: GpsSeries) -> tuple[np.ndarray, np.ndarray]:
@@ -394,7 +316,6 @@ def log_tracks(rec: rr.RecordingStream, result: ReplayResult, colors: dict[str, 
     tracks = estimated_tracks(result)
     if aiding is None or aiding.origin is None or not tracks:
         return False
-    rec.log("track", rr.ViewCoordinates.FRD, static=True)  # NED: x north, y east, z down
     gps = aiding.gps_pos[np.isfinite(aiding.gps_pos).all(axis=1)]
     if len(gps):
         rec.log("track/gps", rr.LineStrips3D([_thin(gps, GPS_TRACK_MAX_POINTS)], colors=[TRACK_COLOR],
@@ -402,12 +323,12 @@ def log_tracks(rec: rr.RecordingStream, result: ReplayResult, colors: dict[str, 
                 static=True)
     for name, (t, ned) in tracks.items():
         color = colors.get(name, (200, 200, 200))
-        rec.log(f"track/{_part(name)}", rr.LineStrips3D([_thin(ned, GPS_TRACK_MAX_POINTS)], colors=[color],
+        rec.log(f"{series_root(name)}/track", rr.LineStrips3D([_thin(ned, GPS_TRACK_MAX_POINTS)], colors=[color],
                                                          radii=rr.Radius.ui_points(1.5), labels=[name]),
                 static=True)
         lat, lon, _ = ned_to_geodetic(aiding.origin, ned)
         ll = np.column_stack([lat, lon])
-        path = f"map/estimate/{_part(name)}"
+        path = f"{series_root(name)}/map"
         rec.log(path, rr.GeoLineStrings(lat_lon=[_thin(ll, GPS_TRACK_MAX_POINTS)],
                                         radii=rr.Radius.ui_points(2.5), colors=[color]), static=True)
         rec.log(f"{path}/position", rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(5.0), colors=[color]),

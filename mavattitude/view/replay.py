@@ -19,6 +19,9 @@ from ..runner import STEP_ROWS
 from .blueprint import map_zoom_for, send_blueprint
 from .columns import *  # noqa: F403
 from .columns import _gps_fix
+from .marks import log_event_markers, log_events, log_spans
+from . import ranges
+from ..runner import REINIT_GAP_S
 from .style import *  # noqa: F403
 
 # ---------------------------------------------------------------- the whole replay
@@ -98,7 +101,7 @@ def summary_markdown(result: ReplayResult) -> str:
     if result.mag_source and not result.declination.known:
         lines.append(f"- **warning**: {NO_DECLINATION}")
     if fl.gps is not None and any("pos_n" in d for d in result.diagnostics.values()):
-        lines.append("- **map**: GPS track in magenta, an estimator's own track in its colour")
+        lines.append("- **map**: GPS track near black, an estimator's own track in its colour")
     if len(fl.segments) > 1:
         lines.append(f"- **clock segments**: {len(fl.segments)} (showing #{fl.segment_index})")
     if not result.comparisons:
@@ -152,50 +155,37 @@ def _summary_events(result: ReplayResult, t_end: float) -> list[Event]:
     return out
 
 
-def _error_ranges(result: ReplayResult) -> dict[str, float]:
-    """Half-range of each error plot: the largest scored |error| (at least 1°) plus 15 %."""
-    out = {}
-    for k, axis in enumerate(AXES):
-        peak = 0.0
-        for c in result.comparisons.values():
-            e = np.asarray(c.error_deg)[np.asarray(c.scored, dtype=bool), k]
-            e = e[np.isfinite(e)]
-            if len(e):
-                peak = max(peak, float(np.max(np.abs(e))))
-        if peak > 0:
-            out[axis] = 1.15 * max(peak, 1.0)
+def _data_spans(result: ReplayResult) -> list[tuple[float, float, str]]:
+    """(start, end, text) of every span the data cannot be trusted: the IMU's gaps (the
+    estimators restarted after them) and the reference's untrusted stretches."""
+    t = np.asarray(result.flight.imu[result.imu_source].t, dtype=np.float64)
+    gaps = np.flatnonzero(np.diff(t) > REINIT_GAP_S)
+    out = [(float(t[i]), float(t[i + 1]), f"IMU gap {t[i + 1] - t[i]:.1f} s: estimators re-initialised")
+           for i in gaps]
+    out += [(s.start, s.end, f"reference not trusted {s.start:.1f}-{s.end:.1f} s: {s.kind} ({s.detail})")
+            for s in result.suspects]
     return out
 
 
-def _scored_span(result: ReplayResult) -> tuple[float, float]:
-    """From the first scored reference sample to the last (the flight, past the warm-up and
-    the ground before it), or the whole log when nothing was scored."""
-    times = [c.t[np.asarray(c.scored, dtype=bool)] for c in result.comparisons.values()]
-    times = [t for t in times if len(t)]
-    if not times:
-        return result.flight.time_span
-    return min(float(t[0]) for t in times), max(float(t[-1]) for t in times)
-
-
-def _attitude_ranges(result: ReplayResult, span: tuple[float, float]) -> dict[str, tuple[float, float]]:
-    """Roll and pitch ranges the plots open on: the reference's extremes over ``span`` while in
-    the air (all of it without a phase), padded. A tip-over on the ground at ±180° would
-    flatten the flight to a line; the user zooms out for it."""
-    ref = result.reference
-    if ref is None or not len(ref.t):
-        return {}
-    inside = (ref.t >= span[0]) & (ref.t <= span[1])
-    if result.phase is not None:
-        flying = inside & (result.phase.on_clock(ref.t) == 1.0)
-        inside = flying if flying.any() else inside
-    euler = np.degrees(quat.to_euler(ref.q[inside]))
-    out = {}
-    for k, axis in enumerate(AXES[:2]):
-        e = euler[np.isfinite(euler[:, k]), k]
-        if len(e):
-            lo, hi = float(e.min()), float(e.max())
-            pad = max(5.0, 0.15 * (hi - lo))
-            out[axis] = (max(lo - pad, -190.0), min(hi + pad, 190.0))
+def _diagnostic_ranges(diagnostics: dict[str, dict[str, np.ndarray]], t: np.ndarray,
+                       span: tuple[float, float]) -> dict[str, dict[str, tuple[float, float]]]:
+    """Each diagnostic plot's y range: the 1st to 99th percentile over ``span`` (a vector's axes
+    together), padded: a re-initialisation spike does not set it. None for a flat line."""
+    inside = (t >= span[0]) & (t <= span[1])
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    for name, diag in diagnostics.items():
+        groups: dict[str, list] = {}
+        for key, y in diag.items():
+            y = np.asarray(y, dtype=np.float64)
+            groups.setdefault(diagnostic_group(key)[0], []).append(y[inside & np.isfinite(y)] if len(y) == len(t) else y)
+        for group, ys in groups.items():
+            y = np.concatenate(ys)
+            if len(y) < 2:
+                continue
+            lo, hi = np.percentile(y, [1.0, 99.0])
+            pad = 0.15 * (hi - lo)
+            if hi - lo > 1e-12 * max(1.0, abs(hi)):
+                out.setdefault(name, {})[group] = (float(lo - pad), float(hi + pad))
     return out
 
 
@@ -225,12 +215,15 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     gps_t, gps_ll = _gps_fix(fl.gps) if fl.gps is not None else (np.empty(0), None)
     has_gps = len(gps_t) > 0
     diagnostics = _plotted_diagnostics(result)
-    span = _scored_span(result)
-    ranges = _attitude_ranges(result, span)
+    span = ranges.open_span(result)
+    att_ranges = ranges.attitude_ranges(result, span)
+    err_ranges = ranges.error_ranges(scored, span)
+    imu_t = fl.imu[result.imu_source].t
     if blueprint:
-        send_blueprint(rec, has_gps=has_gps, n_slots=len(series),
-                       error_range_deg=_error_ranges(result), attitude_range_deg=ranges,
-                       map_zoom=map_zoom_for(gps_ll[:, 0], gps_ll[:, 1]) if has_gps else None,
+        send_blueprint(rec, series=names, scored=list(scored), n_slots=len(series),
+                       error_range_deg=err_ranges, attitude_range_deg=att_ranges,
+                       diagnostic_ranges=_diagnostic_ranges(diagnostics, imu_t, span),
+                       has_gps=has_gps, map_zoom=map_zoom_for(gps_ll[:, 0], gps_ll[:, 1]) if has_gps else None,
                        time_span=span, diagnostics={n: list(d) for n, d in diagnostics.items()},
                        has_phase=result.phase is not None,
                        has_track=has_gps and bool(estimated_tracks(result))
@@ -260,7 +253,6 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     for key, c in scored.items():
         log_error_columns(rec, key, c.t, c.error_deg, c.scored, max_hz=hz)
 
-    imu_t = fl.imu[result.imu_source].t
     for name, diag in diagnostics.items():
         if diag:
             setup_diagnostics(rec, name, diag, color=colors.get(name, (200, 200, 200)))
@@ -273,5 +265,12 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     rec.log("summary", rr.TextDocument(summary_markdown(result), media_type="text/markdown"),
             static=True)
     log_events(rec, list(result.events) + _summary_events(result, b))
-    log_event_markers(rec, result.events, {axis: hi - 0.04 * (hi - lo) for axis, (lo, hi) in ranges.items()})
+    att_top = {axis: hi - 0.04 * (hi - lo) for axis, (lo, hi) in att_ranges.items()}
+    err_top = {axis: 0.92 * r for axis, r in err_ranges.items()}
+    spans = _data_spans(result)
+    for plot, top in (("attitude", att_top), ("error", err_top)):
+        if plot == "error" and not scored:
+            continue
+        log_event_markers(rec, result.events, top, plot=plot)
+        log_spans(rec, spans, top, plot=plot)
 

@@ -29,33 +29,38 @@ AXIS_LENGTH = 1.1
 
 Color = tuple[int, int, int]
 
-# Every colour reads on both the viewer's light and dark themes (mid luminance), so the
-# autopilot is a neutral grey rather than black or white.
+# Every colour reads on both the viewer's light and dark themes (CIE L* 40-72), so the
+# autopilot is a neutral grey rather than black or white. The palette was picked greedily for
+# the largest smallest CIEDE2000 difference between any two of the sixteen colours a replay can
+# show at once (nine estimators, autopilot, truth, another reference, four autopilot streams):
+# at least 19 (tests/test_view_layout.py), where the previous one had 14 (ekf / imufusion) and
+# 16 among the seven of the papers (ncs-eskf / cpf-ekf).
 AUTOPILOT_COLOR: Color = (140, 140, 140)
-REFERENCE_COLOR: Color = (100, 125, 150)  # a reference that is neither autopilot nor truth
+REFERENCE_COLOR: Color = (105, 90, 120)  # a reference that is neither autopilot nor truth
 TRUTH_COLOR: Color = (40, 170, 70)
 GHOST_COLOR = (110, 110, 110, 220)
-TRACK_COLOR: Color = (230, 40, 140)
+TRACK_COLOR: Color = (40, 40, 40)  # the GPS track: near black, no estimator's colour
 POSITION_COLOR: Color = (20, 70, 230)
 ESTIMATOR_COLORS: dict[str, Color] = {  # fixed per known estimator (ALGORITHMS.md)
-    "mahony": (255, 140, 0),
-    "mahony-ekf": (215, 170, 0),
-    "ekf": (30, 136, 229),
-    "eskf": (142, 60, 200),
-    "ncs-eskf": (233, 30, 99),
-    "eq-kf": (0, 170, 190),
-    "cpf-ekf": (215, 50, 40),
+    "mahony": (255, 150, 0),
+    "mahony-ekf": (120, 90, 0),
+    "ekf": (0, 135, 255),
+    "eskf": (120, 15, 255),
+    "ncs-eskf": (210, 0, 120),
+    "eq-kf": (0, 195, 195),
+    "cpf-ekf": (195, 0, 0),
+    "vqf": (255, 120, 255),
+    "imufusion": (45, 105, 90),
 }
-FALLBACK_COLORS: tuple[Color, ...] = (
-    (255, 140, 0), (30, 136, 229), (233, 30, 99), (0, 170, 190), (142, 60, 200),
-    (215, 170, 0), (215, 50, 40), (140, 100, 60), (90, 110, 255), (190, 90, 180),
+FALLBACK_COLORS: tuple[Color, ...] = (  # an estimator not named above (in the order given)
+    (255, 135, 135), (180, 165, 0), (165, 165, 225), (150, 105, 90),
+    *ESTIMATOR_COLORS.values(),
 )
 ROLE_COLORS: dict[str, Color] = {
     "autopilot": AUTOPILOT_COLOR, "truth": TRUTH_COLOR, "reference": REFERENCE_COLOR,
 }
 STREAM_PREFIX = "autopilot:"  # the autopilot's other streams: "autopilot:EKF1 (EKF1)" (pipeline.stream_row)
-# muted, as the autopilot's grey
-STREAM_COLORS: tuple[Color, ...] = ((120, 100, 80), (90, 140, 160), (160, 120, 150), (110, 150, 110))
+STREAM_COLORS: tuple[Color, ...] = ((180, 165, 0), (255, 135, 135), (165, 165, 225), (150, 105, 90))
 
 
 def is_role(name: str) -> bool:
@@ -92,22 +97,75 @@ def _part(name: str) -> str:
     return rr.escape_entity_path_part(str(name))
 
 
+# One subtree per series: ``est/<s>`` for an estimate, ``ref/<s>`` for the reference, the
+# autopilot (and its streams) and the truth. Everything a series draws (its attitude and error
+# lines, its box and ghost in 3D, its track, its diagnostics) lives under it, so hiding that one
+# entity (in the blueprint panel: "Hide in all views") hides the series in every view. The
+# viewer draws a plot's series in path order: ``ref`` after ``est``, the references on top.
+
+
+def series_root(name: str) -> str:
+    return f"{'ref' if is_role(name) else 'est'}/{_part(name)}"
+
+
 def attitude_path(axis: str, name: str) -> str:
-    """The estimates under ``estimates/``, the autopilot and truth under ``reference/``: the
-    viewer draws a plot's series in path order, so these come last, on top."""
-    group = "reference" if is_role(name) else "estimates"
-    return f"attitude/{axis}/{group}/{_part(name)}"
+    return f"{series_root(name)}/attitude/{axis}"
 
 
 def error_path(axis: str, name: str, scored: bool = True) -> str:
-    return f"error/{axis}/{_part(name)}" if scored else f"error/{axis}/_unscored/{_part(name)}"
+    """The scored error samples, or the warm-up's (faded, named as the scored line)."""
+    return f"{series_root(name)}/{'error' if scored else 'warmup'}/{axis}"
+
+
+def slot_path(name: str) -> str:
+    return f"{series_root(name)}/box"
 
 
 def body_path(name: str) -> str:
-    return f"world/{_part(name)}/body"
+    return f"{slot_path(name)}/body"
 
 
 def ghost_path(name: str) -> str:
-    return f"world/{_part(name)}/reference"
+    return f"{slot_path(name)}/reference"
 
 
+# ---------------------------------------------------------------- diagnostics
+
+DIAGNOSTIC_TITLES = {
+    "cov_trace": "covariance trace",
+    "accel_state": "accelerometer update (0 used, 1+ skipped / down-weighted)",
+    "adaptive_r": "mahony-ekf adaptive R",
+    "accel_weight": "accelerometer trust w (1 full, 0 skipped)",
+    "reset": "watchdog reset (1 at a reset)",
+    "watchdog_distance": "EKF vs complementary filter, Σ Δangle² (rad²)",
+    "gyro_bias": "gyro bias (°/s)",
+    "accel_bias": "z-accelerometer bias (m/s²)",
+    "mag_bias": "magnetometer bias (mGauss)",
+    "earth_field": "earth field NED (mGauss)",
+    "vel": "velocity NED (m/s)",
+    "pos": "position NED (m)",
+    "innov_mag": "magnetometer innovation (mGauss)",
+    "innov_gps_vel": "GPS velocity innovation (m/s)",
+    "innov_gps_pos": "GPS position innovation (m)",
+    "innov_baro": "baro height innovation (m)",
+    "mahony_weight": "weight of the internal Mahony's gravity error (1 at rest, 0-1)",
+    "h_residual": "horizontal manoeuvre acceleration (g)",
+    "h_gate": "horizontal acceleration threshold applied (g)",
+}
+COMPASS_GROUPS = ("mag_bias", "earth_field", "innov_mag")  # not plotted without a compass
+AXIS_SUFFIXES = ("x", "y", "z", "n", "e", "d")
+AXIS_COLORS: dict[str, Color] = {"x": (220, 60, 60), "n": (220, 60, 60), "y": (50, 160, 60),
+                                  "e": (50, 160, 60), "z": (40, 100, 230), "d": (40, 100, 230)}
+
+
+def diagnostic_group(key: str) -> tuple[str, str | None]:
+    """("gyro_bias", "x") for "gyro_bias_x": the vector a key belongs to and its axis;
+    (key, None) for a key of its own."""
+    head, _, tail = key.rpartition("_")
+    return (head, tail) if head and tail in AXIS_SUFFIXES else (key, None)
+
+
+def diagnostic_path(key: str, name: str) -> str:
+    group, axis = diagnostic_group(key)
+    path = f"{series_root(name)}/diagnostics/{_part(group)}"
+    return f"{path}/{axis}" if axis else path
