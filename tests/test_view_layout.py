@@ -155,3 +155,14 @@ def test_error_range_from_the_spread_not_one_diverging_estimator():
     c.error_deg = c.error_deg.copy()
     c.error_deg[c.scored.nonzero()[0][-50:], 0] = 170.0  # a tumble in the last second of one
     assert view.error_ranges(result.comparisons, (0.0, 1e9))["roll"] < 2 * base["roll"] + 1.0
+
+
+def test_an_upset_before_take_off_leaves_the_flight_open():
+    result = make_replay(duration=120.0, reference="autopilot", gps=False)
+    t = result.reference.t
+    on_side = (t > t[0] + 15.0) & (t < t[0] + 18.0)  # carried on its side, 3 s, then flown
+    q = quat.from_euler(np.where(on_side, np.radians(90.0), np.radians(5.0) * np.sin(t)), np.zeros_like(t),
+                        np.zeros_like(t))
+    result.reference = AttitudeSeries("ATT", t, q)
+    a, b = view.open_span(result)
+    assert a == t[on_side][-1] + view.UPSET_MARGIN_S and b == view.scored_span(result)[1]

@@ -151,7 +151,7 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
             name="link"))
     right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[3, 2])
     return rrb.Blueprint(
-        rrb.Horizontal(rrb.Vertical(*rows), legend, right, column_shares=[15, 2, 9]),
+        rrb.Horizontal(rrb.Vertical(*rows), legend, right, column_shares=[14, 3, 9]),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="collapsed", timeline=TIMELINE,
@@ -159,7 +159,7 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
     )
 
 
-LEGEND_Y = 1e6  # far above any angle: the legend plot shows no line
+LEGEND_Y = 200.0  # above any angle (±180°): the legend plot shows no line, short tick labels
 DIAGNOSTIC_PLOTS_PER_PAGE = 4  # 2 x 2: each plot tall enough to read its curve and its axis
 
 

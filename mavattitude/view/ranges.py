@@ -2,7 +2,8 @@
 
 A vehicle on its side or upside down for seconds (tilt beyond ``UPSET_TILT_DEG`` for
 ``UPSET_HOLD_S``, or until the log ends) has crashed, tipped over or been carried: the plots open
-on the time before it. A flip passes through that tilt in well under a second and stays in. The
+on the longest stretch between such upsets (copter-3.3-loiter-rtl.bin is on its side for 2.3 s
+at 49 s, before take-off; the 3.2.1 upset log tumbles at its end). A flip passes through that tilt in well under a second and stays in. The
 value plots' ranges are the reference's extremes over that span (in the air, outside the spans
 of untrusted reference); the error plots' from the scored errors' spread, robustly: one
 estimator that diverges (or tumbles with the vehicle) runs off its plot (it is in the table, and zooming out shows it) instead
@@ -18,7 +19,7 @@ from ..pipeline import ReplayResult
 
 UPSET_TILT_DEG = 65.0  # beyond this the vehicle is not flying level enough to be in a normal flight
 UPSET_HOLD_S = 2.0  # and staying there this long (a flip is a fraction of a second)
-UPSET_MARGIN_S = 1.0  # the plots end this long before the upset starts
+UPSET_MARGIN_S = 3.0  # the plots end this long before the upset starts (the roll into it included)
 ERROR_QUANTILE = 99.0  # each comparison's |error| percentile; the range fits the second largest
 ERROR_PAD = 1.3
 
@@ -30,18 +31,22 @@ def tilt_deg(q: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(r22, -1.0, 1.0)))
 
 
-def upset_start(t: np.ndarray, q: np.ndarray) -> float | None:
-    """When the vehicle first tilts beyond ``UPSET_TILT_DEG`` and stays for ``UPSET_HOLD_S``
-    (or until the series ends); None when it never does."""
+def upset_runs(t: np.ndarray, q: np.ndarray) -> list[tuple[float, float]]:
+    """(start, end) of each stretch tilted beyond ``UPSET_TILT_DEG`` for ``UPSET_HOLD_S`` or
+    more, or until the series ends."""
     t = np.asarray(t, dtype=np.float64)
     if len(t) == 0:
-        return None
+        return []
     over = tilt_deg(q) > UPSET_TILT_DEG
     edges = np.flatnonzero(np.diff(np.concatenate([[False], over, [False]]).astype(np.int8)))
-    for a, b in zip(edges[::2], edges[1::2]):  # runs [a, b) of tilted samples
-        if b == len(t) or t[b - 1] - t[a] >= UPSET_HOLD_S:
-            return float(t[a])
-    return None
+    return [(float(t[a]), float(t[b - 1])) for a, b in zip(edges[::2], edges[1::2])  # runs [a, b)
+            if b == len(t) or t[b - 1] - t[a] >= UPSET_HOLD_S]
+
+
+def upset_start(t: np.ndarray, q: np.ndarray) -> float | None:
+    """When the vehicle first tilts beyond ``UPSET_TILT_DEG`` and stays (``upset_runs``); None when it never does."""
+    runs = upset_runs(t, q)
+    return runs[0][0] if runs else None
 
 
 def _outside(t: np.ndarray, spans) -> np.ndarray:
@@ -62,14 +67,21 @@ def scored_span(result: ReplayResult) -> tuple[float, float]:
 
 
 def open_span(result: ReplayResult) -> tuple[float, float]:
-    """The span the time plots open on: the scored span, ended before an upset of the reference."""
+    """The span the time plots open on: the longest stretch of the scored span between upsets
+    of the reference (``UPSET_MARGIN_S`` kept clear on either side): the flight, not the crash
+    at its end nor the vehicle carried on its side before take-off."""
     a, b = scored_span(result)
     ref = result.reference
-    if ref is not None and len(ref.t):
-        start = upset_start(ref.t, ref.q)
-        if start is not None and start - UPSET_MARGIN_S > a + 1.0:
-            b = min(b, start - UPSET_MARGIN_S)
-    return a, b
+    if ref is None or not len(ref.t):
+        return a, b
+    cuts = [(u - UPSET_MARGIN_S, v + UPSET_MARGIN_S) for u, v in upset_runs(ref.t, ref.q)]
+    pieces, start = [], a
+    for u, v in sorted(cuts):
+        pieces.append((start, min(u, b)))
+        start = max(start, v)
+    pieces.append((start, b))
+    best = max(pieces, key=lambda p: p[1] - p[0])
+    return best if best[1] - best[0] > 1.0 else (a, b)
 
 
 def untrusted_spans(result: ReplayResult) -> list[tuple[float, float]]:

@@ -98,14 +98,16 @@ def _part(name: str) -> str:
 
 
 # One subtree per series: ``est/<s>`` for an estimate, ``ref/<s>`` for the reference, the
-# autopilot (and its streams) and the truth. Everything a series draws (its attitude and error
+# autopilot and the truth, ``alt/<s>`` for the autopilot's other streams. Everything a series draws (its attitude and error
 # lines, its box and ghost in 3D, its track, its diagnostics) lives under it, so hiding that one
 # entity (in the blueprint panel: "Hide in all views") hides the series in every view. The
-# viewer draws a plot's series in path order: ``ref`` after ``est``, the references on top.
+# viewer draws a plot's series in path order: ``alt`` first (context), then ``est``,
+# ``ref`` last: the references on top.
 
 
 def series_root(name: str) -> str:
-    return f"{'ref' if is_role(name) else 'est'}/{_part(name)}"
+    group = "alt" if name.startswith(STREAM_PREFIX) else "ref" if is_role(name) else "est"
+    return f"{group}/{_part(name)}"
 
 
 def attitude_path(axis: str, name: str) -> str:
