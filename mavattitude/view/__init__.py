@@ -8,48 +8,50 @@ helpers take a chunk of samples and always write the same entity paths, so a liv
 
 Timeline: ``"time"``, a duration in seconds on the autopilot clock (seconds since boot).
 
-Entity paths (``<s>`` is a series key: ``autopilot``, ``truth``, ``reference`` when the
-reference is neither of those, one of the autopilot's other streams (``autopilot:EKF1 (EKF1)``),
-or an estimator's name, escaped for entity paths):
+Entity paths: one subtree per series, ``<root>`` = ``est/<s>`` for an estimate, ``ref/<s>``
+for the reference, the autopilot and the truth, ``alt/<s>`` for the autopilot's other streams
+(``<s>`` is the series key: ``autopilot``, ``truth``, ``reference`` when the reference is neither,
+``autopilot:EKF1 (EKF1)``, or an estimator's name, escaped). Everything a series draws is under
+its root, so hiding the root ("Hide in all views") hides it everywhere; every view lists the
+roots it draws from (``blueprint._contents``). The plots draw in path order: ``alt``, ``est``,
+then ``ref`` on top.
 
-- ``attitude/{roll,pitch,yaw}/estimates/<s>``, ``attitude/{roll,pitch,yaw}/reference/<s>`` (the
-  autopilot and its streams, truth: drawn on top)  Scalars, degrees (+ static SeriesLines: colour, label)
-- ``error/{roll,pitch,yaw}/<s>``  Scalars, estimate - reference, degrees, scored samples
-- ``error/{roll,pitch,yaw}/_unscored/<s>``  the samples the statistics skip (warm-up), faded;
-  named as the scored line, so the legend has one entry for both (the viewer merges equal
-  names; its dot shows the faded colour)
-- ``world``  static ViewCoordinates FRD: the 3D world is NED (x north, y east, z down)
-- ``world/<s>``  static Transform3D: the series' slot, ``SLOTS_PER_ROW`` side by side along
-  east, further rows behind (north)
-- ``world/<s>/body``  Transform3D quaternion column (body -> NED), static Boxes3D + axes
-- ``world/<s>/label``  static Points3D carrying the series' name above its box
-- ``world/<s>/reference``  the reference attitude again, as a grey wireframe "ghost" in
-  every other slot, so an estimate's error is visible as the gap between box and ghost
+- ``<root>/attitude/{roll,pitch,yaw}``  Scalars, degrees (+ static SeriesLines: colour, label)
+- ``<root>/error/{roll,pitch,yaw}``  Scalars, estimate - reference, degrees, scored samples
+- ``<root>/warmup/{roll,pitch,yaw}``  the samples the statistics skip (warm-up), faded; named
+  as the scored line, so the legend has one entry for both
+- ``/``  static ViewCoordinates FRD: the 3D views are NED (x north, y east, z down)
+- ``<root>/box``  static Transform3D: the series' slot, ``SLOTS_PER_ROW`` side by side along
+  east, further rows behind (north); ``<root>/box/body`` Transform3D quaternion column (body ->
+  NED), static Boxes3D + axes; ``<root>/box/label`` its name; ``<root>/box/reference`` the
+  reference attitude as a grey wireframe "ghost" in every other slot
 - ``map/track``  static GeoLineStrings of the GPS track; ``map/position`` GeoPoints over time
-- ``map/estimate/<s>``  static GeoLineStrings of an estimator's own track (``pos_n``/``pos_e``
-  diagnostics, NED around the first GPS fix), ``map/estimate/<s>/position`` GeoPoints over time
-- ``track``  static ViewCoordinates FRD (NED); ``track/gps`` and ``track/<s>``: static LineStrips3D
-  of the GPS track and the estimated track, metres from the first fix (a "track" tab)
+- ``<root>/map``  static GeoLineStrings of an estimator's own track (``pos_n``/``pos_e``
+  diagnostics, NED around the first GPS fix), ``<root>/map/position`` GeoPoints over time
+- ``track/gps``, ``<root>/track``  static LineStrips3D of the GPS and estimated tracks, metres
+  from the first fix (a "track" tab)
 - ``events``  TextLog of the replay's events (and one metrics line per comparison at the end)
-- ``diagnostics/<key>/<s>``  Scalars: what each filter exposes (``cov_trace``, ``adaptive_r``,
-  ``accel_weight``, ...), peak-preserving like the errors; ``accel_state`` is the filter's
-  accelerometer state code over time (0 used; see ``mavattitude estimators`` for the codes).
-  Keys of one vector, ``<group>_<axis>`` with the axis x, y, z or n, e, d (``gyro_bias_x``,
-  ``vel_n``), share a plot: ``diagnostics/<group>/<s>/<axis>``
+- ``marks/{attitude,error}/<axis>/{warnings,phase}``  SeriesPoints at warnings and take-off /
+  landing; ``marks/.../spans/<k>`` a translucent bar over each IMU gap and untrusted span of
+  reference, named by what happened (the hover shows it)
+- ``<root>/diagnostics/<group>[/<axis>]``  Scalars: what each filter exposes (``cov_trace``,
+  ``adaptive_r``, ``accel_weight``, ...), min/max per bin at ``DIAGNOSTIC_MAX_HZ``;
+  ``accel_state`` is the filter's accelerometer state code (0 used; ``mavattitude estimators``).
+  Keys of one vector, ``<group>_<axis>`` with the axis x, y, z or n, e, d, share a plot
 - ``phase/in_air``, ``phase/height``  the ground/air phase (1 = air) and the height above the
   start it comes from
 - ``summary``  static TextDocument (markdown): the flight and the metrics table
 
 Decimation (what the viewer gets; the metrics are always computed on every sample):
 
-- attitude scalars: every sample while a series' mean rate is <= ``SCALAR_MAX_HZ`` (200 Hz);
-  faster series keep the first sample of each 1/200 s bin. Long logs are further capped at
+- attitude scalars: every sample while a series' mean rate is <= ``SCALAR_MAX_HZ`` (50 Hz);
+  faster series keep the first sample of each 1/50 s bin. Long logs are further capped at
   ``SCALAR_MAX_POINTS`` per series (the rate becomes ``SCALAR_MAX_POINTS / duration``:
-  200 Hz up to 20 min, 67 Hz for an hour);
+  50 Hz up to 20 min, 17 Hz for an hour);
 - error scalars: the same rate, but peak-preserving: the minimum and the maximum of each
   bin of two output samples, so no error spike disappears;
-- 3D transforms: at most ``TRANSFORM_MAX_HZ`` (50 Hz), first sample per bin, and at most
-  ``TRANSFORM_MAX_POINTS`` per series (50 Hz up to 30 min, 25 Hz for an hour);
+- 3D transforms: at most ``TRANSFORM_MAX_HZ`` (25 Hz), first sample per bin, and at most
+  ``TRANSFORM_MAX_POINTS`` per series (25 Hz up to 30 min, 12.5 Hz for an hour);
 - GPS marker at most ``GPS_MARKER_MAX_HZ`` (10 Hz); the static track at most
   ``GPS_TRACK_MAX_POINTS`` points.
 

@@ -256,7 +256,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     for name, diag in diagnostics.items():
         if diag:
             setup_diagnostics(rec, name, diag, color=colors.get(name, (200, 200, 200)))
-            log_diagnostic_columns(rec, name, imu_t, diag, max_hz=hz)
+            log_diagnostic_columns(rec, name, imu_t, diag, max_hz=min(hz, DIAGNOSTIC_MAX_HZ))
     if result.phase is not None:
         log_phase_columns(rec, result.phase.t, result.phase.in_air, result.phase.height_m)
     if has_gps:
