@@ -166,3 +166,10 @@ def test_an_upset_before_take_off_leaves_the_flight_open():
     result.reference = AttitudeSeries("ATT", t, q)
     a, b = view.open_span(result)
     assert a == t[on_side][-1] + view.UPSET_MARGIN_S and b == view.scored_span(result)[1]
+
+
+def test_a_log_that_ends_tumbling_opens_before_the_tumble():
+    t = np.arange(0.0, 60.0, 0.1)
+    burst = ((t > 56.5) & (t < 57.5)) | ((t > 58.0) & (t < 58.8))  # through 65° twice, level at the end
+    q = quat.from_euler(np.where(burst, np.radians(100.0), 0.0), np.zeros_like(t), np.zeros_like(t))
+    assert view.upset_runs(t, q) == [(t[burst][0], t[-1])]

@@ -1,7 +1,7 @@
 """What the plots open on: the flight, not a crash, a tip-over or a tumble at the end of the log.
 
 A vehicle on its side or upside down for seconds (tilt beyond ``UPSET_TILT_DEG`` for
-``UPSET_HOLD_S``, or until the log ends) has crashed, tipped over or been carried: the plots open
+``UPSET_HOLD_S``, or near the log's end) has crashed, tipped over or been carried: the plots open
 on the longest stretch between such upsets (copter-3.3-loiter-rtl.bin is on its side for 2.3 s
 at 49 s, before take-off; the 3.2.1 upset log tumbles at its end). A flip passes through that tilt in well under a second and stays in. The
 value plots' ranges are the reference's extremes over that span (in the air, outside the spans
@@ -19,6 +19,7 @@ from ..pipeline import ReplayResult
 
 UPSET_TILT_DEG = 65.0  # beyond this the vehicle is not flying level enough to be in a normal flight
 UPSET_HOLD_S = 2.0  # and staying there this long (a flip is a fraction of a second)
+END_WINDOW_S = 5.0  # any tilt beyond it this close to the log's end: the tumble the log ends in
 UPSET_MARGIN_S = 3.0  # the plots end this long before the upset starts (the roll into it included)
 ERROR_QUANTILE = 99.0  # each comparison's |error| percentile; the range fits the second largest
 ERROR_PAD = 1.3
@@ -33,14 +34,21 @@ def tilt_deg(q: np.ndarray) -> np.ndarray:
 
 def upset_runs(t: np.ndarray, q: np.ndarray) -> list[tuple[float, float]]:
     """(start, end) of each stretch tilted beyond ``UPSET_TILT_DEG`` for ``UPSET_HOLD_S`` or
-    more, or until the series ends."""
+    more; a stretch of any length within ``END_WINDOW_S`` of the series' end runs to that end
+    (the 3.2.1 upset log tumbles through 65° twice for a second each in its last 3 s)."""
     t = np.asarray(t, dtype=np.float64)
     if len(t) == 0:
         return []
     over = tilt_deg(q) > UPSET_TILT_DEG
     edges = np.flatnonzero(np.diff(np.concatenate([[False], over, [False]]).astype(np.int8)))
-    return [(float(t[a]), float(t[b - 1])) for a, b in zip(edges[::2], edges[1::2])  # runs [a, b)
-            if b == len(t) or t[b - 1] - t[a] >= UPSET_HOLD_S]
+    out = []
+    for a, b in zip(edges[::2], edges[1::2]):  # runs [a, b) of tilted samples
+        if t[b - 1] >= t[-1] - END_WINDOW_S:
+            out.append((float(t[a]), float(t[-1])))
+            break
+        if t[b - 1] - t[a] >= UPSET_HOLD_S:
+            out.append((float(t[a]), float(t[b - 1])))
+    return out
 
 
 def upset_start(t: np.ndarray, q: np.ndarray) -> float | None:
