@@ -149,7 +149,8 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
             rrb.TimeSeriesView(origin="link", name="link: arrivals (Hz), packets lost and corrupt",
                                axis_x=link),
             name="link"))
-    right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[3, 2])
+    # the tabs (summary table, events, diagnostics) as tall as the boxes: the table shows whole
+    right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[1, 1])
     return rrb.Blueprint(
         rrb.Horizontal(rrb.Vertical(*rows), legend, right, column_shares=[14, 3, 9]),
         rrb.BlueprintPanel(state="collapsed"),
