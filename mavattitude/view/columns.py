@@ -6,17 +6,14 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 
 from .. import quaternion as quat
 from ..aiding import ned_to_geodetic
-from ..events import Event
 from ..flight import GpsSeries
 from ..metrics import AXES
 from ..pipeline import ReplayResult
 from ..runner import REINIT_GAP_S
 from .style import *  # noqa: F403
-from .style import _part
 
 # ---------------------------------------------------------------- static set-up
 

@@ -2,11 +2,9 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 
 from .. import quaternion as quat
 from ..declination import NO_DECLINATION
@@ -15,13 +13,12 @@ from ..flight import AttitudeSeries
 from ..metrics import AXES
 from ..pipeline import ReplayResult
 from ..report import spread_lines
-from ..runner import STEP_ROWS
+from ..runner import REINIT_GAP_S, STEP_ROWS
+from . import ranges
 from .blueprint import map_zoom_for, send_blueprint
 from .columns import *  # noqa: F403
 from .columns import _gps_fix
 from .marks import log_event_markers, log_events, log_spans
-from . import ranges
-from ..runner import REINIT_GAP_S
 from .style import *  # noqa: F403
 
 # ---------------------------------------------------------------- the whole replay

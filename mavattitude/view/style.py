@@ -1,12 +1,9 @@
 """Colours, entity paths and the limits every part of the view shares."""
 from __future__ import annotations
 
-import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 
-import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 
 TIMELINE = "time"
 
