@@ -12,9 +12,9 @@ Not part of the package: a development tool only.
 Under software rendering the viewer ingests slowly: a 1-2 minute replay (a few MB) needs
 --wait 150-200 before every plot is filled; take --shots 3 to watch it fill. --click X,Y
 clicks viewport pixels afterwards and saves OUT-clickN.png. At 1600x1000, a replay with a GPS
-track and an estimated track has its tabs at "GPS track" 1014,611, "track" 1115,611,
-"summary" 1221,611, "events" 1302,611, "diagnostics" 1394,611; the middle of the timeline is
-830,986.
+track and an estimated track has its tabs at "GPS track" 1104,611, "track" 1210,611,
+"summary" 1315,611, "events" 1396,611, "diagnostics" 1468,611 (the legend's column sits left of
+them); the middle of the timeline is 830,986.
 """
 from __future__ import annotations
 

@@ -85,7 +85,7 @@ class LiveView:
         self._segment = 0
 
     def _send_blueprint(self) -> None:
-        view.send_blueprint(self.rec, has_gps=self.has_gps, n_slots=len(self.series), live=True,
+        view.send_blueprint(self.rec, series=self.series, scored=self.series[1:], has_gps=self.has_gps, live=True,
                             diagnostics=self.diagnostic_keys, live_window=self.window_s)
 
     def push(self, chunk: Chunk) -> None:
