@@ -79,7 +79,8 @@ class ReplayResult:
     # estimator name -> what happened to its accelerometer updates, see accel_state_events
     estimator_events: dict[str, dict] = field(default_factory=dict)
     params: dict = field(default_factory=dict)  # estimator name -> its parameter dataclass
-    aiding: aid.Aiding | None = None  # GPS / baro on the IMU clock, when an estimator used them
+    # GPS / baro handed to the estimators, when one used them: only the IMU rows that had one, in order
+    aiding: aid.Aiding | None = None
     trim: tuple[float, float] | None = None  # (roll, pitch) rad the estimates were turned by, see board_trim
     suspects: list = field(default_factory=list)  # refcheck.Suspect: where the reference is not trusted
     reference_notes: list = field(default_factory=list)  # refcheck.LogNote: about the reference as a whole
@@ -271,6 +272,7 @@ def run_estimators(flight: Flight, names: list[str], imu_source: str | None = No
     runner = Runner(names, params, declination.rad, use_mag, imu_source, mag_source)
     runner.add_flight(flight)
     runner.step(final=True, chunk=False, progress=progress)
+    runner.release_inputs()  # the flight holds them; the runner's copy would double the IMU
     return runner
 
 
@@ -384,7 +386,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                         declination=declination,
                         mag_source=runner.mag_source, alignment=runner.alignment, phase=runner.phase_series(),
                         diagnostics=diagnostics, estimator_events=estimator_events,
-                        params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(),
+                        params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(given_only=True),
                         trim=applied_trim, suspects=suspects, reference_notes=notes, restarts=restarts, imu_rate_hz=rate,
                         not_meaningful=not_meaningful, accel_g_reading=g_reading)
 
