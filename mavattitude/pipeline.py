@@ -4,6 +4,7 @@ against the reference and gathers what the report and the view show."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,8 +75,9 @@ class ReplayResult:
     mag_source: str | None = None
     alignment: est.Alignment | None = None
     phase: PhaseSeries | None = None  # ground/air, when the log has a height source
-    # estimator name -> diagnostic name -> (N,) series at the IMU timestamps
-    diagnostics: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    # estimator name -> diagnostic name -> (N,) series at the IMU timestamps (a runner's
+    # ``diagcolumns.Series``: each array made when asked; hold one at a time)
+    diagnostics: dict[str, Mapping[str, np.ndarray]] = field(default_factory=dict)
     # estimator name -> what happened to its accelerometer updates, see accel_state_events
     estimator_events: dict[str, dict] = field(default_factory=dict)
     params: dict = field(default_factory=dict)  # estimator name -> its parameter dataclass

@@ -36,6 +36,7 @@ import numpy as np
 from . import aiding as aid
 from . import estimators as est
 from . import quaternion as quat
+from .diagcolumns import Column, Series
 from .events import Event
 from .flight import AttitudeSeries
 from .growing import Growing
@@ -122,7 +123,7 @@ class Runner:
         self.running = False
         self.events: list[Event] = []
         self.estimates = {n: Growing(4) for n in self.names}  # (N, 4) at the IMU rows estimated
-        self.diagnostics: dict[str, dict[str, Growing]] = {n: {} for n in self.names}  # key -> (N, 1)
+        self.diagnostics: dict[str, dict[str, Column]] = {n: {} for n in self.names}  # key -> every row's
         self.has_heading = {e.name: e.has_heading_reference(False) for e in self.estimators}
         self._phase: PhaseTracker | None = None
         self._heights_seen = 0  # height samples given to the phase tracker
@@ -280,12 +281,12 @@ class Runner:
             e.diagnostics = new  # the estimator's float64 arrays go now, not at its next update
             diagnostics[e.name] = new
             kept = self.diagnostics[e.name]
-            for key in (set(kept) | set(new)) if self.keep_history else ():
+            # in the order first given (a set's order is the string hash's, new each process)
+            for key in [*kept, *(k for k in new if k not in kept)] if self.keep_history else ():
                 if key not in kept:  # rows before the key first appeared: nothing
-                    kept[key] = Growing(1, dtype=new[key].dtype)
-                    kept[key].reserve(self._rows_expected)
+                    kept[key] = Column(new[key].dtype, self._rows_expected)
                     kept[key].extend(_nothing(a, new[key].dtype))
-                kept[key].extend(new[key] if key in new else _nothing(len(t), kept[key].view().dtype))
+                kept[key].extend(new[key] if key in new else _nothing(len(t), kept[key].dtype))
             if "reset" in new:
                 kind = f"{e.name}: watchdog reset (EKF attitude too far from its complementary filter, restarted from it)"
                 self.events += [Event(float(tr), "warn", f"{e.name}: watchdog reset (EKF attitude too far from its "
@@ -448,9 +449,10 @@ class Runner:
     def alignment(self) -> est.Alignment | None:
         return self.runs[0].alignment if self.runs else None
 
-    def diagnostic_series(self, name: str) -> dict[str, np.ndarray]:
-        """An estimator's diagnostics at every IMU row estimated so far: key -> (N,)."""
-        return {key: kept.column(0) for key, kept in self.diagnostics[name].items()}
+    def diagnostic_series(self, name: str) -> Series:
+        """An estimator's diagnostics at every IMU row estimated so far: key -> (N,), each
+        array made when asked (``diagcolumns``)."""
+        return Series(self.diagnostics[name])
 
     def aiding(self, given_only: bool = False) -> aid.Aiding | None:
         """The GPS and baro measurements handed to the estimators, at every IMU row estimated
