@@ -24,7 +24,7 @@ from .phase import PhaseSeries
 from .refcheck import autopilot_disagreement, check_reference, excluded_spans, whole_log_notes
 from .readers import best_imu_source, imu_rate, mag_for_imu
 from .readers.attitudes import SECONDARY_KEYS, NamedAttitude, name_attitudes
-from .runner import REINIT_GAP_S, Runner
+from .runner import REINIT_GAP_S, STEP_ROWS, Runner
 
 
 REFERENCE_WORDS = ("autopilot", "truth", "ekf")  # --reference besides a stream's name
@@ -331,7 +331,9 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
         events.append(Event(float(imu.t[0]), "warn", scale))
     applied_trim = board_trim(flight) if (trim and ref is not None and ref is flight.attitude) else None
     if applied_trim:
-        estimates = {name: trimmed(series, applied_trim) for name, series in estimates.items()}
+        for series in estimates.values():  # in place, a step at a time: an hour's estimates are not copied
+            for a in range(0, len(series.q), STEP_ROWS):
+                series.q[a:a + STEP_ROWS] = quat.trimmed(series.q[a:a + STEP_ROWS], *applied_trim)
         events.append(Event(flight.time_span[0], "info", "estimates turned by the board trim AHRS_TRIM_X/Y "
                             f"(roll {math.degrees(applied_trim[0]):.2f}°, pitch {math.degrees(applied_trim[1]):.2f}°) "
                             "before scoring and drawing, as the autopilot turns its own (--no-trim: raw); "
