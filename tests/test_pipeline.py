@@ -156,6 +156,7 @@ def test_a_real_log_s_many_watchdog_resets_are_one_warning_line(tmp_path, capsys
     assert sum("watchdog reset" in e["text"] for e in got["events"]) == len(times)  # each one kept in the JSON
 
 
+@pytest.mark.slow  # cpf-ekf over a sample log: seconds, kept out of the quick loop
 def test_the_aiding_kept_is_what_the_estimator_was_handed(sim_logs):
     """The runner keeps the aiding only at the IMU rows that had a measurement; given back
     at every row (NaN elsewhere) it is, to the bit, what cpf-ekf was handed, chunk by chunk."""
