@@ -4,12 +4,14 @@ against the reference and gathers what the report and the view show."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import aiding as aid
 from . import declination as decl
+from . import quaternion as quat
 from . import estimators as est
 from .broadscore import broad_measures
 from .errors import InputError, UsageError
@@ -22,7 +24,7 @@ from .phase import PhaseSeries
 from .refcheck import autopilot_disagreement, check_reference, excluded_spans, whole_log_notes
 from .readers import best_imu_source, imu_rate, mag_for_imu
 from .readers.attitudes import SECONDARY_KEYS, NamedAttitude, name_attitudes
-from .runner import REINIT_GAP_S, Runner
+from .runner import REINIT_GAP_S, STEP_ROWS, Runner
 from .trim import board_trim as trim_of
 from .trim import trimmed  # noqa: F401  (replay's callers and tests take it from here)
 
@@ -75,12 +77,14 @@ class ReplayResult:
     mag_source: str | None = None
     alignment: est.Alignment | None = None
     phase: PhaseSeries | None = None  # ground/air, when the log has a height source
-    # estimator name -> diagnostic name -> (N,) series at the IMU timestamps
-    diagnostics: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    # estimator name -> diagnostic name -> (N,) series at the IMU timestamps (a runner's
+    # ``diagcolumns.Series``: each array made when asked; hold one at a time)
+    diagnostics: dict[str, Mapping[str, np.ndarray]] = field(default_factory=dict)
     # estimator name -> what happened to its accelerometer updates, see accel_state_events
     estimator_events: dict[str, dict] = field(default_factory=dict)
     params: dict = field(default_factory=dict)  # estimator name -> its parameter dataclass
-    aiding: aid.Aiding | None = None  # GPS / baro on the IMU clock, when an estimator used them
+    # GPS / baro handed to the estimators, when one used them: only the IMU rows that had one, in order
+    aiding: aid.Aiding | None = None
     trim: tuple[float, float] | None = None  # (roll, pitch) rad the estimates were turned by, see board_trim
     suspects: list = field(default_factory=list)  # refcheck.Suspect: where the reference is not trusted
     reference_notes: list = field(default_factory=list)  # refcheck.LogNote: about the reference as a whole
@@ -258,6 +262,7 @@ def run_estimators(flight: Flight, names: list[str], imu_source: str | None = No
     runner = Runner(names, params, declination.rad, use_mag, imu_source, mag_source)
     runner.add_flight(flight)
     runner.step(final=True, chunk=False, progress=progress)
+    runner.release_inputs()  # the flight holds them; the runner's copy would double the IMU
     return runner
 
 
@@ -314,7 +319,9 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
         events.append(Event(float(imu.t[0]), "warn", scale))
     applied_trim = board_trim(flight) if (trim and ref is not None and ref is flight.attitude) else None
     if applied_trim:
-        estimates = {name: trimmed(series, applied_trim) for name, series in estimates.items()}
+        for series in estimates.values():  # in place, a step at a time: an hour's estimates are not copied
+            for a in range(0, len(series.q), STEP_ROWS):
+                series.q[a:a + STEP_ROWS] = quat.trimmed(series.q[a:a + STEP_ROWS], *applied_trim)
         events.append(Event(flight.time_span[0], "info", "estimates turned by the board trim AHRS_TRIM_X/Y "
                             f"(roll {math.degrees(applied_trim[0]):.2f}°, pitch {math.degrees(applied_trim[1]):.2f}°) "
                             "before scoring and drawing, as the autopilot turns its own (--no-trim: raw); "
@@ -371,7 +378,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                         declination=declination,
                         mag_source=runner.mag_source, alignment=runner.alignment, phase=runner.phase_series(),
                         diagnostics=diagnostics, estimator_events=estimator_events,
-                        params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(),
+                        params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(given_only=True),
                         trim=applied_trim, suspects=suspects, reference_notes=notes, restarts=restarts, imu_rate_hz=rate,
                         not_meaningful=not_meaningful, accel_g_reading=g_reading)
 

@@ -154,3 +154,32 @@ def test_a_real_log_s_many_watchdog_resets_are_one_warning_line(tmp_path, capsys
                       f"restarted from it): {len(times)} times, at {times[0]:.1f}, {times[1]:.1f}, {times[2]:.1f}, … s"]
     assert len(warnings) <= 6  # the log's own few, not one per reset
     assert sum("watchdog reset" in e["text"] for e in got["events"]) == len(times)  # each one kept in the JSON
+
+
+@pytest.mark.slow  # cpf-ekf over a sample log: seconds, kept out of the quick loop
+def test_the_aiding_kept_is_what_the_estimator_was_handed(sim_logs):
+    """The runner keeps the aiding only at the IMU rows that had a measurement; given back
+    at every row (NaN elsewhere) it is, to the bit, what cpf-ekf was handed, chunk by chunk."""
+    from mavattitude import aiding as aid
+    from mavattitude.runner import Runner
+
+    flight = read_log(str(sim_logs["figure8.bin"][1]))
+    runner = Runner(["cpf-ekf"], imu_source="IMU[0]")
+    runner.add_flight(flight)
+    handed = []
+    update = runner.estimators[0].update
+
+    def keeping(*args, aiding=None, **kwargs):
+        handed.append(aiding)
+        return update(*args, aiding=aiding, **kwargs)
+    runner.estimators[0].update = keeping
+    runner.step(final=True, chunk=False)
+    runner.release_inputs()
+    full, given, rows = runner.aiding(), runner.aiding(given_only=True), runner.aiding_rows
+    assert len(full) == runner.done == len(runner.estimate("cpf-ekf").t)
+    assert 0 < len(rows) < len(full) / 5  # baro at 10 Hz, the IMU at 100
+    for f in aid.Aiding.COLUMNS:
+        seen = np.concatenate([getattr(a, f) for a in handed])
+        np.testing.assert_array_equal(getattr(full, f), seen)  # NaN where NaN
+        np.testing.assert_array_equal(getattr(given, f), seen[rows])
+    assert full.origin == given.origin is not None

@@ -10,6 +10,7 @@ import rerun as rr
 
 from .. import quaternion as quat
 from ..declination import NO_DECLINATION
+from ..diagcolumns import only
 from ..events import Event
 from ..flight import AttitudeSeries
 from ..metrics import AXES
@@ -194,14 +195,14 @@ def _plotted_diagnostics(result: ReplayResult) -> dict[str, dict[str, np.ndarray
     """The diagnostics worth a line: not all zero or NaN, and no compass quantities without a compass."""
     out = {}
     for name, diag in result.diagnostics.items():
-        kept = {}
+        kept = []
         for key, y in diag.items():
             if result.mag_source is None and diagnostic_group(key)[0] in COMPASS_GROUPS:
                 continue
             finite = np.asarray(y)[np.isfinite(y)]
             if len(finite) and np.any(finite != 0):
-                kept[key] = y
-        out[name] = kept
+                kept.append(key)
+        out[name] = only(diag, kept)  # a replay's: still made one at a time, as drawn
     return out
 
 
