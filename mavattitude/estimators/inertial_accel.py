@@ -20,7 +20,7 @@ gyroscope strapdown integration). Here it is a step in front of a filter, not a 
 The frame drifts at the gyro's remaining bias; gravity moves with it, and the low-pass follows
 with a lag of about τ: an error of (remaining bias · τ), 0.1° at 0.1 °/s and τ = 1 s.
 
-Choices (VQF makes them differently; ours fit a pre-step shared by six filters):
+Choices (VQF makes them differently; ours fit a pre-step shared by the seven filters):
 - two exact first-order lags rather than VQF's second-order Butterworth with coefficients for a
   fixed sample time: the logs' steps vary (jitter, dropped samples), and an exact lag is right at
   any step;
