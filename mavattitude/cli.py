@@ -27,6 +27,7 @@ from pathlib import Path
 from . import __version__, signals
 from .errors import InputError, UsageError, is_interrupt
 from .outputs import Outputs, json_text
+from .trim import describe as describe_trim
 
 DESCRIPTION = """\
 Replay flight logs (ArduPilot .bin DataFlash, MAVLink .tlog telemetry, PX4 .ulg ULog) through
@@ -176,8 +177,7 @@ def cmd_replay(args) -> int:
             _warn(line)
         if result.reference is not None:
             trim = "" if result.trim is None else (
-                f"; estimates turned by the board trim (roll {math.degrees(result.trim[0]):.2f}°, "
-                f"pitch {math.degrees(result.trim[1]):.2f}°) as the autopilot's are")
+                f"; estimates turned by the board trim ({describe_trim(result.trim)}) as the autopilot's are")
             ref = result.reference_info
             print(f"{flight.path}: {len(result.flight.imu[result.imu_source].t)} samples of "
                   f"{result.imu_source}, scored against {ref.stream} ({ref.algorithm}; --reference {ref.choice}) "

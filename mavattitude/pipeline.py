@@ -26,6 +26,7 @@ from .readers import best_imu_source, imu_rate, mag_for_imu
 from .readers.attitudes import SECONDARY_KEYS, NamedAttitude, name_attitudes
 from .runner import REINIT_GAP_S, STEP_ROWS, Runner
 from .trim import board_trim as trim_of
+from .trim import describe
 from .trim import trimmed  # noqa: F401  (replay's callers and tests take it from here)
 
 
@@ -323,7 +324,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
             for a in range(0, len(series.q), STEP_ROWS):
                 series.q[a:a + STEP_ROWS] = quat.trimmed(series.q[a:a + STEP_ROWS], *applied_trim)
         events.append(Event(flight.time_span[0], "info", "estimates turned by the board trim AHRS_TRIM_X/Y "
-                            f"(roll {math.degrees(applied_trim[0]):.2f}°, pitch {math.degrees(applied_trim[1]):.2f}°) "
+                            f"({describe(applied_trim)}) "
                             "before scoring and drawing, as the autopilot turns its own (--no-trim: raw); "
                             "the autopilot's other streams are scored as logged"))
     for name, series in estimates.items():

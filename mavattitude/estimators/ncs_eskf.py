@@ -386,14 +386,9 @@ def ncs_eskf_run(s, state, cfg, out, diag):
                 else:  # first sample or after a gap: restart the filter
                     accel_lp[0], accel_lp[1], accel_lp[2] = ax, ay, az
                 ax, ay, az = accel_lp[0], accel_lp[1], accel_lp[2]
-            w, x, y, z = q[0], q[1], q[2], q[3]
             # g: the accelerometer's reading of g, learned while still (``gravity``; strict: 9.80665)
             gravity = cons[C_G]
-            # the manoeuvre acceleration: residual z - C(q⁻)ᵀ(-g_n), body frame (eq 8, 14)
-            r0 = ax + gravity * 2.0 * (x * z - w * y)
-            r1 = ay + gravity * 2.0 * (y * z + w * x)
-            r2 = az + gravity * (1.0 - 2.0 * (x * x + y * y))
-            resid_h = math.sqrt(r0 * r0 + r1 * r1) / gravity
+            r0, r1, r2, resid_h = _gravity_residual(q, ax, ay, az, gravity)
             ground = segmented and in_air[i] == 0.0  # NaN (unknown) counts as air
             base = h_threshold_ground if ground else h_threshold_air
             sn2 = 0.0
@@ -401,14 +396,13 @@ def ncs_eskf_run(s, state, cfg, out, diag):
                 sn2 = _residual_noise(noise, r0 / gravity, r1 / gravity, dt if stepped else 0.0)
             gate = math.sqrt(base * base + noise_gate * noise_gate * sn2
                              + gate_sigma * gate_sigma * (P[0, 0] + P[1, 1]))
-            low_first = False
-            if stepped and cfg.fallback:
-                l0, l1, l2 = accel_low[i, 0], accel_low[i, 1], accel_low[i, 2]
-                h0 = l0 + gravity * 2.0 * (x * z - w * y)
-                h1 = l1 + gravity * 2.0 * (y * z + w * x)
-                low_first = math.sqrt(h0 * h0 + h1 * h1) / gravity < resid_h and _low_passed_update(
-                    q, P, bias_est, l0, l1, l2, gravity, total_threshold, gate, taper, acc2, dt)
-            if low_first:
+            low_tried = low_used = False
+            l0, l1, l2 = accel_low[i, 0], accel_low[i, 1], accel_low[i, 2]
+            if stepped and cfg.fallback and _gravity_residual(q, l0, l1, l2, gravity)[3] < resid_h:
+                low_tried = True  # the closer of the two first
+                low_used = _low_passed_update(q, P, bias_est, l0, l1, l2, gravity, total_threshold, gate, taper,
+                                              acc2, dt)
+            if low_used:
                 state = ACCEL_LOWPASSED
             elif stepped:
                 if abs(math.sqrt(ax * ax + ay * ay + az * az) - gravity) > total_threshold * gravity:
@@ -421,9 +415,8 @@ def ncs_eskf_run(s, state, cfg, out, diag):
                     else:
                         state = ACCEL_USED
                         ncs_update(q, P, bias_est, r0, r1, r2, acc2 / (dt * weight), gravity)
-                if state != ACCEL_USED and cfg.fallback and _low_passed_update(
-                        q, P, bias_est, accel_low[i, 0], accel_low[i, 1], accel_low[i, 2], gravity,
-                        total_threshold, gate, taper, acc2, dt):
+                if state != ACCEL_USED and cfg.fallback and not low_tried and _low_passed_update(
+                        q, P, bias_est, l0, l1, l2, gravity, total_threshold, gate, taper, acc2, dt):
                     state = ACCEL_LOWPASSED
         if stepped:  # one normalisation per sample, after the last product
             normalize_into(q, q[0], q[1], q[2], q[3])
@@ -436,6 +429,17 @@ def ncs_eskf_run(s, state, cfg, out, diag):
 
 
 @njit(cache=True, inline="always")
+def _gravity_residual(q, ax, ay, az, gravity):
+    """The manoeuvre acceleration: the residual z - C(q⁻)ᵀ(-g_n), body frame (eq 8, 14), and its
+    horizontal part's size in g."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    r0 = ax + gravity * 2.0 * (x * z - w * y)
+    r1 = ay + gravity * 2.0 * (y * z + w * x)
+    r2 = az + gravity * (1.0 - 2.0 * (x * x + y * y))
+    return r0, r1, r2, math.sqrt(r0 * r0 + r1 * r1) / gravity
+
+
+@njit(cache=True, inline="always")
 def _low_passed_update(q, P, bias_est, ax, ay, az, gravity, total_threshold, gate, taper, acc2, dt):
     """The update from the low-passed reading (``inertial_accel``) where the reading itself was
     refused, if it passes the same two gates; True when it was used. A vibration or a circle the
@@ -444,11 +448,7 @@ def _low_passed_update(q, P, bias_est, ax, ay, az, gravity, total_threshold, gat
         return False
     if abs(math.sqrt(ax * ax + ay * ay + az * az) - gravity) > total_threshold * gravity:
         return False
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    r0 = ax + gravity * 2.0 * (x * z - w * y)
-    r1 = ay + gravity * 2.0 * (y * z + w * x)
-    r2 = az + gravity * (1.0 - 2.0 * (x * x + y * y))
-    resid_h = math.sqrt(r0 * r0 + r1 * r1) / gravity
+    r0, r1, r2, resid_h = _gravity_residual(q, ax, ay, az, gravity)
     weight = 1.0 - taper * resid_h / gate if resid_h < gate else 0.0
     if weight <= 0.0:
         return False

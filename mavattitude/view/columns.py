@@ -74,14 +74,16 @@ def setup_series(rec: rr.RecordingStream, name: str, *, color: Color, label: str
 # ---------------------------------------------------------------- decimation
 
 
+def _faster_than(t: np.ndarray, hz: float) -> bool:
+    """Whether a series comes faster than hz on average (else decimating it keeps everything)."""
+    return len(t) >= 2 and hz > 0 and len(t) > hz * float(t[-1] - t[0]) + 1
+
+
 def _bin_first(t: np.ndarray, hz: float) -> np.ndarray:
     """Indices keeping the first sample of each 1/hz bin of absolute time (all of them when
     the series is not faster than hz on average)."""
     n = len(t)
-    if n < 2 or hz <= 0:
-        return np.arange(n)
-    span = float(t[-1] - t[0])
-    if n <= hz * span + 1:
+    if not _faster_than(t, hz):
         return np.arange(n)
     b = np.floor(t * hz)
     keep = np.empty(n, dtype=bool)
@@ -98,10 +100,7 @@ def _bin_minmax(t: np.ndarray, y: np.ndarray, hz: float) -> np.ndarray:
     """Peak-preserving decimation to about hz: the (first) argmin and argmax of y in each
     2/hz bin, in time order; all samples when the series is not faster than hz. O(n)."""
     n = len(t)
-    if n < 2 or hz <= 0:
-        return np.arange(n)
-    span = float(t[-1] - t[0])
-    if n <= hz * span + 1:
+    if not _faster_than(t, hz):
         return np.arange(n)
     b = np.floor(t * (hz / 2.0))
     if np.any(np.diff(b) < 0):  # unsorted time: keep the simple rule
@@ -167,32 +166,34 @@ def _send_scalars(rec: rr.RecordingStream, path: str, t: np.ndarray, y: np.ndarr
                      columns=rr.Scalars.columns(scalars=np.asarray(y, dtype=np.float64)))
 
 
+def _binned_attitudes(t, q, max_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The first quaternion of each 1/``max_hz`` bin (``_bin_first``) and its time."""
+    t = np.asarray(t, dtype=np.float64)
+    idx = _bin_first(t, max_hz)
+    return t[idx], np.asarray(q, dtype=np.float64)[idx]
+
+
 def log_euler_columns(rec: rr.RecordingStream, name: str, t, q, *,
                       max_hz: float = SCALAR_MAX_HZ) -> None:
     """Roll, pitch, yaw (degrees) of quaternions ``q`` (N, 4) at ``t`` to attitude/<axis>/<name>."""
-    t = np.asarray(t, dtype=np.float64)
-    idx = _bin_first(t, max_hz)
-    if len(idx) == 0:
+    t, q = _binned_attitudes(t, q, max_hz)
+    if len(t) == 0:
         return
-    euler = np.degrees(quat.to_euler(np.asarray(q, dtype=np.float64)[idx]))
+    euler = np.degrees(quat.to_euler(q))
     for k, axis in enumerate(AXES):
-        _send_scalars(rec, attitude_path(axis, name), t[idx], euler[:, k])
+        _send_scalars(rec, attitude_path(axis, name), t, euler[:, k])
 
 
 def log_transform_columns(rec: rr.RecordingStream, path: str, t, q, *,
                           max_hz: float = TRANSFORM_MAX_HZ) -> None:
     """An animated rotation (body -> NED quaternions [w, x, y, z]) at ``path``."""
-    t = np.asarray(t, dtype=np.float64)
-    idx = _bin_first(t, max_hz)
-    if len(idx) == 0:
-        return
-    qs = np.asarray(q, dtype=np.float64)[idx]
+    t, qs = _binned_attitudes(t, q, max_hz)
     ok = np.all(np.isfinite(qs), axis=1)
-    idx, qs = idx[ok], qs[ok]
-    if len(idx) == 0:
+    t, qs = t[ok], qs[ok]
+    if len(t) == 0:
         return
     xyzw = quat.normalize(qs)[:, [1, 2, 3, 0]].astype(np.float32)
-    rec.send_columns(path, indexes=[_time(t[idx])],
+    rec.send_columns(path, indexes=[_time(t)],
                      columns=rr.Transform3D.columns(quaternion=xyzw))
 
 
