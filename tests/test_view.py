@@ -19,11 +19,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from mavattitude import quaternion as quat  # noqa: E402
 from mavattitude import view  # noqa: E402
 from mavattitude.flight import AttitudeSeries, Flight, GpsSeries, ImuSeries  # noqa: E402
-from mavattitude.metrics import AXES, AxisMetrics, Comparison  # noqa: E402
+from mavattitude.scoring.metrics import AXES, AxisMetrics, Comparison  # noqa: E402
 from mavattitude.events import Event  # noqa: E402
-from mavattitude.pipeline import ReplayResult  # noqa: E402
+from mavattitude.commands.replay import ReplayResult  # noqa: E402
 from mavattitude.outputs import Outputs  # noqa: E402
-from mavattitude.sink import close_sink, open_sink, plan_sink  # noqa: E402
+from mavattitude.view.sink import close_sink, open_sink, plan_sink  # noqa: E402
 
 # ---------------------------------------------------------------- synthetic replay
 
@@ -322,7 +322,7 @@ if __name__ == "__main__":
 def test_an_estimate_without_heading_is_shown_as_it_is_scored():
     """The yaw plot and the box of an estimator with no heading reference carry the offset its
     yaw error had removed, span by span (restarts), so value and error plots agree."""
-    from mavattitude.metrics import compare
+    from mavattitude.scoring.metrics import compare
     from mavattitude.view import shown_estimate
 
     t = np.arange(0.0, 60.0, 0.02)
