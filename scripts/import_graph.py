@@ -77,13 +77,15 @@ def _imports(tree: ast.AST):
     """(node, inside a function) for every import that can run (not under TYPE_CHECKING)."""
     def visit(node, lazy):
         for child in ast.iter_child_nodes(node):
+            if not isinstance(child, (ast.stmt, ast.excepthandler, ast.match_case)):
+                continue  # an import is a statement: expressions never hold one
             if isinstance(child, ast.If) and _is_type_checking(child.test):
                 for other in child.orelse:
                     yield from visit(other, lazy)
                 continue
             if isinstance(child, (ast.Import, ast.ImportFrom)):
                 yield child, lazy
-            yield from visit(child, lazy or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)))
+            yield from visit(child, lazy or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)))
     yield from visit(tree, False)
 
 

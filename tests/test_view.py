@@ -295,15 +295,13 @@ def test_chunks_log_like_the_whole():
         assert a == b, path
 
 
-def test_long_log_is_fast(tmp_path):
-    """An hour at 400 Hz with two estimators stays in seconds and a modest file."""
-    import time
+@pytest.mark.slow
+def test_an_hour_long_log_makes_a_modest_file(tmp_path):
+    """An hour at 400 Hz with two estimators: decimated to what a screen shows (its time is
+    measured by scripts/rrd_size.py and bench --read, not tested)."""
     result = make_replay(duration=3600.0, att_hz=10.0, truth_hz=50.0)
-    start = time.perf_counter()
     write_rrd(result, tmp_path / "hour.rrd")
-    elapsed = time.perf_counter() - start
     size_mb = (tmp_path / "hour.rrd").stat().st_size / 1e6
-    assert elapsed < 30.0, elapsed
     assert size_mb < 200, size_mb
 
 
