@@ -182,7 +182,7 @@ def compiling_process(names: list[str], plugins: list[str] = ()):
             "from mavattitude.signals import end_with_parent; end_with_parent(int(sys.argv[1])); "
             "from mavattitude.estimators import register_from; register_from(json.loads(sys.argv[3])); "
             "from mavattitude.warmup import compile_kernels; compile_kernels(sys.argv[4:], report=sys.stdout)")
-    return subprocess.Popen([sys.executable, "-c", code, str(os.getpid()), json.dumps(sys.path),
+    return subprocess.Popen([sys.executable, "-c", code, str(os.getpid()), json.dumps([str(p) for p in sys.path]),
                              json.dumps(list(plugins)), *names], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
 
 

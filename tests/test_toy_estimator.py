@@ -122,7 +122,7 @@ def test_the_toy_is_listed_with_its_parameters(toy, capsys):
     assert listed["uses_magnetometer"] is False and set(listed["params"]) == {"gain"}
 
 
-def test_what_the_tool_reads_from_the_class(toy):
+def test_what_the_tool_reads_from_the_class(toy, monkeypatch):
     """Colour: none stated, so a spare one no other estimator or role has. Compile cost: none
     stated, so the default, and the kernels found uncompiled. Heading: none (no compass).
     Where other processes find it: its module."""
@@ -137,7 +137,11 @@ def test_what_the_tool_reads_from_the_class(toy):
     colors = view.assign_colors(names)
     assert colors["toy"] not in [c for n, c in colors.items() if n != "toy"]
     assert colors == view.assign_colors(names)  # the same every time
+    monkeypatch.setattr(toy.Toy, "color", (10, 20, 30))
+    assert view.assign_colors(["toy", "mahony"]) == {"toy": (10, 20, 30), "mahony": ESTIMATORS["mahony"].color}
     assert warmup.compile_seconds("toy-jit") == DEFAULT_COMPILE_S and needs_compile(["toy"]) == []
+    # shared out by cost, longest first to the lightest process: cpf-ekf 9.5 s; the toy 5 s, mahony 2 s
+    assert warmup.shares(["mahony", "toy-jit", "cpf-ekf"], 2) == [["cpf-ekf"], ["toy-jit", "mahony"]]
     assert not create("toy").has_heading_reference(True)
     assert plugin_paths(["mahony", "toy", "toy-jit"]) == {"toy": f"{TOY_MODULE}:Toy", "toy-jit": f"{TOY_MODULE}:ToyJit"}
     # tune: its search space from the class, and nothing left once --set fixes the one field

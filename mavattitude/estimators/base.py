@@ -69,7 +69,7 @@ class Estimator:
         """Parameter defaults a flight supplies, from its autopilot parameters (name -> value)
         and its vehicle ("ArduPlane", ...): field -> (value, what it is, from where: said after
         "NAME FIELD VALUE" in the replay's notes). ``params.log_defaults`` applies them where
-        the user set nothing. None by default."""
+        the user set nothing. None unless a class says."""
         return {}
 
     def run_params(self):
