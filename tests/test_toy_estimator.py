@@ -123,9 +123,9 @@ def test_the_toy_is_listed_with_its_parameters(toy, capsys):
 
 
 def test_what_the_tool_reads_from_the_class(toy, monkeypatch):
-    """Colour: none stated, so a spare one no other estimator or role has. Compile cost: none
-    stated, so the default, and the kernels found uncompiled. Heading: none (no compass).
-    Where other processes find it: its module."""
+    """Colour: none stated, so a spare one no other estimator or role has; a stated one is
+    taken. Compile cost: none stated, so the default where there are kernels. Heading: none (no
+    compass). Where other processes find it: its module. Tune: its search space."""
     from mavattitude import view, warmup
     from mavattitude.estimators import create, needs_compile
     from mavattitude.estimators.base import DEFAULT_COMPILE_S
