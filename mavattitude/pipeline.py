@@ -372,9 +372,10 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     estimator_events = {e.name: accel_state_events(imu_t, diagnostics[e.name]["accel_state"], e.ACCEL_STATES)
                         for e in runner.estimators if "accel_state" in diagnostics[e.name]}
     for e in runner.estimators:
-        for key, mark in e.MARKS.items():
-            if key in diagnostics[e.name]:
-                estimator_events.setdefault(e.name, {})[mark.counted_as] = marked_events(imu_t, diagnostics[e.name][key])
+        marked = {mark.counted_as: marked_events(imu_t, diagnostics[e.name][key])
+                  for key, mark in e.MARKS.items() if key in diagnostics[e.name]}
+        if marked:
+            estimator_events.setdefault(e.name, {}).update(marked)
     return ReplayResult(flight=flight, imu_source=runner.imu_source, reference=ref,
                         estimates=estimates, comparisons=comparisons, events=events, reference_info=chosen,
                         stream_comparisons=streams, stream_series=stream_series,

@@ -10,7 +10,6 @@ import json
 import sys
 import textwrap
 
-import numpy as np
 import pytest
 
 import mavattitude
