@@ -328,10 +328,14 @@ class Workers:
         if self._client is not None:
             from distributed import as_completed
 
+            from .estimators import plugin_paths
+
+            plugins = [path for path in plugin_paths(settings.names).values() if path]
             futures = []
             for log in logs:
                 data = Path(log).read_bytes() if self.ship_logs else None
-                futures.append(self._client.submit(evaluate_log, log, settings, data, self.keep, pure=False,
+                futures.append(self._client.submit(_evaluate_on_worker, plugins, log, settings, data, self.keep,
+                                                   pure=False,
                                                    key=f"evaluate-{self._token}-{self._runs}-{record_name(log)}"))
             for future in as_completed(futures):
                 finished(future.result())
@@ -353,6 +357,17 @@ class Workers:
         else:
             for log in logs:
                 finished(evaluate_log(log, settings, keep=self.keep))
+
+
+def _evaluate_on_worker(plugins: list[str], path: str, settings: ReplaySettings, data: bytes | None,
+                        keep: bool) -> dict:
+    """``evaluate_log`` on a Dask worker, which first registers the estimators this process
+    registered at run time (``plugins``, "module:Class" each: the worker must be able to import
+    their modules; one it cannot leaves its logs failed, naming the estimator)."""
+    from .estimators import register_from
+
+    register_from(plugins)
+    return evaluate_log(path, settings, data, keep)
 
 
 def _start_worker(parent: int, plugins: list[str] = ()) -> None:

@@ -215,3 +215,19 @@ def test_evaluate_refuses_an_estimator_its_workers_cannot_import(toy):
     finally:
         ESTIMATORS.pop("toy-local")
 
+
+
+@pytest.mark.slow  # a Dask cluster on loopback: 20 s
+def test_evaluate_on_a_dask_cluster_registers_the_toy_on_its_worker(toy, tmp_path, capsys):
+    """Each task registers the toy from its module first (the worker, spawned here, has this
+    process's sys.path; a remote one needs the module installed)."""
+    distributed = pytest.importorskip("distributed")
+    logs = [str(SAMPLE_LOGS / "static.bin"), str(SAMPLE_LOGS / "hover.tlog")]
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=":0") as cluster:
+        code = main(["evaluate", *logs, "--estimators", "toy,mahony", "--scheduler", cluster.scheduler_address,
+                     "--out", str(tmp_path / "dask"), "-q"])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    summary = json.loads((tmp_path / "dask" / "summary.json").read_text())
+    assert summary["estimators"]["toy"]["logs"] == 2 and summary["failed"] == []
