@@ -150,6 +150,7 @@ def test_what_the_tool_reads_from_the_class(toy, monkeypatch):
         space_for(TuneSettings("toy", ReplaySettings(names=("toy",), assignments=("toy.gain=2",))))
 
 
+@pytest.mark.slow  # a process that imports the package and numba: 4 s
 def test_a_compiling_process_registers_the_toy_from_its_module(toy):
     """warmup's processes compile an estimator registered at run time: it is registered there
     from its module, compiled, and said done."""
