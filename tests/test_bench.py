@@ -36,7 +36,9 @@ def test_bench_runs_every_estimator(capsys, tmp_path):
     assert d["samples"] == 2000 and d["imu_rate_hz"] == 100.0 and d["duration_s"] == 20.0
     assert d["mag_samples"] == 200  # 10 Hz compass over 20 s
     assert result["repeat"] == 1
-    assert set(result["targets"]) == {"min_x_imufusion", "mahony_min_samples_per_s"}
+    assert result["targets"] == {"min_x_imufusion": 5.0, "estimators": {  # as the classes state them
+        "mahony": {"min_samples_per_s": 1e6}, "cpf-ekf": {"min_x_imufusion": 1.0}}}
+    assert "imufusion in the same mode, cpf-ekf ≥ 1×; mahony ≥ 1.00 M samples/s" in out
     rows = result["results"]
     for name in all_names():  # 'all': ours
         cls = ESTIMATORS[name]

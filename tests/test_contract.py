@@ -64,6 +64,11 @@ def test_registered_under_its_name_with_the_interface(name):
         assert off.use_mag is False and not create(name, off).has_heading_reference(True)
     assert not cls.ACCEL_STATES or cls.ACCEL_STATES[0] == "used"
     assert cls.requires or cls.kernels
+    # what it says about itself: marks among its diagnostics, a colour the view can draw, the
+    # log's defaults for its own fields only (none from an empty log)
+    assert set(cls.MARKS) <= set(cls.DIAGNOSTICS)
+    assert cls.color is None or (len(cls.color) == 3 and all(0 <= c <= 255 for c in cls.color))
+    assert cls.log_defaults({}, "") == {}
     est.initialize(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.01, -0.02, 0.003]))
     n = 50
     q = est.update(np.arange(n) * 0.01, np.zeros((n, 3)), np.tile([0.0, 0.0, -9.8], (n, 1)), None)

@@ -14,6 +14,7 @@ from conftest import shared_log
 from mavattitude.cli import main
 from mavattitude.declination import for_flight
 from mavattitude.commands.replay import ReplaySettings, replay_flight
+from mavattitude.estimators import all_names
 from mavattitude.readers import read_log
 from mavattitude.sim import simulate, write_log
 
@@ -137,8 +138,7 @@ def test_a_gps_without_its_sample_time_takes_its_publication_time():
 def test_every_estimator_follows_px4s_ekf2_on_a_real_flight(capsys):
     path = shared_log("ulog/px4-real-auav-x21-flight.ulg")
     # its ±22° of roll come 5 s in: a 2 s warm-up keeps them scored
-    result, _ = replay_flight(read_log(str(path)), ReplaySettings(names=("mahony", "mahony-ekf", "ekf", "eskf",
-                                                                         "ncs-eskf", "eq-kf", "cpf-ekf"), warmup_s=2.0))
+    result, _ = replay_flight(read_log(str(path)), ReplaySettings(names=tuple(all_names()), warmup_s=2.0))
     for name, c in result.comparisons.items():
         for axis in ("roll", "pitch"):
             assert c.axes[axis].mae < 0.15 and c.axes[axis].r2 > 0.99, (name, axis)

@@ -22,8 +22,8 @@ that takes aiding (``cpf-ekf``) also gets the simulated GPS and baro on the IMU 
 (``aiding.from_sim``, as ``replay`` builds them from a log), in both modes.
 
 Targets: every estimator of ours at least ``MIN_X_IMUFUSION`` times imufusion's rate in the same mode
-(``MIN_X_IMUFUSION_FOR`` where an estimator's own target differs),
-and mahony at least ``MAHONY_MIN_RATE`` samples/s.
+(``Estimator.bench_min_x_imufusion`` where an estimator's own target differs: cpf-ekf), and at least
+``Estimator.bench_min_rate`` samples/s where its class states one (mahony: 1 M).
 """
 from __future__ import annotations
 
@@ -41,11 +41,7 @@ from ..errors import UsageError, reraise_interrupt
 from ..flight import MagSeries
 from ..outputs import json_text
 
-MIN_X_IMUFUSION = 5.0  # every estimator: at least this many times imufusion's samples/s
-# ... except these, whose work per sample is of another order: cpf-ekf propagates a 20×20
-# covariance and runs a complementary filter alongside (its target: at least imufusion's rate).
-MIN_X_IMUFUSION_FOR = {"cpf-ekf": 1.0}
-MAHONY_MIN_RATE = 1e6  # samples/s
+MIN_X_IMUFUSION = 5.0  # every estimator: at least this many times imufusion's samples/s (unless its class says)
 AIR_ABOVE_M = 3.0  # m above home: in the air (the in_air input, from the simulated truth)
 WARM_SAMPLES = 2000  # the compile/warm run's slice
 INSTALL_HINT = 'pip install "mavattitude[bench]"  (or: pip install "imufusion>=1.3,<2")'
@@ -162,14 +158,33 @@ def time_imufusion(data: BenchData, use_mag: bool, n: int, repeat: int) -> float
 # ---------------------------------------------------------------- the whole bench
 
 
-def _verdict(name: str, rate: float, x_imufusion: float | None) -> tuple[bool | None, list[str]]:
-    """Whether the row meets its targets (None: nothing to check), and what it misses."""
+def min_x_imufusion(cls) -> float:
+    """An estimator's target against imufusion: its class's, or ``MIN_X_IMUFUSION``."""
+    return MIN_X_IMUFUSION if cls.bench_min_x_imufusion is None else cls.bench_min_x_imufusion
+
+
+def own_targets() -> dict[str, dict[str, float]]:
+    """The targets estimators' classes state beside ``MIN_X_IMUFUSION``: name ->
+    {min_x_imufusion, min_samples_per_s} (those stated), for the JSON and the table."""
+    from .estimators import ESTIMATORS
+
+    out = {}
+    for name, cls in ESTIMATORS.items():
+        own = {"min_x_imufusion": cls.bench_min_x_imufusion, "min_samples_per_s": cls.bench_min_rate}
+        if any(v is not None for v in own.values()):
+            out[name] = {k: v for k, v in own.items() if v is not None}
+    return out
+
+
+def _verdict(cls, rate: float, x_imufusion: float | None) -> tuple[bool | None, list[str]]:
+    """Whether the row of estimator class ``cls`` meets its targets (None: nothing to check),
+    and what it misses."""
     checks = []
     if x_imufusion is not None:
-        target = MIN_X_IMUFUSION_FOR.get(name, MIN_X_IMUFUSION)
+        target = min_x_imufusion(cls)
         checks.append((x_imufusion >= target, f"{x_imufusion:.1f}× < {target:g}× imufusion"))
-    if name == "mahony":
-        checks.append((rate >= MAHONY_MIN_RATE, f"{_rate(rate)}/s < {_rate(MAHONY_MIN_RATE)}/s"))
+    if cls.bench_min_rate is not None:
+        checks.append((rate >= cls.bench_min_rate, f"{_rate(rate)}/s < {_rate(cls.bench_min_rate)}/s"))
     if not checks:
         return None, []
     return all(ok for ok, _ in checks), [why for ok, why in checks if not ok]
@@ -215,7 +230,7 @@ def run_bench(names: list[str], scenario: str = "figure8", duration: float = 360
                 continue
             rate = data.n / seconds
             x = rate / reference[label] if label in reference else None
-            met, misses = _verdict(name, rate, x if cls.in_all else None)  # targets are ours, not the rivals'
+            met, misses = _verdict(cls, rate, x if cls.in_all else None)  # targets are ours, not the rivals'
             rows.append(dict(estimator=name, mag=use_mag, samples=data.n, best_s=seconds,
                              samples_per_s=rate, x_imufusion=x, target_met=met, misses=misses,
                              warm_s=warm_s))
@@ -228,7 +243,7 @@ def run_bench(names: list[str], scenario: str = "figure8", duration: float = 360
                  "imu_rate_hz": data.imu_rate, "samples": data.n, "mag_samples": data.mag_samples,
                  "simulate_s": data.simulate_s},
         "repeat": repeat,
-        "targets": {"min_x_imufusion": MIN_X_IMUFUSION, "mahony_min_samples_per_s": MAHONY_MIN_RATE},
+        "targets": {"min_x_imufusion": MIN_X_IMUFUSION, "estimators": own_targets()},
         "imufusion": {
             "available": has_imufusion,
             "version": _version("imufusion") if has_imufusion else None,
@@ -288,9 +303,11 @@ def format_table(result: dict) -> str:
             rate = fusion["samples_per_s"][key]
             lines.append(f"{'imufusion.Ahrs':<16}  {label:<6}  {_rate(rate):>10}  {'1.0':>11}  "
                          f"(reference: Python loop, {fusion['samples']:,} samples)")
-    others = "".join(f", {name} ≥ {x:g}×" for name, x in MIN_X_IMUFUSION_FOR.items())
-    lines.append(f"targets: every estimator ≥ {MIN_X_IMUFUSION:g}× imufusion in the same mode{others}; "
-                 f"mahony ≥ {_rate(MAHONY_MIN_RATE)} samples/s")
+    own = result["targets"]["estimators"]
+    others = "".join(f", {name} ≥ {t['min_x_imufusion']:g}×" for name, t in own.items() if "min_x_imufusion" in t)
+    rates = "".join(f"; {name} ≥ {_rate(t['min_samples_per_s'])} samples/s"
+                    for name, t in own.items() if "min_samples_per_s" in t)
+    lines.append(f"targets: every estimator ≥ {MIN_X_IMUFUSION:g}× imufusion in the same mode{others}{rates}")
     if not fusion["available"]:
         lines.append(f"imufusion not installed: no × imufusion column ({INSTALL_HINT})")
     return "\n".join(lines) + "\n"

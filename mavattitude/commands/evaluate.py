@@ -285,6 +285,7 @@ class Workers:
     def __init__(self, jobs: int, scheduler: str | None = None, ship_logs: bool = False, keep: bool = False):
         self.jobs, self.scheduler, self.ship_logs, self.keep = jobs, scheduler, ship_logs, keep
         self._pool = self._client = None
+        self._plugins: dict[str, str | None] = {}  # estimators registered at run time: where the workers find them
         self._runs = 0
         self._token = secrets.token_hex(4)  # task keys are the cluster's: unique to this run
 
@@ -302,10 +303,15 @@ class Workers:
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
+            from ..estimators import ESTIMATORS, plugin_paths
+
             # spawn: a fresh interpreter per worker (no forked numba or pymavlink state); each
-            # loads the compiled kernels from the cache once
+            # loads the compiled kernels from the cache once, and registers the estimators
+            # registered here at run time (plugins) from their modules, on this process's path
+            self._plugins = plugin_paths(list(ESTIMATORS))
             self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_start_worker, initargs=(os.getpid(),))
+                                             initializer=_start_worker,
+                                             initargs=(os.getpid(), [p for p in self._plugins.values() if p]))
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -322,16 +328,24 @@ class Workers:
         if self._client is not None:
             from distributed import as_completed
 
+            from ..estimators import plugin_paths
+
+            plugins = [path for path in plugin_paths(settings.names).values() if path]
             futures = []
             for log in logs:
                 data = Path(log).read_bytes() if self.ship_logs else None
-                futures.append(self._client.submit(evaluate_log, log, settings, data, self.keep, pure=False,
+                futures.append(self._client.submit(_evaluate_on_worker, plugins, log, settings, data, self.keep,
+                                                   pure=False,
                                                    key=f"evaluate-{self._token}-{self._runs}-{record_name(log)}"))
             for future in as_completed(futures):
                 finished(future.result())
         elif self._pool is not None and len(logs) > 1:
             from concurrent.futures import as_completed
 
+            for name in settings.names:
+                if name in self._plugins and self._plugins[name] is None:
+                    raise UsageError(f"estimator {name} is defined in __main__ (or in a function), where the worker "
+                                     "processes cannot import it: define it in a module, or run with -j 1")
             futures = [self._pool.submit(evaluate_log, log, settings, None, self.keep) for log in logs]
             try:
                 for future in as_completed(futures):
@@ -345,16 +359,31 @@ class Workers:
                 finished(evaluate_log(log, settings, keep=self.keep))
 
 
-def _start_worker(parent: int) -> None:
+def _evaluate_on_worker(plugins: list[str], path: str, settings: ReplaySettings, data: bytes | None,
+                        keep: bool) -> dict:
+    """``evaluate_log`` on a Dask worker, which first registers the estimators this process
+    registered at run time (``plugins``, "module:Class" each: the worker must be able to import
+    their modules; one it cannot leaves its logs failed, naming the estimator)."""
+    from ..estimators import register_from
+
+    register_from(plugins)
+    return evaluate_log(path, settings, data, keep)
+
+
+def _start_worker(parent: int, plugins: list[str] = ()) -> None:
     """In each pool process, first. Ctrl-C at a terminal reaches the whole process group: the
     parent alone acts on it (and ends the pool), so no worker takes it for a log's failure.
-    A worker whose parent died without ending it (SIGKILL, a crash) ends as well."""
+    A worker whose parent died without ending it (SIGKILL, a crash) ends as well. ``plugins``:
+    the parent's estimators registered at run time, "module:Class" each, registered here too."""
     import signal
 
+    from ..estimators import register_from
     from ..signals import end_with_parent
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     end_with_parent(parent)
+    for problem in register_from(plugins):
+        print(f"warning: {problem}", file=sys.stderr)
 
 
 def _end_workers(pool) -> None:

@@ -282,9 +282,10 @@ def accel_state_events(t: np.ndarray, codes: np.ndarray, states: tuple) -> dict[
     return out
 
 
-def reset_events(t: np.ndarray, reset: np.ndarray) -> dict:
-    """A watchdog's resets (the ``reset`` diagnostic, 1.0 at a reset): count and times (s)."""
-    hit = np.asarray(reset) == 1.0
+def marked_events(t: np.ndarray, marks: np.ndarray) -> dict:
+    """Events an estimator marks in a diagnostic (``Estimator.MARKS``, 1.0 at each; cpf-ekf's
+    watchdog resets): count and times (s)."""
+    hit = np.asarray(marks) == 1.0
     return {"count": int(np.count_nonzero(hit)), "times": [round(float(x), 3) for x in t[hit]]}
 
 
@@ -370,9 +371,11 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     diagnostics = {name: runner.diagnostic_series(name) for name in names}
     estimator_events = {e.name: accel_state_events(imu_t, diagnostics[e.name]["accel_state"], e.ACCEL_STATES)
                         for e in runner.estimators if "accel_state" in diagnostics[e.name]}
-    for name, diag in diagnostics.items():
-        if "reset" in diag:
-            estimator_events.setdefault(name, {})["resets"] = reset_events(imu_t, diag["reset"])
+    for e in runner.estimators:
+        marked = {mark.counted_as: marked_events(imu_t, diagnostics[e.name][key])
+                  for key, mark in e.MARKS.items() if key in diagnostics[e.name]}
+        if marked:
+            estimator_events.setdefault(e.name, {}).update(marked)
     return ReplayResult(flight=flight, imu_source=runner.imu_source, reference=ref,
                         estimates=estimates, comparisons=comparisons, events=events, reference_info=chosen,
                         stream_comparisons=streams, stream_series=stream_series,

@@ -248,7 +248,7 @@ def format_events(result) -> str:
     n = len(result.flight.imu[result.imu_source].t)
     for name, states in result.estimator_events.items():
         for state, c in states.items():
-            if state != "resets" and c["samples"]:
+            if c.get("samples"):  # not a marked event's {count, times} (Estimator.MARKS: warnings)
                 lines.append(f"{name}: accelerometer {state}: {c['spans']} span{'s' if c['spans'] != 1 else ''}, "
                              f"{c['seconds']:.1f} s "
                              f"({100.0 * c['samples'] / max(n, 1):.1f} % of samples)")

@@ -9,10 +9,10 @@ A class may also list pairs of fields that must be strictly ordered
 (``ORDERED = (("norm_lo", "norm_hi"),)``: a ramp from ``lo`` to ``hi``). A user
 overrides them with ``--params FILE`` (a TOML table per estimator) and ``--set
 NAME.FIELD=VALUE`` (applied after the file, so the command line wins). Below both, a log can
-supply a default of its own (``log_defaults``: eq-kf's airspeed from an ArduPlane's cruise
-airspeed). The declarations (``param``, ``Interval``, ``Search``) live in ``paramspec``, at
-the bottom of the package where the estimators import them; they are named here too, where
-plugins and scripts have always found them::
+supply a default of its own (``log_defaults``, as each estimator's class says: eq-kf's
+airspeed from an ArduPlane's cruise airspeed). The declarations (``param``, ``Interval``,
+``Search``) live in ``paramspec``, at the bottom of the package where the estimators import
+them; they are named here too, where plugins and scripts have always found them::
 
     [ncs-eskf]
     h_threshold_air = 0.02
@@ -99,26 +99,19 @@ def log_defaults(flight, names: list[str], file_values: dict | None = None,
                  assignments: list[str] = ()) -> tuple[dict, list[str]]:
     """Defaults the log itself supplies, for the estimators in ``names`` and the fields the user
     did not set (in ``file_values`` or ``assignments``): ({estimator: {field: value}}, a note
-    per value saying where it came from). Pass the first to ``build(log_values=...)``.
+    per value saying where it came from). Pass the first to ``build(log_values=...)``. Each
+    estimator says which (``Estimator.log_defaults``: eq-kf's airspeed from an ArduPlane's
+    cruise airspeed)."""
+    from .estimators import ESTIMATORS
 
-    - eq-kf ``airspeed`` (turn compensation) on an ArduPlane log: a plane flies at about its
-      cruise airspeed, TRIM_ARSPD_CM (cm/s; AIRSPEED_CRUISE, m/s, from Plane 4.5 on).
-    """
-    found: dict[str, dict[str, tuple[object, str]]] = {}
-    if flight.vehicle == "ArduPlane":
-        for key, scale in (("TRIM_ARSPD_CM", 0.01), ("AIRSPEED_CRUISE", 1.0)):
-            value = flight.params.get(key)
-            if value is not None and value == value and 0.0 < value * scale < 200.0:
-                found.setdefault("eq-kf", {})["airspeed"] = (float(value) * scale, key)
-                break
     user = {(name, field) for name, table in (file_values or {}).items() for field in table}
     user |= {parse_assignment(text)[:2] for text in assignments}
     values, notes = {}, []
-    for name, table in found.items():
-        for field, (value, key) in table.items():
-            if name in names and (name, field) not in user:
+    for name in (n for n in names if n in ESTIMATORS):  # an unknown name: build says so
+        for field, (value, said) in ESTIMATORS[name].log_defaults(flight.params, flight.vehicle).items():
+            if (name, field) not in user:
                 values.setdefault(name, {})[field] = value
-                notes.append(f"{name} {field} {value:g} m/s from {key} (the plane's cruise airspeed)")
+                notes.append(f"{name} {field} {value:g} {said}")
     return values, notes
 
 

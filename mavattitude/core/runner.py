@@ -288,11 +288,10 @@ class Runner:
                     kept[key] = Column(new[key].dtype, self._rows_expected)
                     kept[key].extend(_nothing(a, new[key].dtype))
                 kept[key].extend(new[key] if key in new else _nothing(len(t), kept[key].dtype))
-            if "reset" in new:
-                kind = f"{e.name}: watchdog reset (EKF attitude too far from its complementary filter, restarted from it)"
-                self.events += [Event(float(tr), "warn", f"{e.name}: watchdog reset (EKF attitude too far from its "
-                                      "complementary filter): restarted from it", kind=kind)
-                                for tr in t[new["reset"] == 1.0]]
+            for key, mark in e.MARKS.items():  # a warning at each event the estimator marks (cpf-ekf's resets)
+                if key in new:
+                    self.events += [Event(float(tm), "warn", f"{e.name}: {mark.text}", kind=f"{e.name}: {mark.kind}")
+                                    for tm in t[new[key] == 1.0]]
         return Chunk(t, out, diagnostics, in_air)
 
     # ------------------------------------------------------------ forgetting (a live session)

@@ -14,12 +14,16 @@ import threading
 import time
 from contextlib import contextmanager
 
-from ..estimators import create, needs_compile
+from ..estimators import ESTIMATORS, create, needs_compile, plugin_paths
+from ..estimators.base import DEFAULT_COMPILE_S
 
-# Seconds each estimator's kernels take to compile the first time (measured here, one core,
-# with ``warm_up``), to share the work out fairly between processes.
-COMPILE_SECONDS = {"mahony": 2.0, "mahony-ekf": 4.0, "ekf": 4.0, "eskf": 2.5, "ncs-eskf": 5.0, "eq-kf": 4.5,
-                   "cpf-ekf": 9.5}
+
+def compile_seconds(name: str) -> float:
+    """How long estimator ``name``'s kernels take to compile the first time, one core, as its
+    class says (``Estimator.compile_seconds``; unsaid: ``DEFAULT_COMPILE_S``): to share the
+    work out fairly between processes."""
+    seconds = ESTIMATORS[name].compile_seconds
+    return DEFAULT_COMPILE_S if seconds is None else float(seconds)
 
 
 @contextmanager
@@ -148,28 +152,50 @@ def precompile(names: list[str], progress=None, also=()) -> Compiling:
     core, each with a fair share: a first run then waits for the longest share rather than
     the sum (here, all seven: 33 s in one process). Returns at once; the caller reads its log
     meanwhile and calls ``wait`` before it estimates, which compiles here what no process
-    took (an estimator alone, or on one core) or a failed process left. Estimators registered
-    at run time (not importable by a new process) compile on first use instead.
-    ``progress``, ``also``: see ``Compiling``."""
-    import subprocess
-
-    pending = [n for n in needs_compile(names) if n in COMPILE_SECONDS]
+    took (an estimator alone, or on one core) or a failed process left. An estimator
+    registered at run time is registered in the processes too, from its module
+    (``estimators.plugin_paths``); one that no module holds (defined in ``__main__``) is
+    compiled here. ``progress``, ``also``: see ``Compiling``."""
+    pending = needs_compile(names)
     if not pending and not also:
         return Compiling()
     workers = min(len(pending), os.cpu_count() or 1)
     if workers < 2:
         return Compiling(pending=pending, progress=progress, also=also)
-    shares: list[list[str]] = [[] for _ in range(workers)]
+    plugins = plugin_paths(pending)
+    here = [n for n, path in plugins.items() if path is None]  # no module holds it: compiled in wait()
+    paths = [path for path in plugins.values() if path is not None]
+    dealt = shares([n for n in pending if n not in here], workers)
+    return Compiling((compiling_process(share, paths) for share in dealt), pending, progress, also)
+
+
+def compiling_process(names: list[str], plugins: list[str] = ()):
+    """A process that compiles the kernels of ``names`` (``compile_kernels``), saying "NAME TIME"
+    on its stdout as each is done. It imports from this process's path and registers
+    ``plugins`` ("module:Class", ``estimators.plugin_paths``) first, so it knows the estimators
+    registered here at run time; it ends with this process (a SIGTERM may end this one before
+    it waits for it)."""
+    import json
+    import subprocess
+
+    code = ("import sys, json; sys.path[:] = json.loads(sys.argv[2]); "
+            "from mavattitude.signals import end_with_parent; end_with_parent(int(sys.argv[1])); "
+            "from mavattitude.estimators import register_from; register_from(json.loads(sys.argv[3])); "
+            "from mavattitude.core.warmup import compile_kernels; compile_kernels(sys.argv[4:], report=sys.stdout)")
+    return subprocess.Popen([sys.executable, "-c", code, str(os.getpid()), json.dumps([str(p) for p in sys.path]),
+                             json.dumps(list(plugins)), *names], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+
+
+def shares(names: list[str], workers: int) -> list[list[str]]:
+    """``names`` dealt out to ``workers`` processes by their compile time, longest first, each
+    to the process with the least so far (the last to finish ends soonest)."""
+    out: list[list[str]] = [[] for _ in range(workers)]
     loads = [0.0] * workers
-    for name in sorted(pending, key=lambda n: -COMPILE_SECONDS[n]):  # longest first, to the lightest
+    for name in sorted(names, key=lambda n: -compile_seconds(n)):
         k = loads.index(min(loads))
-        shares[k].append(name)
-        loads[k] += COMPILE_SECONDS[name]
-    # a compiling process ends with its parent (a SIGTERM may end that before it waits for them)
-    code = ("import sys; from mavattitude.signals import end_with_parent; end_with_parent(int(sys.argv[1])); "
-            "from mavattitude.core.warmup import compile_kernels; compile_kernels(sys.argv[2:], report=sys.stdout)")
-    return Compiling((subprocess.Popen([sys.executable, "-c", code, str(os.getpid()), *share], stdout=subprocess.PIPE,
-                                       stderr=subprocess.DEVNULL) for share in shares), pending, progress, also)
+        out[k].append(name)
+        loads[k] += compile_seconds(name)
+    return [share for share in out if share]
 
 
 def compile_kernels(names: list[str], report=None) -> None:

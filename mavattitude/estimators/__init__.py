@@ -21,7 +21,7 @@ from .ncs_eskf import NcsEskf
 from .rivals import Imufusion, Vqf
 
 __all__ = ["ESTIMATORS", "Alignment", "Estimator", "align", "all_names", "available", "create", "load_plugins", "needs_compile",
-           "register", "summary"]
+           "plugin_paths", "register", "register_from", "summary"]
 
 ESTIMATORS: dict[str, type[Estimator]] = {
     Mahony.name: Mahony,
@@ -35,6 +35,7 @@ ESTIMATORS: dict[str, type[Estimator]] = {
     Imufusion.name: Imufusion,
 }
 
+BUILT_IN = dict(ESTIMATORS)  # what every process has on import; the rest is registered at run time
 _kernel_cache.refresh(Mahony.kernels[0])  # no stale kernel from older sources (see kernel_cache)
 
 
@@ -95,6 +96,38 @@ def load_plugins() -> list[str]:
             register(point.load())
         except Exception as exc:  # a broken plugin must not stop the command
             problems.append(f"estimator plugin {point.name} ({point.value}): {exc}")
+    return problems
+
+
+def plugin_paths(names) -> dict[str, str | None]:
+    """Where each of these estimators that was registered at run time (a plugin, ``register``)
+    lives, as "module:Class": what another process imports to register it too
+    (``register_from``: evaluate's workers, the compiling processes). None for a class that no
+    module holds (defined in ``__main__`` or in a function)."""
+    out = {}
+    for name in names:
+        cls = ESTIMATORS[name]
+        if BUILT_IN.get(name) is not cls:
+            importable = cls.__module__ != "__main__" and "<locals>" not in cls.__qualname__
+            out[name] = f"{cls.__module__}:{cls.__qualname__}" if importable else None
+    return out
+
+
+def register_from(paths) -> list[str]:
+    """Register the estimator class at each "module:Class" (``plugin_paths``), importing its
+    module: another process's plugins, here. Returns what could not be, a line each."""
+    import importlib
+
+    problems = []
+    for path in paths:
+        module, _, qualname = path.partition(":")
+        try:
+            cls = importlib.import_module(module)
+            for part in qualname.split("."):
+                cls = getattr(cls, part)
+            register(cls)
+        except Exception as exc:  # its logs fail naming the estimator; the others run
+            problems.append(f"estimator {path}: {exc}")
     return problems
 
 

@@ -51,6 +51,27 @@ class Estimator:
     # runner sets it from the series before ``initialize``
     rate_over_step: bool = False
 
+    # What the rest of the tool reads about an estimator, so that none of it names one: a new
+    # estimator is its module and its test (each default below suits one that states nothing).
+    color: tuple[int, int, int] | None = None  # its lines in the view (RGB); None: one of the view's spare colours
+    # seconds its kernels take to compile the first time, one core (``warmup.precompile`` shares
+    # the work out by it); None with ``kernels``: ``DEFAULT_COMPILE_S``
+    compile_seconds: float | None = None
+    # diagnostics that mark events (1.0 at each): key -> ``Marked``, the warnings and counts they make
+    MARKS: dict = {}
+    # ``mavattitude bench``'s targets: at least this many times imufusion's samples/s in the same
+    # mode (None: bench.MIN_X_IMUFUSION), and at least ``bench_min_rate`` samples/s (None: none)
+    bench_min_x_imufusion: float | None = None
+    bench_min_rate: float | None = None
+
+    @classmethod
+    def log_defaults(cls, params: dict, vehicle: str) -> dict[str, tuple[object, str]]:
+        """Parameter defaults a flight supplies, from its autopilot parameters (name -> value)
+        and its vehicle ("ArduPlane", ...): field -> (value, what it is, from where: said after
+        "NAME FIELD VALUE" in the replay's notes). ``params.log_defaults`` applies them where
+        the user set nothing. None unless a class says."""
+        return {}
+
     def run_params(self):
         """The parameters the filter runs with: ``params``, or with ``strict`` set, ``params``
         with the paper's published values (``PAPER``) whatever they say."""
@@ -110,6 +131,19 @@ class Estimator:
         estimator, in a few words for a warning (``imucheck``); None: nothing worth saying (it
         takes the reading's direction only, or learns the scale)."""
         return None
+
+
+# The first compile of an estimator whose class states no ``compile_seconds`` (about a Kalman
+# filter's of ours), for sharing the work out.
+DEFAULT_COMPILE_S = 5.0
+
+
+class Marked(NamedTuple):
+    """A diagnostic that marks events, 1.0 at each (cpf-ekf's watchdog ``reset``): a warning
+    at each, and their count and times in the JSON's per-estimator events."""
+    text: str  # the warning, after "NAME: "
+    kind: str  # what its repeats share on one terminal line (``events.Event.kind``), after "NAME: "
+    counted_as: str  # its key among the estimator's events in the JSON: {count, times}
 
 
 def needs_compile(estimator_classes) -> list[str]:

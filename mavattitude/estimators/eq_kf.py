@@ -54,7 +54,7 @@ Turn compensation (our addition, not in the paper: ArduPilot DCM's method; ``air
 - Only where ``in_air`` is 1 or NaN (unknown counts as air, as in ncs-eskf): on the ground a
   plane is slow or stopped, and a taxiing turn would be "compensated" for a speed it does not
   have. With ``airspeed`` 0 (the default) nothing changes. The CLI sets it from an ArduPlane
-  log's cruise airspeed (``params.log_defaults``); the estimator itself knows nothing of logs.
+  log's cruise airspeed (``EqKf.log_defaults``); the kernel itself knows nothing of logs.
 
 Accelerometer trust w ∈ [0, 1] (the paper's formula is not in our copy; choice). With
 ramp(x, lo, hi) = 1 for x ≤ lo, 0 for x ≥ hi, linear between:
@@ -747,6 +747,8 @@ class EqKf(Estimator):
     uses_mag = True
     kernels = (lowpass_in_inertial_frame, eqkf_run, picard_step, error_transition, accel_tangent, accel_jacobian,
                mag_jacobian, _ramp, _inject)
+    color = (0, 195, 195)
+    compile_seconds = 4.5  # measured with warmup.compile_kernels, one core
     PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads (the rest of strict is in initialize)
     ACCEL_STATES = ACCEL_STATES
     DIAGNOSTICS = {
@@ -756,6 +758,18 @@ class EqKf(Estimator):
         "accel_state": "0 used (w = 1), 1 down-weighted (0 < w < 1), 2 skipped (w = 0), 3 the low-passed "
                        "reading used instead (accel_tau)",
     }
+
+    @classmethod
+    def log_defaults(cls, params: dict, vehicle: str) -> dict[str, tuple[object, str]]:
+        """``airspeed`` (turn compensation) on an ArduPlane: a plane flies at about its cruise
+        airspeed, TRIM_ARSPD_CM (cm/s; AIRSPEED_CRUISE, m/s, from Plane 4.5 on)."""
+        if vehicle != "ArduPlane":
+            return {}
+        for key, scale in (("TRIM_ARSPD_CM", 0.01), ("AIRSPEED_CRUISE", 1.0)):
+            value = params.get(key)
+            if value is not None and value == value and 0.0 < value * scale < 200.0:
+                return {"airspeed": (float(value) * scale, f"m/s from {key} (the plane's cruise airspeed)")}
+        return {}
 
     def accel_scale_effect(self, scale_error: float) -> str | None:
         """Its trust falls with ‖f̃‖ against g_a: the reading at the still start, learned on while

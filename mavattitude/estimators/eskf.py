@@ -254,6 +254,8 @@ class Eskf(Estimator):
     Params = EskfParams
     uses_mag = False
     kernels = (lowpass_in_inertial_frame, eskf_run)
+    color = (120, 15, 255)
+    compile_seconds = 2.5  # measured with warmup.compile_kernels, one core
     PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads
     DIAGNOSTICS = {"cov_trace": "trace of the attitude-error covariance P, rad²"}
 

@@ -164,6 +164,9 @@ class Mahony(Estimator):
     Params = MahonyParams
     uses_mag = True
     kernels = (lowpass_in_inertial_frame, mahony_run)
+    color = (255, 150, 0)
+    compile_seconds = 2.0  # measured with warmup.compile_kernels, one core
+    bench_min_rate = 1e6  # samples/s, bench's target beside the one every estimator has
     PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads
 
     def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:

@@ -168,6 +168,7 @@ class Vqf(Rival):
     Params = VqfParams
     uses_mag = True
     requires = "vqf"
+    color = (255, 120, 255)
     DIAGNOSTICS = {
         "rest": "1 while VQF detects rest (and learns the gyro bias from it), else 0; NaN: sample not fed",
         "mag_disturbed": "1 while VQF rejects the compass as disturbed (9D only), else 0; NaN: sample not fed",
@@ -228,6 +229,7 @@ class Imufusion(Rival):
     Params = ImufusionParams
     uses_mag = True
     requires = "imufusion"
+    color = (45, 105, 90)
 
     def _frame_from_ned(self, q):
         return q  # Fusion's NED convention: FRD -> NED as ours

@@ -36,28 +36,16 @@ Color = tuple[int, int, int]
 # the largest smallest CIEDE2000 difference between any two of the sixteen colours a replay can
 # show at once (nine estimators, autopilot, truth, another reference, four autopilot streams):
 # at least 19 (tests/test_view_layout.py), where the previous one had 14 (ekf / imufusion) and
-# 16 among the seven of the papers (ncs-eskf / cpf-ekf).
+# 16 among the seven of the papers (ncs-eskf / cpf-ekf). The estimators' own are in their classes.
 AUTOPILOT_COLOR: Color = (140, 140, 140)
 REFERENCE_COLOR: Color = (105, 90, 120)  # a reference that is neither autopilot nor truth
 TRUTH_COLOR: Color = (40, 170, 70)
 GHOST_COLOR = (110, 110, 110, 220)
 TRACK_COLOR: Color = (40, 40, 40)  # the GPS track: near black, no estimator's colour
 POSITION_COLOR: Color = (20, 70, 230)
-ESTIMATOR_COLORS: dict[str, Color] = {  # fixed per known estimator (ALGORITHMS.md)
-    "mahony": (255, 150, 0),
-    "mahony-ekf": (120, 90, 0),
-    "ekf": (0, 135, 255),
-    "eskf": (120, 15, 255),
-    "ncs-eskf": (210, 0, 120),
-    "eq-kf": (0, 195, 195),
-    "cpf-ekf": (195, 0, 0),
-    "vqf": (255, 120, 255),
-    "imufusion": (45, 105, 90),
-}
-FALLBACK_COLORS: tuple[Color, ...] = (  # an estimator not named above (in the order given)
-    (255, 135, 135), (180, 165, 0), (165, 165, 225), (150, 105, 90),
-    *ESTIMATOR_COLORS.values(),
-)
+# An estimator's colour is its class's (``Estimator.color``); one whose class states none takes
+# the first of these not in use (in the order given), then the other estimators' colours.
+SPARE_COLORS: tuple[Color, ...] = ((255, 135, 135), (180, 165, 0), (165, 165, 225), (150, 105, 90))
 ROLE_COLORS: dict[str, Color] = {
     "autopilot": AUTOPILOT_COLOR, "truth": TRUTH_COLOR, "reference": REFERENCE_COLOR,
 }
@@ -71,8 +59,11 @@ def is_role(name: str) -> bool:
 
 
 def assign_colors(names: Iterable[str]) -> dict[str, Color]:
-    """A fixed colour per series: roles and known estimators by name, others from a palette
-    (in the order given, skipping colours already taken)."""
+    """A fixed colour per series: roles by name, estimators as their classes say, others from
+    a palette (in the order given, skipping colours already taken)."""
+    from ..estimators import ESTIMATORS
+
+    stated = {n: tuple(cls.color) for n, cls in ESTIMATORS.items() if cls.color is not None}
     names = list(names)
     out: dict[str, Color] = {}
     streams = [n for n in names if n.startswith(STREAM_PREFIX)]
@@ -81,9 +72,10 @@ def assign_colors(names: Iterable[str]) -> dict[str, Color]:
             out[n] = ROLE_COLORS[n]
         elif n in streams:
             out[n] = STREAM_COLORS[streams.index(n) % len(STREAM_COLORS)]
-        elif n in ESTIMATOR_COLORS:
-            out[n] = ESTIMATOR_COLORS[n]
-    free = [c for c in FALLBACK_COLORS if c not in out.values()] or list(FALLBACK_COLORS)
+        elif n in stated:
+            out[n] = stated[n]
+    spare = (*SPARE_COLORS, *stated.values())
+    free = [c for c in spare if c not in out.values()] or list(spare)
     i = 0
     for n in names:
         if n not in out:
