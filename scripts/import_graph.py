@@ -27,8 +27,9 @@ Layers, bottom to top; an import is *upward* when a module imports one in a high
 4. front: the command line (cli, __main__) and the Python API (the package's ``__init__``).
 
 A module the table does not place is an error: a new module is given its layer here.
-Prints the circles (each a strongly connected set of modules, with the imports that close it)
-and the upward imports with file and line; exit status 1 when there is either.
+Prints the circles (each a strongly connected set of modules, with the imports that close it),
+the upward imports with file and line, and any import of a module the package does not hold (a
+file moved, or never added: CI fails on it); exit status 1 when there is any.
 """
 
 from __future__ import annotations
@@ -89,7 +90,9 @@ def _imports(tree: ast.AST):
     yield from visit(tree, False)
 
 
-def edges(root: Path, package: str) -> tuple[dict[str, Path], list[Edge]]:
+def edges(root: Path, package: str, missing: list | None = None) -> tuple[dict[str, Path], list[Edge]]:
+    """Every module and every import between two of them; an import of one of ours that names no
+    module of the package (a file moved or never added) goes to ``missing``, where given."""
     modules = module_names(root)
     found = []
     for name, path in modules.items():
@@ -117,6 +120,8 @@ def edges(root: Path, package: str) -> tuple[dict[str, Path], list[Edge]]:
             for target in targets:
                 if target in modules and target != name:
                     found.append(Edge(name, target, node.lineno, lazy))
+                elif target not in modules and missing is not None:
+                    missing.append(Edge(name, target, node.lineno, lazy))
     return modules, sorted(set(found), key=lambda e: (e.source, e.line, e.target))  # one per line
 
 
@@ -177,7 +182,8 @@ def main(argv: list[str]) -> int:
     argv = [a for a in argv if a != "--edges"]
     root = Path(argv[0] if argv else Path(__file__).resolve().parent.parent / "mavattitude").resolve()
     package = root.name
-    modules, found = edges(root, package)
+    missing: list[Edge] = []
+    modules, found = edges(root, package, missing)
     circles = cycles(modules, found)
     up = upward(found)
     if show_edges:
@@ -193,10 +199,12 @@ def main(argv: list[str]) -> int:
     for e in up:
         print(f"upward: {_show(e.source, package)}:{e.line} ({LAYERS[layer_of(e.source)][0]}) -> "
               f"{_show(e.target, package)} ({LAYERS[layer_of(e.target)][0]}){' (in a function)' if e.lazy else ''}")
+    for e in missing:
+        print(f"missing: {_show(e.source, package)}:{e.line} imports {package}.{e.target}, which is no module here")
     in_circles = sum(len(g) for g in circles)
     print(f"{len(modules)} modules, {len(found)} imports: {len(circles)} circles ({in_circles} modules in them), "
-          f"{len(up)} upward imports")
-    return 1 if circles or up else 0
+          f"{len(up)} upward imports, {len(missing)} imports of no module")
+    return 1 if circles or up or missing else 0
 
 
 if __name__ == "__main__":

@@ -17,9 +17,18 @@ def _show(found, pick):
     return "\n".join(f"{e.source}:{e.line} -> {e.target}" for e in pick(found))
 
 
+MISSING: list = []  # imports of no module, found while the graph is read
+
+
 @pytest.fixture(scope="module")
 def package_graph():
-    return graph.edges(ROOT / "mavattitude", "mavattitude")
+    MISSING.clear()
+    return graph.edges(ROOT / "mavattitude", "mavattitude", MISSING)
+
+
+def test_every_import_of_ours_names_a_module_the_package_holds(package_graph):
+    assert MISSING == [], "imports of no module (moved, or never added):\n" + "\n".join(
+        f"{e.source}:{e.line} -> {e.target}" for e in MISSING)
 
 
 def test_the_package_has_no_import_circle_and_no_upward_import(package_graph):
@@ -67,3 +76,14 @@ def test_the_tool_finds_an_upward_import(monkeypatch, tmp_path):
     monkeypatch.setattr(graph, "LAYERS", [("bottom", ["low"])])
     with pytest.raises(KeyError, match="has no layer"):
         graph.upward(found)
+
+
+def test_the_tool_finds_an_import_of_a_module_that_is_not_there(tmp_path):
+    root = _write(tmp_path, {
+        "__init__.py": "",
+        "a.py": "def f():\n    from .gone import thing\n",  # lazy: only a run of f would fail
+        "b.py": "from . import a\nimport pkg.also_gone\n",
+    })
+    missing = []
+    graph.edges(root, "pkg", missing)
+    assert sorted((e.source, e.target, e.lazy) for e in missing) == [("a", "gone", True), ("b", "also_gone", False)]

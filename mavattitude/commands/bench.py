@@ -166,7 +166,7 @@ def min_x_imufusion(cls) -> float:
 def own_targets() -> dict[str, dict[str, float]]:
     """The targets estimators' classes state beside ``MIN_X_IMUFUSION``: name ->
     {min_x_imufusion, min_samples_per_s} (those stated), for the JSON and the table."""
-    from .estimators import ESTIMATORS
+    from ..estimators import ESTIMATORS
 
     out = {}
     for name, cls in ESTIMATORS.items():

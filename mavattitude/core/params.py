@@ -102,7 +102,7 @@ def log_defaults(flight, names: list[str], file_values: dict | None = None,
     per value saying where it came from). Pass the first to ``build(log_values=...)``. Each
     estimator says which (``Estimator.log_defaults``: eq-kf's airspeed from an ArduPlane's
     cruise airspeed)."""
-    from .estimators import ESTIMATORS
+    from ..estimators import ESTIMATORS
 
     user = {(name, field) for name, table in (file_values or {}).items() for field in table}
     user |= {parse_assignment(text)[:2] for text in assignments}
