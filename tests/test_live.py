@@ -126,7 +126,7 @@ def assert_live_equals_replay(est, segment, comparisons, recording, names, refer
     # check that yet, so replay here scores against the primary alone.
     primary = flight.attitude.source if flight.attitude is not None else None
     flight = replace(flight, attitudes={k: v for k, v in flight.attitudes.items() if k == primary})
-    replay = run_replay(flight, names, reference=reference, imu_source=seg.imu_key)
+    replay = run_replay(flight, names, reference=reference, imu=seg.imu_key)
     for name in names:
         live, again = est.estimate_series(name, seg), replay.estimates[name]
         start = int(np.searchsorted(again.t, live.t[0]))

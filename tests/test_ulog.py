@@ -13,7 +13,8 @@ from pyulog import ULog
 from conftest import shared_log
 from mavattitude.cli import main
 from mavattitude.declination import for_flight
-from mavattitude.commands.replay import ReplaySettings, replay_flight
+from mavattitude.commands.replay import replay_flight
+from mavattitude.core.policy import RunOptions
 from mavattitude.readers import read_log
 from mavattitude.sim import simulate, write_log
 
@@ -63,7 +64,7 @@ def test_pyulog_reads_what_the_simulator_writes(sim_logs):
 
 def test_the_same_flight_scores_alike_from_ulog_and_dataflash(sim_logs):
     _, ulg, binary = sim_logs
-    settings = ReplaySettings(names=("mahony", "cpf-ekf"), reference="truth")
+    settings = RunOptions(names=("mahony", "cpf-ekf"), reference="truth")
     scores = []
     for path in (ulg, binary):
         result, _ = replay_flight(read_log(str(path)), settings)
@@ -137,7 +138,7 @@ def test_a_gps_without_its_sample_time_takes_its_publication_time():
 def test_every_estimator_follows_px4s_ekf2_on_a_real_flight(capsys):
     path = shared_log("ulog/px4-real-auav-x21-flight.ulg")
     # its ±22° of roll come 5 s in: a 2 s warm-up keeps them scored
-    result, _ = replay_flight(read_log(str(path)), ReplaySettings(names=("mahony", "mahony-ekf", "ekf", "eskf",
+    result, _ = replay_flight(read_log(str(path)), RunOptions(names=("mahony", "mahony-ekf", "ekf", "eskf",
                                                                          "ncs-eskf", "eq-kf", "cpf-ekf"), warmup_s=2.0))
     for name, c in result.comparisons.items():
         for axis in ("roll", "pitch"):
