@@ -14,7 +14,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +23,7 @@ from pymavlink import mavutil
 
 from mavattitude.cli import main
 from mavattitude.growing import Growing
+from mavattitude.core.policy import RunOptions
 from mavattitude.live import LiveOptions, run_live
 from mavattitude.live.link import LinkMonitor, RateRequester, mavlink2, open_link
 from mavattitude.live.recorder import TlogRecorder
@@ -94,10 +95,14 @@ def sender(port: int, plan, sim, garbage_every: int = 0, tap_class=None):
     return thread, tap, holder
 
 
+RUN_FIELDS = {f.name for f in fields(RunOptions)}
+
+
 def listen(port: int, thread, holder, tmp_path, **options):
     """Run a live session until the sender is done (and a moment more); returns the result."""
+    run = {k: options.pop(k) for k in list(options) if k in RUN_FIELDS}  # what to estimate, as replay takes it
     opts = LiveOptions(**{"url": f"udpin:127.0.0.1:{port}", "record": str(tmp_path / "live.tlog"),
-                          "timeout": 1.0, "names": ["mahony"], **options})
+                          "timeout": 1.0, "run": RunOptions(**{"names": ["mahony"], **run}), **options})
     lines = []
 
     def say(line):  # the first line comes once the port is bound: start sending then
@@ -565,7 +570,7 @@ def test_a_session_keeps_only_its_last_seconds_and_scores_as_replay(monkeypatch,
     monkeypatch.setattr(estimation, "FORGET_EVERY_S", 0.7)
     monkeypatch.setattr(estimation, "SCORE_EVERY_S", 0.3)
     path = ROOT / "sample_logs" / "figure8.tlog"
-    est = _feed(estimation.LiveEstimation(ALL, history_s=2.0, reference=reference), path)
+    est = _feed(estimation.LiveEstimation(RunOptions(ALL, reference=reference), history_s=2.0), path)
     est.step(final=True)
     comparisons, seg = est.final_comparisons()
     runner = seg.runner
@@ -592,7 +597,7 @@ def test_a_gps_that_loses_its_fix_does_not_look_like_a_reboot():
             msg.time_usec = 5_000_000 if state["corrupted"] == 0 else 900_000_000  # back, then ahead
             state["corrupted"] += 1
         return msg
-    est = _feed(LiveEstimation(["mahony", "cpf-ekf"]), ROOT / "sample_logs" / "figure8.tlog", edit)
+    est = _feed(LiveEstimation(RunOptions(["mahony", "cpf-ekf"])), ROOT / "sample_logs" / "figure8.tlog", edit)
     assert len(est.segments) == 1 and not any("went back" in e.text for e in est.events)
     assert est.samples == est.seg.imu["RAW_IMU"].appended >= 4990  # all but the two corrupt ones
     assert est.seg.gps.column(0)[-1] <= 30.0 + 1e-9
@@ -602,13 +607,13 @@ def test_a_gps_that_loses_its_fix_does_not_look_like_a_reboot():
 def test_imu_choice_still_waits_for_the_compass_declination():
     from mavattitude.live.estimation import LiveEstimation
 
-    est = _feed(LiveEstimation(["mahony"], imu_source="RAW_IMU", expect_declination=True),
+    est = _feed(LiveEstimation(RunOptions(["mahony"], imu="RAW_IMU"), params_asked=True),
                 ROOT / "sample_logs" / "figure8.tlog")
     start = next(e.text for e in est.events if e.text.startswith("IMU source"))
     assert "RAW_IMU at 50.0 Hz" in start
     assert any(e.text.startswith("declination 5.00° (vehicle parameter COMPASS_DEC, no COMPASS_AUTODEC") for e in est.events)
     assert not any("low IMU rate" in e.text for e in est.events)
-    missing = _feed(LiveEstimation(["mahony"], imu_source="SCALED_IMU3"), ROOT / "sample_logs" / "figure8.tlog")
+    missing = _feed(LiveEstimation(RunOptions(["mahony"], imu="SCALED_IMU3")), ROOT / "sample_logs" / "figure8.tlog")
     assert missing.samples == 0
     assert sum("no SCALED_IMU3 samples arrive" in e.text for e in missing.events) == 1
 
@@ -622,7 +627,7 @@ def test_a_compass_in_the_wrong_unit_is_rescaled_live():
         pytest.skip(f"real log {log.name} not found in {SHARED} (it lives beside the project, not in it)")
     from mavattitude.live.estimation import LiveEstimation
 
-    est = _feed(LiveEstimation(["mahony"], imu_source="HIGHRES_IMU"), log, every=50)
+    est = _feed(LiveEstimation(RunOptions(["mahony"], imu="HIGHRES_IMU")), log, every=50)
     assert any("HIGHRES_IMU: magnetometer strength" in e.text and "rescaled by 1e-6" in e.text
                for e in est.events)
     field = est.segments[0].mag["HIGHRES_IMU"].view()[:, 1:4]
@@ -800,14 +805,14 @@ def test_a_vehicle_with_a_board_trim_and_a_declination_scores_as_replay_of_its_r
                   extra_params={"AHRS_TRIM_X": trim[0], "AHRS_TRIM_Y": trim[1]})
     path = write_log(sim, tmp_path / "trimmed.tlog")
     names = ["mahony", "ekf"]
-    est = _feed(LiveEstimation(names, expect_declination=True), path)
+    est = _feed(LiveEstimation(RunOptions(names), params_asked=True), path)
     est.step(final=True)
     comparisons, seg = est.final_comparisons()
     assert est.trim == pytest.approx(trim)
     assert any(e.text.startswith("board trim roll 2.50°, pitch -1.50°") for e in est.events)
     assert any(e.text.startswith("declination 5.00° (vehicle parameter COMPASS_DEC") for e in est.events)
     assert_live_equals_replay(est, seg.index, comparisons, path, names)
-    untrimmed = _feed(LiveEstimation(names, expect_declination=True, trim=False), path)
+    untrimmed = _feed(LiveEstimation(RunOptions(names, trim=False), params_asked=True), path)
     untrimmed.step(final=True)
     # without the trim every estimate is off by about it (the figure-eight's own error besides)
     off = untrimmed.final_comparisons()[0]["mahony"].axes["roll"].mae

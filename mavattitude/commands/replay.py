@@ -18,7 +18,7 @@ from ..errors import InputError
 from ..events import Event
 from ..flight import GRAVITY, AttitudeSeries, Flight
 from ..scoring.imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful
-from ..scoring.metrics import Comparison, compare
+from ..scoring.metrics import Comparison, compare, non_finite_warning
 from ..core.policy import FlightFacts, RunOptions, RunPolicy, decide
 from ..phase import PhaseSeries
 from ..scoring.refcheck import autopilot_disagreement, check_reference, excluded_spans, whole_log_notes
@@ -323,9 +323,7 @@ def replay_policy(flight: Flight, policy: RunPolicy, progress=None) -> ReplayRes
     for name, series in estimates.items():
         bad = int(np.count_nonzero(~np.isfinite(series.q).all(axis=1)))
         if bad:
-            events.append(Event(float(series.t[0]), "warn",
-                                f"{name}: {bad} non-finite attitude samples (a filter fault; "
-                                "they are left out of the metrics)"))
+            events.append(Event(float(series.t[0]), "warn", non_finite_warning(name, bad)))
     restarts = [t for t, _ in runner.restarts]
     comparisons, streams, stream_series = {}, {}, {}
     suspects, notes = [], []

@@ -23,9 +23,10 @@ from ..errors import UsageError
 from ..trim import TRIM_PARAMS, board_trim
 from .params import LOG_DEFAULT_PARAMS, build, log_defaults
 
-# The autopilot parameters a policy reads: the declination and the parameters that say whether
-# the autopilot computes it, the board trim, and what the log-derived defaults read. A live
-# session asks the vehicle for these (a vehicle answers those it has).
+# The autopilot parameters a policy reads: what the log-derived defaults read, the declination
+# and the parameters that say whether the autopilot computes it, the board trim. A live session
+# asks the vehicle for these, in this order (a vehicle answers those it has, in order: the
+# session waits for the last two kinds only, ``live.estimation.PARAMS_WAIT_S``).
 DECLINATION_PARAM_NAMES = tuple(n for name, _, auto, _ in decl.DECLINATION_PARAMS for n in (name, auto))
 WANTED_PARAMS = (*LOG_DEFAULT_PARAMS, *DECLINATION_PARAM_NAMES, *TRIM_PARAMS)
 
