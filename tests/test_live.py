@@ -613,6 +613,10 @@ def test_imu_choice_still_waits_for_the_compass_declination():
     assert "RAW_IMU at 50.0 Hz" in start
     assert any(e.text.startswith("declination 5.00° (vehicle parameter COMPASS_DEC, no COMPASS_AUTODEC") for e in est.events)
     assert not any("low IMU rate" in e.text for e in est.events)
+    # the recording has neither COMPASS_AUTODEC nor a board trim: one line says so
+    assert [e.text for e in est.events if "no answer" in e.text] == [
+        "no answer from the vehicle within 2 s for COMPASS_AUTODEC; AHRS_TRIM_X/AHRS_TRIM_Y: going on as a log "
+        "without them"]
     missing = _feed(LiveEstimation(RunOptions(["mahony"], imu="SCALED_IMU3")), ROOT / "sample_logs" / "figure8.tlog")
     assert missing.samples == 0
     assert sum("no SCALED_IMU3 samples arrive" in e.text for e in missing.events) == 1
@@ -817,3 +821,44 @@ def test_a_vehicle_with_a_board_trim_and_a_declination_scores_as_replay_of_its_r
     # without the trim every estimate is off by about it (the figure-eight's own error besides)
     off = untrimmed.final_comparisons()[0]["mahony"].axes["roll"].mae
     assert off > comparisons["mahony"].axes["roll"].mae + 1.5
+
+
+@pytest.mark.slow  # 10 s of a simulated plane streamed at 4x
+def test_live_asks_the_vehicle_for_the_policys_parameters_and_scores_as_replay_of_its_recording(tmp_path):
+    """One policy for live and replay (``core.policy``): a simulated ArduPlane that sends no
+    parameter unless asked, with a board trim (AHRS_TRIM_X/Y, its autopilot reporting the
+    vehicle's attitude), a declination set by hand in PX4's EKF2_MAG_DECL (no COMPASS_DEC) and a
+    cruise airspeed (TRIM_ARSPD_CM, eq-kf's default on a plane). Live asks for them by
+    PARAM_REQUEST_READ, decides the policy replay decides on the recording, and scores the same."""
+    from mavattitude.core.policy import WANTED_PARAMS, FlightFacts, decide
+
+    trim = (math.radians(2.5), math.radians(-1.5))
+    sim = simulate("figure8", 40.0, seed=5, imu_rate=100.0)
+    q_trim = np.broadcast_to(quat.conjugate(quat.from_euler(trim[0], trim[1], 0.0)), sim.autopilot_q.shape)
+    sim = replace(sim, autopilot_q=quat.multiply(sim.autopilot_q, q_trim), firmware="ArduPlane V4.5.7 (sim)",
+                  extra_params={"AHRS_TRIM_X": trim[0], "AHRS_TRIM_Y": trim[1], "COMPASS_DEC": None,
+                                "EKF2_MAG_DECL": math.degrees(sim.declination_rad), "EKF2_DECL_TYPE": 0.0,
+                                "TRIM_ARSPD_CM": 1500.0})
+    served = {}
+
+    def plan(autopilot, tap):
+        autopilot.announce_params = False  # as a real ArduPilot: only what is asked for
+        served["stats"] = autopilot.serve(speed=4.0)
+    port = free_udp_port()
+    thread, tap, holder = sender(port, plan, sim)
+    names = ["mahony", "eq-kf"]
+    result = listen(port, thread, holder, tmp_path, names=names)
+    est = result.estimation
+    asked = {line.split()[1] for line in served["stats"].requests if line.startswith("PARAM_REQUEST_READ")}
+    assert asked == set(WANTED_PARAMS)
+    policy = est.policy
+    assert policy.params["eq-kf"].airspeed == 15.0 and policy.notes == (
+        "eq-kf airspeed 15 m/s from TRIM_ARSPD_CM (the plane's cruise airspeed)",)
+    assert policy.declination.source.startswith("vehicle parameter EKF2_MAG_DECL, EKF2_DECL_TYPE=0: set by hand")
+    assert est.trim == pytest.approx(trim) and not any("no answer" in e.text for e in est.events)
+    # replay of the recording decides the same policy on the log ...
+    again = decide(policy.options, FlightFacts.of(read_log(str(tmp_path / "live.tlog"))))
+    assert again.params == policy.params and again.notes == policy.notes and again.board_trim == policy.board_trim
+    assert again.declination.rad == policy.declination.rad and again.declination.kind == "parameter"
+    # ... and scores what live scored
+    assert_live_equals_replay(est, result.segment, result.comparisons, tmp_path / "live.tlog", names)

@@ -334,8 +334,10 @@ class LiveEstimation:
         missing = []
         if (self.options.declination_deg is None and seg.mag and self.use_mag
                 and not any(name in have and auto in have for name, _, auto, _ in decl.DECLINATION_PARAMS)):
-            missing.append("a declination (" + ", ".join(f"{name} with {auto}" for name, _, auto, _
-                                                         in decl.DECLINATION_PARAMS) + ")")
+            half = [auto if name in have else name for name, _, auto, _ in decl.DECLINATION_PARAMS
+                    if name in have or auto in have]  # the other of a pair that came in part
+            missing.append(half[0] if half else "a declination parameter ("
+                           + ", ".join(name for name, _, _, _ in decl.DECLINATION_PARAMS) + ")")
         if self.apply_trim and not all(name in have for name in TRIM_PARAMS):
             missing.append("/".join(TRIM_PARAMS))
         return missing
@@ -345,8 +347,8 @@ class LiveEstimation:
         parameters, its identity, its first good GPS fix and its date (else today's)."""
         missing = self._params_missing(self.seg)
         if missing:
-            self.events.append(Event(t, "info", f"the vehicle did not answer for {' or '.join(missing)} within "
-                                                f"{PARAMS_WAIT_S:g} s: going on as a log without them"))
+            self.events.append(Event(t, "info", f"no answer from the vehicle within {PARAMS_WAIT_S:g} s for "
+                                                f"{'; '.join(missing)}: going on as a log without them"))
         gps = self.seg.gps.view()  # t, lat, lon, alt, vn, ve, vd, fix, sats, h_acc, v_acc, arrival
         good = np.flatnonzero(decl.is_good_fix(gps[:, 1], gps[:, 2], gps[:, 7], gps[:, 8], gps[:, 9]))
         fix = decl.Fix(*map(float, gps[good[0], 1:4])) if len(good) else None
