@@ -117,7 +117,7 @@ class RunPolicy:
     notes: tuple[str, ...]  # a line per parameter the flight supplied ("eq-kf airspeed 12 m/s from ...")
     declination: decl.Declination  # as used, and where it came from
     board_trim: tuple[float, float] | None  # rad (roll, pitch): AHRS_TRIM_X/Y, None without one or with --no-trim
-    facts: FlightFacts = field(repr=False, default=None)
+    facts: FlightFacts | None = field(repr=False, default=None)  # what it was decided on
 
     @property
     def names(self) -> list[str]:
