@@ -48,15 +48,11 @@ def replay(log, estimators=("mahony",), reference: str = "autopilot", params: di
     "delta" (default: the best the log has).
     """
     from .declination import Fix
-    from .core.params import build, log_defaults
-    from .commands.replay import run_replay
+    from .core.policy import RunOptions
+    from .commands.replay import replay_flight
 
     flight = log if hasattr(log, "imu") else load(log)
-    names = list(estimators)
-    values = {n: v for n, v in (params or {}).items() if isinstance(v, dict)}
-    log_values, _ = log_defaults(flight, names, values)  # as the command does (a plane's airspeed)
-    chosen = build(names, values, source="replay(params=...)", log_values=log_values)
-    chosen.update({n: v for n, v in (params or {}).items() if not isinstance(v, dict)})
-    return run_replay(flight, names, reference=reference, imu_source=imu, warmup_s=warmup,
-                      declination_deg=declination, params=chosen, use_mag=use_mag, trim=trim,
-                      imu_family=imu_source, home=Fix(*home) if home is not None else None)
+    options = RunOptions.of(list(estimators), params, reference=reference, imu=imu, imu_family=imu_source,
+                            warmup_s=warmup, declination_deg=declination, use_mag=use_mag, trim=trim,
+                            home=Fix(*home) if home is not None else None)
+    return replay_flight(flight, options)[0]

@@ -152,12 +152,17 @@ def first_good_fix(gps) -> Fix | None:
 
 
 def choose(params: dict, fix: Fix | None = None, when: datetime.datetime | None = None,
-           override_deg: float | None = None, home: Fix | None = None, where: str = "log") -> Declination:
+           override_deg: float | None = None, home: Fix | None = None, where: str = "log",
+           magnetic_north: bool = False) -> Declination:
     """The declination and its source (the module docstring's order). ``params``: the log's or
     vehicle's parameters; ``fix``: its first good GPS fix (``first_good_fix``); ``when``: its date
-    (UTC); ``home``: --home; ``where``: "log" or "vehicle", for the source text."""
+    (UTC); ``home``: --home; ``where``: "log" or "vehicle", for the source text.
+    ``magnetic_north``: the data's own north is magnetic (a BROAD trial's truth, ``readers.broad``):
+    0 but for --declination, said as the source's own."""
     if override_deg is not None:
         return Declination(math.radians(override_deg), "--declination", "option")
+    if magnetic_north:
+        return Declination(0.0, "0: BROAD's truth is referenced to magnetic north", "source")
     saved = None
     for name, to_rad, auto_name, is_auto in DECLINATION_PARAMS:
         value = params.get(name)
@@ -186,13 +191,16 @@ def choose(params: dict, fix: Fix | None = None, when: datetime.datetime | None 
     return Declination(0.0, "none (0)", "none")
 
 
+def flight_date(flight) -> datetime.datetime | None:
+    """A log's date (UTC), None when it has none."""
+    return None if flight.utc_s is None else datetime.datetime.fromtimestamp(flight.utc_s, datetime.timezone.utc)
+
+
 def for_flight(flight, override_deg: float | None = None, home: Fix | None = None) -> Declination:
     """``choose`` for a whole log: its parameters, first good fix and date. A BROAD trial's truth
     is referenced to magnetic north (``readers.broad``): 0 there, said as the source's own."""
-    if flight.format == "broad" and override_deg is None:
-        return Declination(0.0, "0: BROAD's truth is referenced to magnetic north", "source")
-    when = None if flight.utc_s is None else datetime.datetime.fromtimestamp(flight.utc_s, datetime.timezone.utc)
-    return choose(flight.params, first_good_fix(flight.gps), when, override_deg, home)
+    return choose(flight.params, first_good_fix(flight.gps), flight_date(flight), override_deg, home,
+                  magnetic_north=flight.format == "broad")
 
 
 def parse_home(text: str) -> Fix:

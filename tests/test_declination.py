@@ -215,6 +215,7 @@ def test_info_and_replay_say_the_declination_and_its_source(tmp_path, capsys):
 def test_a_live_session_uses_the_same_policy_and_says_when_a_fix_comes_later(tmp_path):
     from pymavlink import mavutil
 
+    from mavattitude.core.policy import RunOptions
     from mavattitude.live.estimation import LiveEstimation
     from mavattitude.sim import simulate, write_log
 
@@ -235,13 +236,13 @@ def test_a_live_session_uses_the_same_policy_and_says_when_a_fix_comes_later(tmp
         est.step(final=True)
         return [e.text for e in est.events if "declination" in e.text]
 
-    texts = feed(LiveEstimation(["mahony"], expect_declination=True))
+    texts = feed(LiveEstimation(RunOptions(["mahony"]), params_asked=True))
     # the vehicle's date (SYSTEM_TIME), as the replay of the recording takes it
     assert texts == ["declination 3.47° (WMM-2020 at the first GPS fix 47.3977,8.5456 on 2024-06-01; "
                      "COMPASS_AUTODEC=1)"]
-    texts = feed(LiveEstimation(["mahony"], expect_declination=True), no_fix_before_s=12.0)
+    texts = feed(LiveEstimation(RunOptions(["mahony"]), params_asked=True), no_fix_before_s=12.0)
     assert texts[0] == ("declination 5.00° (vehicle parameter COMPASS_DEC, COMPASS_AUTODEC=1 but no GPS fix and "
                         "no --home: the value the autopilot held)")
     assert texts[1].startswith("GPS fix: the declination there is ") and "keeps its 5.00°" in texts[1]
-    texts = feed(LiveEstimation(["mahony"], home=decl.Fix(-35.36, 149.17)), no_fix_before_s=12.0)
+    texts = feed(LiveEstimation(RunOptions(["mahony"], home=decl.Fix(-35.36, 149.17))), no_fix_before_s=12.0)
     assert "(WMM-20" in texts[0] and "at --home -35.3600,149.1700" in texts[0] and len(texts) == 1

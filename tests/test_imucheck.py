@@ -156,11 +156,12 @@ def test_live_marks_a_slow_imu_too(tmp_path):
     """A session's final scores, as replay's: marked when the IMU arrived too slowly."""
     from pymavlink import mavutil
 
+    from mavattitude.core.policy import RunOptions
     from mavattitude.live.estimation import LiveEstimation
 
     for rate, marked in ((4.0, True), (12.0, False)):  # either side of 9.5 Hz
         path = write_log(simulate("hover", 20.0, seed=6, imu_rate=rate), tmp_path / f"hover-{rate:g}.tlog")
-        session = LiveEstimation(["mahony"])
+        session = LiveEstimation(RunOptions(["mahony"]))
         log = mavutil.mavlink_connection(str(path))
         while (msg := log.recv_msg()) is not None:
             if msg.get_type() != "BAD_DATA":

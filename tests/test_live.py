@@ -14,7 +14,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +23,7 @@ from pymavlink import mavutil
 
 from mavattitude.cli import main
 from mavattitude.growing import Growing
+from mavattitude.core.policy import RunOptions
 from mavattitude.live import LiveOptions, run_live
 from mavattitude.live.link import LinkMonitor, RateRequester, mavlink2, open_link
 from mavattitude.live.recorder import TlogRecorder
@@ -94,10 +95,14 @@ def sender(port: int, plan, sim, garbage_every: int = 0, tap_class=None):
     return thread, tap, holder
 
 
+RUN_FIELDS = {f.name for f in fields(RunOptions)}
+
+
 def listen(port: int, thread, holder, tmp_path, **options):
     """Run a live session until the sender is done (and a moment more); returns the result."""
+    run = {k: options.pop(k) for k in list(options) if k in RUN_FIELDS}  # what to estimate, as replay takes it
     opts = LiveOptions(**{"url": f"udpin:127.0.0.1:{port}", "record": str(tmp_path / "live.tlog"),
-                          "timeout": 1.0, "names": ["mahony"], **options})
+                          "timeout": 1.0, "run": RunOptions(**{"names": ["mahony"], **run}), **options})
     lines = []
 
     def say(line):  # the first line comes once the port is bound: start sending then
@@ -126,7 +131,7 @@ def assert_live_equals_replay(est, segment, comparisons, recording, names, refer
     # check that yet, so replay here scores against the primary alone.
     primary = flight.attitude.source if flight.attitude is not None else None
     flight = replace(flight, attitudes={k: v for k, v in flight.attitudes.items() if k == primary})
-    replay = run_replay(flight, names, reference=reference, imu_source=seg.imu_key)
+    replay = run_replay(flight, names, reference=reference, imu=seg.imu_key)
     for name in names:
         live, again = est.estimate_series(name, seg), replay.estimates[name]
         start = int(np.searchsorted(again.t, live.t[0]))
@@ -565,7 +570,7 @@ def test_a_session_keeps_only_its_last_seconds_and_scores_as_replay(monkeypatch,
     monkeypatch.setattr(estimation, "FORGET_EVERY_S", 0.7)
     monkeypatch.setattr(estimation, "SCORE_EVERY_S", 0.3)
     path = ROOT / "sample_logs" / "figure8.tlog"
-    est = _feed(estimation.LiveEstimation(ALL, history_s=2.0, reference=reference), path)
+    est = _feed(estimation.LiveEstimation(RunOptions(ALL, reference=reference), history_s=2.0), path)
     est.step(final=True)
     comparisons, seg = est.final_comparisons()
     runner = seg.runner
@@ -592,7 +597,7 @@ def test_a_gps_that_loses_its_fix_does_not_look_like_a_reboot():
             msg.time_usec = 5_000_000 if state["corrupted"] == 0 else 900_000_000  # back, then ahead
             state["corrupted"] += 1
         return msg
-    est = _feed(LiveEstimation(["mahony", "cpf-ekf"]), ROOT / "sample_logs" / "figure8.tlog", edit)
+    est = _feed(LiveEstimation(RunOptions(["mahony", "cpf-ekf"])), ROOT / "sample_logs" / "figure8.tlog", edit)
     assert len(est.segments) == 1 and not any("went back" in e.text for e in est.events)
     assert est.samples == est.seg.imu["RAW_IMU"].appended >= 4990  # all but the two corrupt ones
     assert est.seg.gps.column(0)[-1] <= 30.0 + 1e-9
@@ -602,13 +607,17 @@ def test_a_gps_that_loses_its_fix_does_not_look_like_a_reboot():
 def test_imu_choice_still_waits_for_the_compass_declination():
     from mavattitude.live.estimation import LiveEstimation
 
-    est = _feed(LiveEstimation(["mahony"], imu_source="RAW_IMU", expect_declination=True),
+    est = _feed(LiveEstimation(RunOptions(["mahony"], imu="RAW_IMU"), params_asked=True),
                 ROOT / "sample_logs" / "figure8.tlog")
     start = next(e.text for e in est.events if e.text.startswith("IMU source"))
     assert "RAW_IMU at 50.0 Hz" in start
     assert any(e.text.startswith("declination 5.00° (vehicle parameter COMPASS_DEC, no COMPASS_AUTODEC") for e in est.events)
     assert not any("low IMU rate" in e.text for e in est.events)
-    missing = _feed(LiveEstimation(["mahony"], imu_source="SCALED_IMU3"), ROOT / "sample_logs" / "figure8.tlog")
+    # the recording has neither COMPASS_AUTODEC nor a board trim: one line says so
+    assert [e.text for e in est.events if "no answer" in e.text] == [
+        "no answer from the vehicle within 2 s for COMPASS_AUTODEC; AHRS_TRIM_X/AHRS_TRIM_Y: going on as a log "
+        "without them"]
+    missing = _feed(LiveEstimation(RunOptions(["mahony"], imu="SCALED_IMU3")), ROOT / "sample_logs" / "figure8.tlog")
     assert missing.samples == 0
     assert sum("no SCALED_IMU3 samples arrive" in e.text for e in missing.events) == 1
 
@@ -622,7 +631,7 @@ def test_a_compass_in_the_wrong_unit_is_rescaled_live():
         pytest.skip(f"real log {log.name} not found in {SHARED} (it lives beside the project, not in it)")
     from mavattitude.live.estimation import LiveEstimation
 
-    est = _feed(LiveEstimation(["mahony"], imu_source="HIGHRES_IMU"), log, every=50)
+    est = _feed(LiveEstimation(RunOptions(["mahony"], imu="HIGHRES_IMU")), log, every=50)
     assert any("HIGHRES_IMU: magnetometer strength" in e.text and "rescaled by 1e-6" in e.text
                for e in est.events)
     field = est.segments[0].mag["HIGHRES_IMU"].view()[:, 1:4]
@@ -800,15 +809,56 @@ def test_a_vehicle_with_a_board_trim_and_a_declination_scores_as_replay_of_its_r
                   extra_params={"AHRS_TRIM_X": trim[0], "AHRS_TRIM_Y": trim[1]})
     path = write_log(sim, tmp_path / "trimmed.tlog")
     names = ["mahony", "ekf"]
-    est = _feed(LiveEstimation(names, expect_declination=True), path)
+    est = _feed(LiveEstimation(RunOptions(names), params_asked=True), path)
     est.step(final=True)
     comparisons, seg = est.final_comparisons()
     assert est.trim == pytest.approx(trim)
     assert any(e.text.startswith("board trim roll 2.50°, pitch -1.50°") for e in est.events)
     assert any(e.text.startswith("declination 5.00° (vehicle parameter COMPASS_DEC") for e in est.events)
     assert_live_equals_replay(est, seg.index, comparisons, path, names)
-    untrimmed = _feed(LiveEstimation(names, expect_declination=True, trim=False), path)
+    untrimmed = _feed(LiveEstimation(RunOptions(names, trim=False), params_asked=True), path)
     untrimmed.step(final=True)
     # without the trim every estimate is off by about it (the figure-eight's own error besides)
     off = untrimmed.final_comparisons()[0]["mahony"].axes["roll"].mae
     assert off > comparisons["mahony"].axes["roll"].mae + 1.5
+
+
+@pytest.mark.slow  # 10 s of a simulated plane streamed at 4x
+def test_live_asks_the_vehicle_for_the_policys_parameters_and_scores_as_replay_of_its_recording(tmp_path):
+    """One policy for live and replay (``core.policy``): a simulated ArduPlane that sends no
+    parameter unless asked, with a board trim (AHRS_TRIM_X/Y, its autopilot reporting the
+    vehicle's attitude), a declination set by hand in PX4's EKF2_MAG_DECL (no COMPASS_DEC) and a
+    cruise airspeed (TRIM_ARSPD_CM, eq-kf's default on a plane). Live asks for them by
+    PARAM_REQUEST_READ, decides the policy replay decides on the recording, and scores the same."""
+    from mavattitude.core.policy import WANTED_PARAMS, FlightFacts, decide
+
+    trim = (math.radians(2.5), math.radians(-1.5))
+    sim = simulate("figure8", 40.0, seed=5, imu_rate=100.0)
+    q_trim = np.broadcast_to(quat.conjugate(quat.from_euler(trim[0], trim[1], 0.0)), sim.autopilot_q.shape)
+    sim = replace(sim, autopilot_q=quat.multiply(sim.autopilot_q, q_trim), firmware="ArduPlane V4.5.7 (sim)",
+                  extra_params={"AHRS_TRIM_X": trim[0], "AHRS_TRIM_Y": trim[1], "COMPASS_DEC": None,
+                                "EKF2_MAG_DECL": math.degrees(sim.declination_rad), "EKF2_DECL_TYPE": 0.0,
+                                "TRIM_ARSPD_CM": 1500.0})
+    served = {}
+
+    def plan(autopilot, tap):
+        autopilot.announce_params = False  # as a real ArduPilot: only what is asked for
+        served["stats"] = autopilot.serve(speed=4.0)
+    port = free_udp_port()
+    thread, tap, holder = sender(port, plan, sim)
+    names = ["mahony", "eq-kf"]
+    result = listen(port, thread, holder, tmp_path, names=names)
+    est = result.estimation
+    asked = {line.split()[1] for line in served["stats"].requests if line.startswith("PARAM_REQUEST_READ")}
+    assert asked == set(WANTED_PARAMS)
+    policy = est.policy
+    assert policy.params["eq-kf"].airspeed == 15.0 and policy.notes == (
+        "eq-kf airspeed 15 m/s from TRIM_ARSPD_CM (the plane's cruise airspeed)",)
+    assert policy.declination.source.startswith("vehicle parameter EKF2_MAG_DECL, EKF2_DECL_TYPE=0: set by hand")
+    assert est.trim == pytest.approx(trim) and not any("no answer" in e.text for e in est.events)
+    # replay of the recording decides the same policy on the log ...
+    again = decide(policy.options, FlightFacts.of(read_log(str(tmp_path / "live.tlog"))))
+    assert again.params == policy.params and again.notes == policy.notes and again.board_trim == policy.board_trim
+    assert again.declination.rad == policy.declination.rad and again.declination.kind == "parameter"
+    # ... and scores what live scored
+    assert_live_equals_replay(est, result.segment, result.comparisons, tmp_path / "live.tlog", names)

@@ -10,7 +10,8 @@ import pytest
 
 from mavattitude import quaternion as quat
 from mavattitude.cli import main
-from mavattitude.commands.replay import board_trim, trimmed
+from mavattitude.commands.replay import trimmed
+from mavattitude.trim import board_trim
 from mavattitude.readers import read_log
 from mavattitude.sim import simulate, write_log
 
@@ -36,7 +37,7 @@ def scores(log, tmp_path, *extra) -> dict:
 
 def test_the_board_trim_is_read_and_turns_the_estimates_as_the_autopilot_does(trimmed_log, tmp_path):
     flight = read_log(str(trimmed_log))
-    assert board_trim(flight) == pytest.approx(TRIM)
+    assert board_trim(flight.params) == pytest.approx(TRIM)
     with_trim = scores(trimmed_log, tmp_path)
     raw = scores(trimmed_log, tmp_path, "--no-trim")
     assert with_trim["scoring"]["board_trim"] == {"roll_deg": pytest.approx(2.5), "pitch_deg": pytest.approx(-1.5)}

@@ -131,7 +131,7 @@ def test_what_the_tool_reads_from_the_class(toy, monkeypatch):
     from mavattitude.estimators.base import DEFAULT_COMPILE_S
     from mavattitude.commands.tune import TuneSettings, space_for
     from mavattitude.errors import UsageError
-    from mavattitude.commands.replay import ReplaySettings
+    from mavattitude.core.policy import RunOptions
 
     names = [*ESTIMATORS, "autopilot", "truth", "autopilot:EKF1 (EKF1)"]
     colors = view.assign_colors(names)
@@ -145,10 +145,10 @@ def test_what_the_tool_reads_from_the_class(toy, monkeypatch):
     assert not create("toy").has_heading_reference(True)
     assert plugin_paths(["mahony", "toy", "toy-jit"]) == {"toy": f"{TOY_MODULE}:Toy", "toy-jit": f"{TOY_MODULE}:ToyJit"}
     # tune: its search space from the class, and nothing left once --set fixes the one field
-    space = space_for(TuneSettings("toy", ReplaySettings(names=("toy",))))
+    space = space_for(TuneSettings("toy", RunOptions(names=("toy",))))
     assert list(space) == ["gain"] and str(space["gain"]) == "log [0.01, 1]"
     with pytest.raises(UsageError, match="nothing to tune"):
-        space_for(TuneSettings("toy", ReplaySettings(names=("toy",), assignments=("toy.gain=2",))))
+        space_for(TuneSettings("toy", RunOptions(names=("toy",), assignments=("toy.gain=2",))))
 
 
 @pytest.mark.slow  # a process that imports the package and numba: 4 s
@@ -205,7 +205,7 @@ def test_evaluate_refuses_an_estimator_its_workers_cannot_import(toy):
     from mavattitude.errors import UsageError
     from mavattitude.estimators import register
     from mavattitude.commands.evaluate import Workers
-    from mavattitude.commands.replay import ReplaySettings
+    from mavattitude.core.policy import RunOptions
 
     @register
     class Local(toy.Toy):
@@ -213,7 +213,7 @@ def test_evaluate_refuses_an_estimator_its_workers_cannot_import(toy):
 
     try:
         with Workers(2) as workers, pytest.raises(UsageError, match="define it in a module, or run with -j 1"):
-            workers.run(["a.bin", "b.bin"], ReplaySettings(names=("toy-local",)), print)
+            workers.run(["a.bin", "b.bin"], RunOptions(names=("toy-local",)), print)
     finally:
         ESTIMATORS.pop("toy-local")
 

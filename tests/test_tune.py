@@ -16,7 +16,7 @@ from mavattitude.errors import UsageError
 from mavattitude.estimators import ESTIMATORS
 from mavattitude.commands.evaluate import evaluate_log
 from mavattitude.core.params import build, load_file, search_space, to_toml
-from mavattitude.commands.replay import ReplaySettings
+from mavattitude.core.policy import RunOptions
 from mavattitude.commands.tune import DIVERGED_DEG, TuneSettings, deal_folds, log_score, space_for, tune
 
 optuna = pytest.importorskip("optuna", reason="tune needs the optional extra: pip install 'mavattitude[tune]'")
@@ -56,12 +56,12 @@ def test_a_search_range_is_checked_where_it_is_declared():
 
 
 def test_set_fixes_a_field_and_strict_or_nothing_left_is_refused():
-    replay = ReplaySettings(names=("mahony",), assignments=("mahony.ki=0", "mahony.accel_tau=0"))
+    replay = RunOptions(names=("mahony",), assignments=("mahony.ki=0", "mahony.accel_tau=0"))
     assert list(space_for(TuneSettings("mahony", replay))) == ["kp"]
-    replay = ReplaySettings(names=("mahony",), assignments=("mahony.ki=0", "mahony.kp=1", "mahony.accel_tau=0"))
+    replay = RunOptions(names=("mahony",), assignments=("mahony.ki=0", "mahony.kp=1", "mahony.accel_tau=0"))
     with pytest.raises(UsageError, match="nothing to tune"):
         space_for(TuneSettings("mahony", replay))
-    replay = ReplaySettings(names=("ncs-eskf",), assignments=("ncs-eskf.strict=true",))
+    replay = RunOptions(names=("ncs-eskf",), assignments=("ncs-eskf.strict=true",))
     with pytest.raises(UsageError, match="strict"):
         space_for(TuneSettings("ncs-eskf", replay))
 
@@ -125,7 +125,7 @@ LOGS = [f"log{i}.bin" for i in range(10)]
 
 
 def settings(trials=30, folds=5, **kw):
-    return TuneSettings("mahony", ReplaySettings(names=("mahony",), assignments=("mahony.ki=0.0005",)),
+    return TuneSettings("mahony", RunOptions(names=("mahony",), assignments=("mahony.ki=0.0005",)),
                         trials=trials, folds=folds, **kw)
 
 
@@ -162,7 +162,7 @@ def test_a_stopped_study_resumes_where_it_stopped(tmp_path):
 
 def test_a_kept_log_replays_as_a_freshly_read_one():
     log = str(SAMPLE_LOGS / "figure8.tlog")
-    replay = ReplaySettings(names=("mahony", "cpf-ekf"))
+    replay = RunOptions(names=("mahony", "cpf-ekf"))
     fresh = evaluate_log(log, replay)
     for _ in range(2):
         kept = evaluate_log(log, replay, keep=True)

@@ -13,7 +13,8 @@ from pyulog import ULog
 from conftest import shared_log
 from mavattitude.cli import main
 from mavattitude.declination import for_flight
-from mavattitude.commands.replay import ReplaySettings, replay_flight
+from mavattitude.commands.replay import replay_flight
+from mavattitude.core.policy import RunOptions
 from mavattitude.estimators import all_names
 from mavattitude.readers import read_log
 from mavattitude.sim import simulate, write_log
@@ -64,7 +65,7 @@ def test_pyulog_reads_what_the_simulator_writes(sim_logs):
 
 def test_the_same_flight_scores_alike_from_ulog_and_dataflash(sim_logs):
     _, ulg, binary = sim_logs
-    settings = ReplaySettings(names=("mahony", "cpf-ekf"), reference="truth")
+    settings = RunOptions(names=("mahony", "cpf-ekf"), reference="truth")
     scores = []
     for path in (ulg, binary):
         result, _ = replay_flight(read_log(str(path)), settings)
@@ -138,7 +139,7 @@ def test_a_gps_without_its_sample_time_takes_its_publication_time():
 def test_every_estimator_follows_px4s_ekf2_on_a_real_flight(capsys):
     path = shared_log("ulog/px4-real-auav-x21-flight.ulg")
     # its ±22° of roll come 5 s in: a 2 s warm-up keeps them scored
-    result, _ = replay_flight(read_log(str(path)), ReplaySettings(names=tuple(all_names()), warmup_s=2.0))
+    result, _ = replay_flight(read_log(str(path)), RunOptions(names=tuple(all_names()), warmup_s=2.0))
     for name, c in result.comparisons.items():
         for axis in ("roll", "pitch"):
             assert c.axes[axis].mae < 0.15 and c.axes[axis].r2 > 0.99, (name, axis)

@@ -1,5 +1,5 @@
 """What the commands of the command line share: reading a log with its progress, compiling the
-kernels first, the estimators named on the command line, the Rerun sink, replay's settings."""
+kernels first, the estimators named on the command line, the Rerun sink, a run's options."""
 from __future__ import annotations
 
 import os
@@ -71,19 +71,19 @@ def plan_sink_of(args, outputs, default_rrd: str | None = None):
     return plan_sink("rrd", default_rrd, outputs) if default_rrd else None
 
 
-def replay_settings(args, names: list[str]):
-    """The checked ReplaySettings of replay's and evaluate's shared options."""
+def run_options(args, names: list[str]):
+    """The checked ``RunOptions`` of the options replay, evaluate, tune and live share."""
     from ..core.params import load_file
-    from ..commands.replay import ReplaySettings
+    from ..core.policy import RunOptions
 
-    settings = ReplaySettings(
-        names=tuple(names), reference=args.reference, imu=args.imu, imu_family=args.imu_family, warmup_s=args.warmup,
-        declination_deg=args.declination_deg, home=args.home, use_mag=not args.no_mag, trim=not args.no_trim,
-        segment=args.segment,
+    options = RunOptions(
+        names=tuple(names), reference=args.reference, imu=args.imu, imu_family=getattr(args, "imu_family", None),
+        warmup_s=args.warmup, declination_deg=args.declination_deg, home=args.home, use_mag=not args.no_mag,
+        trim=not args.no_trim, segment=getattr(args, "segment", None),  # live has neither
         file_values=load_file(args.params) if args.params else None,
         assignments=tuple(args.set or ()), params_source=args.params or "--params")
-    settings.check()  # bad values fail before any log is read
-    return settings
+    options.check()  # bad values fail before any log is read
+    return options
 
 
 def logs_to_run(args) -> list[str]:

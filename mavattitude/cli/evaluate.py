@@ -8,7 +8,7 @@ from pathlib import Path
 from ..errors import InputError, UsageError
 from ..outputs import Outputs
 from .args import estimation_args, force_arg, segment_arg, trim_arg, workers_args
-from .common import compile_kernels, estimator_names, logs_to_run, replay_settings
+from .common import compile_kernels, estimator_names, logs_to_run, run_options
 
 
 def add_parser(sub) -> None:
@@ -51,7 +51,7 @@ def run(args) -> int:
         estimator_names(args.baseline)  # a known estimator, or a usage error
         names.append(args.baseline)
         print(f"note: the baseline {args.baseline} is run too", file=sys.stderr)
-    settings = replay_settings(args, names)
+    settings = run_options(args, names)
     logs = logs_to_run(args)
     with Outputs(inputs=[*logs, args.params], force=args.force) as outputs:
         out = outputs.folder(args.out, "--out")  # its files are claimed one by one below

@@ -7,7 +7,7 @@ import textwrap
 from ..errors import UsageError
 from ..outputs import Outputs
 from .args import COUNT, POSITIVE, estimation_args, force_arg, number, trim_arg, viewer_args
-from .common import compile_kernels, estimator_names, plan_sink_of, warn
+from .common import compile_kernels, estimator_names, plan_sink_of, run_options, warn
 
 
 def add_parser(sub) -> None:
@@ -58,12 +58,10 @@ def run(args) -> int:
     from ..live import LiveOptions, default_record_path, run_live
     from ..core.warmup import warm_up
     from ..live.session import check_ended_with_vehicle, loss_text
-    from ..core.params import build, load_file
     from ..commands.report import format_table, nothing_scored, write_json
 
     names = estimator_names(args.estimators)
-    params = build(names, load_file(args.params) if args.params else None, args.set or (),
-                   source=args.params or "--params")
+    options = run_options(args, names)  # the parameters checked now; the vehicle's defaults join them later
     from ..live.link import MAX_REQUEST_HZ, MIN_REQUEST_HZ
     if not MIN_REQUEST_HZ <= args.imu_rate <= MAX_REQUEST_HZ:
         raise UsageError(f"--imu-rate {args.imu_rate:g}: MAVLink asks for rates from {MIN_REQUEST_HZ:.3g} Hz "
@@ -75,13 +73,11 @@ def run(args) -> int:
         json_out = outputs.file(args.json, "--json", "json")
         sink = plan_sink_of(args, outputs)
         compile_kernels(names).wait()
-        warm_up(names, params)
+        warm_up(names, options.user_params())
         result = run_live(LiveOptions(
-            url=args.url, baud=args.baud, sysid=args.sysid, names=names, params=params,
-            imu_rate=args.imu_rate, request=not args.no_request, imu_source=args.imu, window=args.window,
-            timeout=args.timeout, record=str(record) if record else None, warmup=args.warmup,
-            declination_deg=args.declination_deg, home=args.home, reference=args.reference, use_mag=not args.no_mag,
-            trim=not args.no_trim, duration=args.duration, sink=sink))
+            url=args.url, baud=args.baud, sysid=args.sysid, run=options, imu_rate=args.imu_rate,
+            request=not args.no_request, window=args.window, timeout=args.timeout,
+            record=str(record) if record else None, duration=args.duration, sink=sink))
         print(f"session: {result.seconds:.1f} s, {result.monitor.packets} packets ("
               + loss_text(result.monitor, result.estimation.samples_lost, result.kernel_drops)
               + f"), {result.estimation.samples} IMU samples estimated"

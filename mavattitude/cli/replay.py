@@ -11,7 +11,7 @@ from ..errors import InputError
 from ..outputs import Outputs
 from ..trim import describe as describe_trim
 from .args import estimation_args, force_arg, segment_arg, trim_arg, viewer_args
-from .common import compile_kernels, estimator_names, plan_sink_of, read_log_file, replay_settings, warn
+from .common import compile_kernels, estimator_names, plan_sink_of, read_log_file, run_options, warn
 
 
 def add_parser(sub) -> None:
@@ -45,7 +45,7 @@ def run(args) -> int:
     from ..view.sink import open_sink
 
     names = estimator_names(args.estimators)
-    settings = replay_settings(args, names)
+    options = run_options(args, names)
     with Outputs(inputs=[args.log, args.params], force=args.force) as outputs:
         json_out = outputs.file(args.json, "--json", "json")
         export = outputs.folder(args.export, "--export", only="csv")
@@ -58,9 +58,9 @@ def run(args) -> int:
         compiling.done("log reader")
         compiling.wait()
         with ProgressBar(f"estimating with {len(names)} estimator{'s' if len(names) > 1 else ''}",
-                         len(flight.imu[choose_imu(flight, settings.imu, settings.imu_family)].t),
+                         len(flight.imu[choose_imu(flight, options.imu, options.imu_family)].t),
                          "samples", args.quiet) as progress:
-            result, notes = replay_flight(flight, settings, progress)
+            result, notes = replay_flight(flight, options, progress)
         for note in notes:
             print(f"note: {note}")
         # one line per kind, before the table: they say how to read it, and on stderr they stay

@@ -9,7 +9,7 @@ from pathlib import Path
 from ..errors import UsageError
 from ..outputs import Outputs, json_text
 from .args import COUNT, SEED, estimation_args, force_arg, number, segment_arg, trim_arg, workers_args
-from .common import compile_kernels, estimator_names, logs_to_run, replay_settings
+from .common import compile_kernels, estimator_names, logs_to_run, run_options
 
 
 def add_parser(sub) -> None:
@@ -70,7 +70,7 @@ def run(args) -> int:
     name = name[0]
     if args.ship_logs and not args.scheduler:
         raise UsageError("--ship-logs goes with --scheduler (local workers read the logs themselves)")
-    settings = TuneSettings(name, replay_settings(args, [name]), trials=args.trials, folds=args.folds,
+    settings = TuneSettings(name, run_options(args, [name]), trials=args.trials, folds=args.folds,
                             objective=args.objective, seed=args.seed)
     space_for(settings)  # nothing to search is a usage error, before any log is read
     logs = logs_to_run(args)

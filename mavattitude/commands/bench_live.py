@@ -123,6 +123,7 @@ def _session_against(sender, args: tuple, names: list[str], **options):
     """A live session running ``names`` (more ``LiveOptions`` in ``options``) while a child
     process runs ``sender(port, *args)``: started once the session listens, the session ends
     when it is done. Returns the session's result."""
+    from ..core.policy import RunOptions
     from ..live import LiveOptions, run_live
     from ..view.live import StatusLine
 
@@ -132,7 +133,8 @@ def _session_against(sender, args: tuple, names: list[str], **options):
     def on_line(line: str) -> None:  # the first line comes once the port is bound
         if child.pid is None:
             child.start()
-    result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", names=names, imu_rate=LIVE_IMU_HZ, **options),
+    result = run_live(LiveOptions(url=f"udpin:127.0.0.1:{port}", run=RunOptions(names), imu_rate=LIVE_IMU_HZ,
+                                  **options),
                       stop=lambda: child.pid is not None and child.exitcode is not None,
                       status=StatusLine(io.StringIO()), say=on_line)
     child.join(10)

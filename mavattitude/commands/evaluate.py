@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, UsageError, check_not_special, reraise_interrupt, special_file
-from .replay import NoReference, ReplaySettings
+from ..core.policy import RunOptions
+from .replay import NoReference
 from ..progress import clock
 
 LOG_SUFFIXES = (".bin", ".tlog", ".ulg", ".hdf5", ".h5")  # .hdf5/.h5: BROAD trials
@@ -84,7 +85,7 @@ def record_name(path: str) -> str:
     return f"{stem}-{digest}.json"
 
 
-def settings_key(settings: ReplaySettings) -> str:
+def settings_key(settings: RunOptions) -> str:
     """What a record was computed with, the settings and the code: a record made with other
     settings, or by another version of mavattitude, is redone."""
     from ..kernel_cache import sources_stamp
@@ -96,7 +97,7 @@ def settings_key(settings: ReplaySettings) -> str:
 # ---------------------------------------------------------------- one log
 
 
-def evaluate_log(path: str, settings: ReplaySettings, data: bytes | None = None, keep: bool = False) -> dict:
+def evaluate_log(path: str, settings: RunOptions, data: bytes | None = None, keep: bool = False) -> dict:
     """Replay one log as ``replay`` does (``commands.replay.replay_flight``) and return its record:
     ``status`` ("ok", "failed" or "skipped"), ``facts``, ``metrics`` (``replay --json``'s
     estimators), ``error``. ``data``: the log's bytes, for a worker that cannot see ``path``.
@@ -131,7 +132,7 @@ def evaluate_log(path: str, settings: ReplaySettings, data: bytes | None = None,
 _kept: dict = {}  # (log path, segment) -> its Flight, in a process replaying logs with keep=True
 
 
-def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: bool = False) -> dict:
+def _replay(local: str, path: str, settings: RunOptions, flight=None, keep: bool = False) -> dict:
     from .replay import choose_imu, replay_flight
     from ..readers import read_log
 
@@ -218,7 +219,7 @@ class Progress:
             print(file=self.stream, flush=True)
 
 
-def load_records(folder: Path, settings: ReplaySettings) -> dict[str, dict]:
+def load_records(folder: Path, settings: RunOptions) -> dict[str, dict]:
     """The records in ``folder`` computed with these settings, by log path; internal errors are
     left out, to be tried again."""
     key = settings_key(settings)
@@ -248,7 +249,7 @@ def save_record(folder: Path, record: dict) -> None:
     os.replace(tmp, target)
 
 
-def run_logs(logs: list[str], settings: ReplaySettings, records_dir: Path, jobs: int,
+def run_logs(logs: list[str], settings: RunOptions, records_dir: Path, jobs: int,
              scheduler: str | None = None, ship_logs: bool = False, force: bool = False,
              progress: Progress | None = None) -> list[dict]:
     """Every log's record, in the order of ``logs``: reused from ``records_dir`` when it was
@@ -322,7 +323,7 @@ class Workers:
         if self._client is not None:
             self._client.close()
 
-    def run(self, logs: list[str], settings: ReplaySettings, finished) -> None:
+    def run(self, logs: list[str], settings: RunOptions, finished) -> None:
         """``finished(record)`` for each log, in the order they finish."""
         self._runs += 1
         if self._client is not None:
@@ -359,7 +360,7 @@ class Workers:
                 finished(evaluate_log(log, settings, keep=self.keep))
 
 
-def _evaluate_on_worker(plugins: list[str], path: str, settings: ReplaySettings, data: bytes | None,
+def _evaluate_on_worker(plugins: list[str], path: str, settings: RunOptions, data: bytes | None,
                         keep: bool) -> dict:
     """``evaluate_log`` on a Dask worker, which first registers the estimators this process
     registered at run time (``plugins``, "module:Class" each: the worker must be able to import

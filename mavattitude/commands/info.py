@@ -7,7 +7,8 @@ import os
 import numpy as np
 
 from .. import estimators as est
-from ..declination import NO_DECLINATION, for_flight
+from ..core.policy import FlightFacts, RunOptions, decide
+from ..declination import NO_DECLINATION
 from ..flight import GRAVITY, Flight
 from ..scoring.imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful, rate_warning
 from ..readers import best_imu_source, imu_rate
@@ -58,7 +59,7 @@ def summarize(flight: Flight) -> dict:
     scale = accel_scale_warning(reading["ms2"], reading["at_rest"], [est.create(name) for name in est.all_names()])
     if scale is not None:
         warnings.append(scale)
-    declination = for_flight(flight)
+    declination = decide(RunOptions(()), FlightFacts.of(flight)).declination  # as replay takes it
     if flight.mag and not declination.known:
         warnings.append(NO_DECLINATION)
     return {

@@ -14,18 +14,17 @@ from .. import declination as decl
 from .. import quaternion as quat
 from .. import estimators as est
 from ..scoring.broadscore import broad_measures
-from ..errors import InputError, UsageError
+from ..errors import InputError
 from ..events import Event
 from ..flight import GRAVITY, AttitudeSeries, Flight
 from ..scoring.imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful
-from ..scoring.metrics import Comparison, compare
-from ..core.params import build, log_defaults
+from ..scoring.metrics import Comparison, compare, non_finite_warning
+from ..core.policy import FlightFacts, RunOptions, RunPolicy, decide
 from ..phase import PhaseSeries
 from ..scoring.refcheck import autopilot_disagreement, check_reference, excluded_spans, whole_log_notes
 from ..readers import best_imu_source, imu_rate, mag_for_imu
 from ..readers.attitudes import SECONDARY_KEYS, NamedAttitude, name_attitudes
 from ..core.runner import REINIT_GAP_S, STEP_ROWS, Runner
-from ..trim import board_trim as trim_of
 from ..trim import describe
 from ..trim import trimmed  # noqa: F401  (replay's callers and tests take it from here)
 
@@ -86,7 +85,7 @@ class ReplayResult:
     params: dict = field(default_factory=dict)  # estimator name -> its parameter dataclass
     # GPS / baro handed to the estimators, when one used them: only the IMU rows that had one, in order
     aiding: aid.Aiding | None = None
-    trim: tuple[float, float] | None = None  # (roll, pitch) rad the estimates were turned by, see board_trim
+    trim: tuple[float, float] | None = None  # (roll, pitch) rad the estimates were turned by, see RunPolicy.trim_for
     suspects: list = field(default_factory=list)  # refcheck.Suspect: where the reference is not trusted
     reference_notes: list = field(default_factory=list)  # refcheck.LogNote: about the reference as a whole
     restarts: list[float] = field(default_factory=list)  # s: where the estimators started again after a gap
@@ -151,11 +150,6 @@ class ReplayResult:
             rec = open_sink(sink, "mavattitude", str(self.flight.path))
             view.log_replay(self, rec)
             close_sink(rec, sink)
-
-
-def board_trim(flight: Flight) -> tuple[float, float] | None:
-    """The log's board trim (``trim.board_trim``: AHRS_TRIM_X / AHRS_TRIM_Y, rad), or None."""
-    return trim_of(flight.params)
 
 
 def is_ekf(algorithm: str) -> bool:
@@ -251,16 +245,13 @@ def choose_imu(flight: Flight, imu_source: str | None = None, imu_family: str | 
     return imu_source
 
 
-def run_estimators(flight: Flight, names: list[str], imu_source: str | None = None,
-                   declination: decl.Declination | None = None, params: dict | None = None,
-                   use_mag: bool = True, imu_family: str | None = None, progress=None) -> Runner:
-    """Run each named estimator over the chosen IMU of a whole flight (``choose_imu``): the
-    runner, which holds estimates, diagnostics and events. ``declination``: default the log's
-    (``declination.for_flight``). ``progress(fraction)`` is called as it goes."""
-    imu_source = choose_imu(flight, imu_source, imu_family)
-    mag_source = mag_for_imu(flight, imu_source) if use_mag else None
-    declination = declination or decl.for_flight(flight)
-    runner = Runner(names, params, declination.rad, use_mag, imu_source, mag_source)
+def run_estimators(flight: Flight, policy: RunPolicy, progress=None) -> Runner:
+    """Run the policy's estimators over the chosen IMU of a whole flight (``choose_imu``): the
+    runner, which holds estimates, diagnostics and events. ``progress(fraction)`` is called as
+    it goes."""
+    imu_source = choose_imu(flight, policy.options.imu, policy.options.imu_family)
+    mag_source = mag_for_imu(flight, imu_source) if policy.use_mag else None
+    runner = Runner(policy.names, policy.params, policy.declination.rad, policy.use_mag, imu_source, mag_source)
     runner.add_flight(flight)
     runner.step(final=True, chunk=False, progress=progress)
     runner.release_inputs()  # the flight holds them; the runner's copy would double the IMU
@@ -289,28 +280,30 @@ def marked_events(t: np.ndarray, marks: np.ndarray) -> dict:
     return {"count": int(np.count_nonzero(hit)), "times": [round(float(x), 3) for x in t[hit]]}
 
 
-def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
-               imu_source: str | None = None, warmup_s: float = 10.0,
-               declination_deg: float | None = None, params: dict | None = None,
-               use_mag: bool = True, trim: bool = True, imu_family: str | None = None,
-               progress=None, home: decl.Fix | None = None) -> ReplayResult:
-    """Estimate with every named estimator and score each against the reference.
+def run_replay(flight: Flight, names: list[str], progress=None, **options) -> ReplayResult:
+    """``replay_flight`` in short, for scripts and tests: ``options`` are ``RunOptions``' fields
+    (``params`` as the API takes it, ``RunOptions.of``)."""
+    return replay_flight(flight, RunOptions.of(names, **options), progress)[0]
 
-    ``reference``: see ``choose_reference`` ("autopilot", "truth", "ekf" or a stream such as
-    "EKF1"). The autopilot's other streams are scored against it too (``score_autopilot_streams``);
-    with truth the primary's row is "autopilot" among the estimators' and the other streams'
-    rows are "autopilot:EKF1 (EKF1)", .... ``trim``: against the autopilot's primary, turn the
-    estimates by the log's board trim first, as the autopilot turns its own (``board_trim``);
-    not against another stream, which the autopilot logs untrimmed. ``declination_deg``
-    (--declination) and ``home`` (--home): see ``declination.choose``.
+
+def replay_policy(flight: Flight, policy: RunPolicy, progress=None) -> ReplayResult:
+    """Estimate with every estimator of the policy and score each against the reference.
+
+    The reference (``policy.reference``): see ``choose_reference`` ("autopilot", "truth", "ekf"
+    or a stream such as "EKF1"). The autopilot's other streams are scored against it too
+    (``score_autopilot_streams``); with truth the primary's row is "autopilot" among the
+    estimators' and the other streams' rows are "autopilot:EKF1 (EKF1)", .... Against the
+    autopilot's primary the estimates are turned by the board trim first, as the autopilot turns
+    its own (``RunPolicy.trim_for``); not against another stream, which the autopilot logs untrimmed.
     """
+    names, warmup_s = policy.names, policy.warmup_s
     named = name_attitudes(flight)
-    chosen = choose_reference(flight, reference, named)
+    chosen = choose_reference(flight, policy.reference, named)
     ref = None if chosen is None else flight.truth if chosen.algorithm == "truth" else flight.attitudes[chosen.stream]
     against_truth = chosen is not None and chosen.algorithm == "truth"
 
-    declination = decl.for_flight(flight, declination_deg, home)
-    runner = run_estimators(flight, names, imu_source, declination, params, use_mag, imu_family, progress)
+    declination = policy.declination
+    runner = run_estimators(flight, policy, progress)
     estimates = {name: runner.estimate(name) for name in names}
     events = _events(flight, runner, declination)
     imu = flight.imu[runner.imu_source]
@@ -319,7 +312,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     g_reading = accel_at_rest(imu.t, imu.gyro, imu.accel)
     if (scale := accel_scale_warning(*g_reading, runner.estimators)) is not None:
         events.append(Event(float(imu.t[0]), "warn", scale))
-    applied_trim = board_trim(flight) if (trim and ref is not None and ref is flight.attitude) else None
+    applied_trim = policy.trim_for(ref is not None and ref is flight.attitude)
     if applied_trim:
         for series in estimates.values():  # in place, a step at a time: an hour's estimates are not copied
             for a in range(0, len(series.q), STEP_ROWS):
@@ -331,9 +324,7 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
     for name, series in estimates.items():
         bad = int(np.count_nonzero(~np.isfinite(series.q).all(axis=1)))
         if bad:
-            events.append(Event(float(series.t[0]), "warn",
-                                f"{name}: {bad} non-finite attitude samples (a filter fault; "
-                                "they are left out of the metrics)"))
+            events.append(Event(float(series.t[0]), "warn", non_finite_warning(name, bad)))
     restarts = [t for t, _ in runner.restarts]
     comparisons, streams, stream_series = {}, {}, {}
     suspects, notes = [], []
@@ -387,56 +378,15 @@ def run_replay(flight: Flight, names: list[str], reference: str = "autopilot",
                         not_meaningful=not_meaningful, accel_g_reading=g_reading)
 
 
-@dataclass(frozen=True)
-class ReplaySettings:
-    """How to replay a log, as the command line says it (``replay`` and ``evaluate`` alike):
-    the parameters still as the user gave them, so that each log can add its own defaults."""
-    names: tuple[str, ...]
-    reference: str = "autopilot"
-    imu: str | None = None
-    imu_family: str | None = None  # --imu-source
-    warmup_s: float = 10.0
-    declination_deg: float | None = None
-    home: decl.Fix | None = None  # --home
-    use_mag: bool = True
-    trim: bool = True
-    segment: int | None = None
-    file_values: dict | None = None  # --params, as read from the file
-    assignments: tuple[str, ...] = ()  # --set
-    params_source: str = "--params"
-
-    def check(self) -> None:
-        """Raise UsageError / InputError for a bad setting now, before any log is read (evaluate
-        would otherwise fail every log with the same "internal error")."""
-        def number(value) -> bool:
-            return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-        if not (number(self.warmup_s) and self.warmup_s >= 0):
-            raise UsageError(f"--warmup {self.warmup_s!r}: expected a number of seconds, 0 or more")
-        if self.declination_deg is not None and not (number(self.declination_deg)
-                                                     and -180 <= self.declination_deg <= 180):
-            raise UsageError(f"--declination {self.declination_deg!r}: expected degrees from -180 to 180")
-        if self.segment is not None and not (isinstance(self.segment, int) and not isinstance(self.segment, bool)
-                                             and self.segment >= 0):
-            raise UsageError(f"--segment {self.segment!r}: expected a clock segment number, 0 or more")
-        if not (isinstance(self.reference, str) and self.reference.strip()):  # a stream's name is checked per log
-            raise UsageError(f"--reference {self.reference!r}: use autopilot, truth, ekf or a stream 'info' lists")
-        build(list(self.names), self.file_values, self.assignments, source=self.params_source)
-
-
-def replay_flight(flight: Flight, settings: ReplaySettings, progress=None) -> tuple[ReplayResult, list[str]]:
-    """``run_replay`` with the parameters a log supplies itself where the user gave none
-    (``params.log_defaults``): the result, and a note per such value (also in its events)."""
-    names = list(settings.names)
-    log_values, notes = log_defaults(flight, names, settings.file_values, settings.assignments)
-    params = build(names, settings.file_values, settings.assignments, source=settings.params_source,
-                   log_values=log_values)
-    result = run_replay(flight, names, reference=settings.reference, imu_source=settings.imu,
-                        imu_family=settings.imu_family, progress=progress,
-                        warmup_s=settings.warmup_s, declination_deg=settings.declination_deg,
-                        home=settings.home, params=params, use_mag=settings.use_mag, trim=settings.trim)
-    result.events += [Event(flight.time_span[0], "info", note) for note in notes]
-    return result, notes
+def replay_flight(flight: Flight, options: RunOptions, progress=None) -> tuple[ReplayResult, list[str]]:
+    """Replay a log as the command does: the policy decided on the log's own parameters
+    (``policy.decide``: the defaults a log supplies where the user gave none, its declination
+    and board trim), then ``replay_policy``: the result, and a note per parameter the log
+    supplied (also in its events)."""
+    policy = decide(options, FlightFacts.of(flight))
+    result = replay_policy(flight, policy, progress)
+    result.events += [Event(flight.time_span[0], "info", note) for note in policy.notes]
+    return result, list(policy.notes)
 
 
 def _events(flight: Flight, runner: Runner, declination: decl.Declination) -> list[Event]:

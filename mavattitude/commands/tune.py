@@ -33,8 +33,8 @@ import numpy as np
 
 from ..errors import InputError, UsageError
 from .evalreport import tilt_score
-from ..core.params import Search, build, search_space
-from .replay import ReplaySettings
+from ..core.params import Search, search_space
+from ..core.policy import RunOptions
 from ..progress import clock
 
 DIVERGED_DEG = 90.0  # a log's tilt error when the estimate diverged: as if the filter knew no tilt
@@ -44,7 +44,7 @@ OBJECTIVES = ("median", "mean", "geomean")
 @dataclass
 class TuneSettings:
     estimator: str
-    replay: ReplaySettings  # names = (estimator,); --params and --set as the user gave them
+    replay: RunOptions  # names = (estimator,); --params and --set as the user gave them
     trials: int = 50  # per fit
     folds: int = 5
     objective: str = "median"
@@ -121,8 +121,7 @@ def space_for(settings: TuneSettings) -> dict[str, Search]:
     name = settings.estimator
     space = search_space(ESTIMATORS[name].Params)
     fixed = {field for est, field, _ in map(parse_assignment, settings.replay.assignments) if est == name}
-    chosen = build([name], settings.replay.file_values, settings.replay.assignments,
-                   source=settings.replay.params_source)[name]
+    chosen = settings.replay.user_params()[name]
     if getattr(chosen, "strict", False):
         raise UsageError(f"{name}.strict is on: the paper's filter runs its published values, so there is "
                          "nothing to tune (leave strict off)")
@@ -134,8 +133,7 @@ def space_for(settings: TuneSettings) -> dict[str, Search]:
 
 def start_values(settings: TuneSettings, space: dict[str, Search]) -> dict[str, object]:
     """The searched fields' values before tuning: the defaults, or the --params file's."""
-    chosen = build([settings.estimator], settings.replay.file_values, settings.replay.assignments,
-                   source=settings.replay.params_source)[settings.estimator]
+    chosen = settings.replay.user_params()[settings.estimator]
     return {k: getattr(chosen, k) for k in space}
 
 
@@ -416,8 +414,7 @@ def tuned_toml(result: TuneResult, settings: TuneSettings, command: str) -> str:
     from ..core.params import parse_assignment, to_toml
 
     name = settings.estimator
-    chosen = build([name], settings.replay.file_values, settings.replay.assignments,
-                   source=settings.replay.params_source)[name]
+    chosen = settings.replay.user_params()[name]
     given = set((settings.replay.file_values or {}).get(name, {}))
     given |= {field for est, field, _ in map(parse_assignment, settings.replay.assignments) if est == name}
     given |= set(result.final.best)

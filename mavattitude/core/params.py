@@ -95,13 +95,18 @@ def build(names: list[str], file_values: dict | None = None, assignments: list[s
     return {name: params[name] for name in names}
 
 
+# The autopilot parameters ``log_defaults`` reads (a live session asks its vehicle for them).
+LOG_DEFAULT_PARAMS = ("TRIM_ARSPD_CM", "AIRSPEED_CRUISE")
+
+
 def log_defaults(flight, names: list[str], file_values: dict | None = None,
                  assignments: list[str] = ()) -> tuple[dict, list[str]]:
     """Defaults the log itself supplies, for the estimators in ``names`` and the fields the user
     did not set (in ``file_values`` or ``assignments``): ({estimator: {field: value}}, a note
     per value saying where it came from). Pass the first to ``build(log_values=...)``. Each
     estimator says which (``Estimator.log_defaults``: eq-kf's airspeed from an ArduPlane's
-    cruise airspeed)."""
+    cruise airspeed). ``flight``: a log's, or anything with its ``vehicle`` and ``params`` (a
+    live vehicle's ``policy.FlightFacts``)."""
     from ..estimators import ESTIMATORS
 
     user = {(name, field) for name, table in (file_values or {}).items() for field in table}

@@ -17,16 +17,18 @@ On the autopilot's clock, per clock segment:
 - a compass whose unit is off by a power of 1000 (ArduPilot 4.7's HIGHRES_IMU) is rescaled,
   judged on its first ``MAG_SCALE_SAMPLES`` (a log: on the median of all);
 - the IMU and compass sources are chosen once ``ALIGN_S`` of IMU data is in (every source has
-  shown up by then; ``imu_source`` chooses), and, when a compass is there and the session
-  asked for COMPASS_DEC and COMPASS_AUTODEC, once they have arrived or ``DECLINATION_WAIT_S``
-  more have passed. A log chooses on all of its data: pass the same ``imu_source`` to compare
-  the two;
-- the declination is chosen then too, as a log's is (``declination.choose``: the vehicle's
-  parameters, its first good GPS fix so far, its date, else today's). It stays for the session: when the
-  vehicle has no fix yet, the first good one later gets an event with the model's value there;
-- so is the board trim (``trim.board_trim``, AHRS_TRIM_X/Y, asked for with the declination and
-  waited for as long): scored against the autopilot's attitude, the estimates are turned by it
-  first, as replay turns them, and shown turned.
+  shown up by then; ``imu`` chooses), and, when the session asked the vehicle for the
+  parameters a run's policy reads (``policy.WANTED_PARAMS``), once a declination parameter
+  (with the one that says whether the autopilot computes it) and the board trim have arrived,
+  or ``PARAMS_WAIT_S`` more have passed (a line says what did not come). A log chooses on all
+  of its data: pass the same ``imu`` to compare the two;
+- the run's policy is decided then, as replay decides it on a log (``policy.decide``: the
+  parameters with the vehicle's own defaults, the declination and the board trim), on the
+  vehicle's parameters, identity, first good GPS fix so far and date, else today's. It stays for
+  the session: when the vehicle has no fix yet, the first good one later gets an event with the
+  model's declination there. Scored against the autopilot's attitude, the estimates are turned
+  by the board trim first, as replay turns them, and shown turned;
+- non-finite estimates (a filter fault) are left out of the scores and said at the end, as replay says them.
 
 Memory stays flat however long a session runs: each estimate is scored as it comes
 (``running_metrics``: the final metrics are replay's of the same data, the quantiles within
@@ -46,18 +48,20 @@ from .. import quaternion as quat
 from ..events import Event
 from ..flight import AttitudeSeries
 from ..growing import Growing
-from ..scoring.metrics import AXES, Comparison, compare
+from ..scoring.metrics import AXES, Comparison, compare, non_finite_warning
 from ..readers import IMU_LIMITS, MAG_LIMITS, earth_field_power, pick_imu, pick_mag
 from ..readers.collect import CORRUPT, HELD, ClockTracker
 from ..readers.tlog import MessageDecoder
 from ..scoring.imucheck import rate_not_meaningful
 from ..core.runner import IMU, Chunk, Runner
 from ..scoring.running_metrics import RunningComparison, joined
-from ..trim import TRIM_PARAMS, board_trim, describe, trimmed
+from ..trim import TRIM_PARAMS, describe, trimmed
+from ..core.policy import FlightFacts, RunOptions, RunPolicy, decide
+from ..readers import identify_vehicle
 from .loss import SampleLoss
 
 ALIGN_S = 3.0  # s of IMU data before the sources are chosen
-DECLINATION_WAIT_S = 2.0  # s more of IMU data to wait for the COMPASS_DEC and COMPASS_AUTODEC asked for
+PARAMS_WAIT_S = 2.0  # s more of IMU data to wait for the parameters asked for (policy.WANTED_PARAMS)
 MAG_SCALE_SAMPLES = 5  # compass samples that decide its unit
 HISTORY_S = 60.0  # s of samples, estimates and references kept (at least the rolling window)
 SCORE_EVERY_S = 0.5  # s of estimates between scorings (each one computes errors for every estimator)
@@ -91,30 +95,29 @@ class _Segment:
 
 
 class LiveEstimation:
-    """Estimators ``names`` (with ``params``: name -> dataclass) on a live vehicle's data.
+    """The estimators of ``options`` (a ``policy.RunOptions``; live uses its ``names``,
+    ``reference``: "autopilot" or "truth" (SIMSTATE), ``imu``, ``warmup_s``, the parameters,
+    ``declination_deg``, ``home``, ``use_mag`` and ``trim``) on a live vehicle's data. The run's
+    policy is decided once, as the estimators first start, on what the vehicle sent so far
+    (``policy.decide``, as replay decides it on a log).
 
-    ``declination_deg`` (--declination) and ``home`` (--home, a ``declination.Fix``): see
-    ``declination.choose``. ``reference``: "autopilot" or "truth" (SIMSTATE).
-    ``record_latency``: keep (time_usec, monotonic s when estimated) per IMU sample (a bench:
-    it grows). ``history_s``: s of data kept. ``errors_for_view``: keep each estimator's errors
-    as they are scored, for ``take_errors``."""
+    ``params_asked``: the session asked the vehicle for the parameters a policy reads
+    (``policy.WANTED_PARAMS``): wait a little for them. ``record_latency``: keep (time_usec,
+    monotonic s when estimated) per IMU sample (a bench: it grows). ``history_s``: s of data
+    kept. ``errors_for_view``: keep each estimator's errors as they are scored, for ``take_errors``."""
 
-    def __init__(self, names: list[str], params: dict | None = None, declination_deg: float | None = None,
-                 use_mag: bool = True, imu_source: str | None = None, reference: str = "autopilot",
-                 warmup_s: float = 10.0, record_latency: bool = False, expect_declination: bool = False,
-                 history_s: float = HISTORY_S, errors_for_view: bool = False, home: decl.Fix | None = None,
-                 trim: bool = True):
-        self.names = list(names)
-        self.params = params or {}
-        self.declination_deg = declination_deg
-        self.home = home
-        self.declination: float | None = None  # rad, fixed when the estimators first start
+    def __init__(self, options: RunOptions, record_latency: bool = False, params_asked: bool = False,
+                 history_s: float = HISTORY_S, errors_for_view: bool = False):
+        self.options = options
+        self.names = list(options.names)
+        self.policy: RunPolicy | None = None  # decided when the estimators first start
+        self.declination: float | None = None  # rad, the policy's
         self.declination_choice: decl.Declination | None = None  # the same, with its source
         self.awaiting_fix = False  # chosen without the position a GPS fix would give
-        self.use_mag = use_mag
-        self.imu_choice = imu_source
-        self.reference = reference
-        self.warmup_s = warmup_s
+        self.use_mag = options.use_mag
+        self.imu_choice = options.imu
+        self.reference = options.reference
+        self.warmup_s = options.warmup_s
         self.decoder = MessageDecoder()
         self.clock = ClockTracker()
         self._held: dict[int, tuple] = {}  # arrival -> sample, until the clock says where it goes
@@ -124,14 +127,16 @@ class LiveEstimation:
         self.samples = 0  # IMU samples estimated
         self.record_latency = record_latency
         self.latency: list[tuple[float, float, float]] = []  # (t autopilot s, arrival, estimated) monotonic s
-        self.expect_declination = expect_declination  # COMPASS_DEC and the trim were asked for: wait a little for them
-        self.apply_trim = trim and reference == "autopilot"  # as replay: the trim turns the estimates only against it
-        self.trim: tuple[float, float] | None = None  # rad (roll, pitch), chosen when the estimators first start
+        self.params_asked = params_asked
+        self.apply_trim = options.trim and options.reference == "autopilot"  # as replay: only against the autopilot
+        self.trim: tuple[float, float] | None = None  # rad (roll, pitch): the policy's, when it applies
         self._now = 0.0
         self._warned_imu = False
         self.imu_loss: dict[str, SampleLoss] = {}  # IMU samples lost by the autopilot clock, per stream
         self.history_s = history_s
         self._errors: dict[str, list] | None = {n: [] for n in self.names} if errors_for_view else None
+        self.non_finite: dict[str, int] = {}  # estimator -> attitude samples not finite (a filter fault), until said
+        self._first_t: float | None = None  # s, the first estimated sample
 
     @property
     def samples_lost(self) -> SampleLoss | None:
@@ -266,6 +271,11 @@ class LiveEstimation:
                 old.scored_at = math.inf
         if chunk is not None:
             self.samples += len(chunk.t)
+            self._first_t = float(chunk.t[0]) if self._first_t is None else self._first_t
+            for name, q in chunk.q.items():
+                bad = int(np.count_nonzero(~np.isfinite(q).all(axis=1)))
+                if bad:
+                    self.non_finite[name] = self.non_finite.get(name, 0) + bad
             if self.record_latency:
                 estimated = time.monotonic()
                 wall = seg.wall[seg.imu_key][done:done + len(chunk.t)]
@@ -279,6 +289,9 @@ class LiveEstimation:
                 self._forget(seg, latest)
         if final:
             self._score(seg)
+            self.events += [Event(self._first_t, "warn", non_finite_warning(name, bad))
+                            for name, bad in self.non_finite.items()]  # as replay says it, once
+            self.non_finite = {}
         if chunk is not None and self.trim is not None:  # shown as scored: the vehicle's attitude
             chunk = Chunk(chunk.t, {n: quat.trimmed(q, *self.trim) for n, q in chunk.q.items()}, chunk.diagnostics,
                           chunk.in_air)
@@ -292,13 +305,7 @@ class LiveEstimation:
         span = max(s.column(0)[-1] for s in seg.imu.values()) - first
         if span < ALIGN_S:
             return False  # let every source (and the compass, and COMPASS_DEC) show up first
-        asked = ("COMPASS_DEC", "COMPASS_AUTODEC")  # both: COMPASS_DEC alone is read as set by hand
-        waiting = span < ALIGN_S + DECLINATION_WAIT_S
-        if (self.expect_declination and self.declination_deg is None and seg.mag and self.use_mag
-                and not all(name in self.decoder.params for name in asked) and waiting):
-            return False
-        trim_missing = not all(name in self.decoder.params for name in TRIM_PARAMS)
-        if self.expect_declination and self.apply_trim and trim_missing and waiting:
+        if span < ALIGN_S + PARAMS_WAIT_S and self._params_missing(seg):
             return False
         if self.imu_choice is not None:
             if self.imu_choice not in seg.imu:
@@ -311,36 +318,54 @@ class LiveEstimation:
         else:
             seg.imu_key = pick_imu({k: s.n for k, s in seg.imu.items()})
         seg.mag_key = pick_mag(list(seg.mag), seg.imu_key) if self.use_mag else None
-        if self.declination is None:
-            self._choose_declination(first + span, bool(seg.mag_key))
-            self._choose_trim(first + span, trim_missing)
-        seg.runner = Runner(self.names, self.params, self.declination, self.use_mag, seg.imu_key, seg.mag_key,
+        if self.policy is None:
+            self._decide(first + span, bool(seg.mag_key))
+        seg.runner = Runner(self.names, self.policy.params, self.declination, self.use_mag, seg.imu_key, seg.mag_key,
                             keep_history=False)  # the view takes diagnostics from each step
         return True
 
-    def _choose_declination(self, t: float, has_mag: bool) -> None:
-        """The session's declination (``declination.choose``) on what the vehicle sent so far."""
+    def _params_missing(self, seg: _Segment) -> list[str]:
+        """What the policy still waits for from the vehicle, when the session asked for it: a
+        declination parameter with the one that says whether the autopilot computes it (any of
+        ``DECLINATION_PARAMS``; unless --declination, or no compass), and the board trim."""
+        if not self.params_asked:
+            return []
+        have = self.decoder.params
+        missing = []
+        if (self.options.declination_deg is None and seg.mag and self.use_mag
+                and not any(name in have and auto in have for name, _, auto, _ in decl.DECLINATION_PARAMS)):
+            half = [auto if name in have else name for name, _, auto, _ in decl.DECLINATION_PARAMS
+                    if name in have or auto in have]  # the other of a pair that came in part
+            missing.append(half[0] if half else "a declination parameter ("
+                           + ", ".join(name for name, _, _, _ in decl.DECLINATION_PARAMS) + ")")
+        if self.apply_trim and not all(name in have for name in TRIM_PARAMS):
+            missing.append("/".join(TRIM_PARAMS))
+        return missing
+
+    def _decide(self, t: float, has_mag: bool) -> None:
+        """The session's policy (``policy.decide``) on what the vehicle sent so far: its
+        parameters, its identity, its first good GPS fix and its date (else today's)."""
+        missing = self._params_missing(self.seg)
+        if missing:
+            self.events.append(Event(t, "info", f"no answer from the vehicle within {PARAMS_WAIT_S:g} s for "
+                                                f"{'; '.join(missing)}: going on as a log without them"))
         gps = self.seg.gps.view()  # t, lat, lon, alt, vn, ve, vd, fix, sats, h_acc, v_acc, arrival
         good = np.flatnonzero(decl.is_good_fix(gps[:, 1], gps[:, 2], gps[:, 7], gps[:, 8], gps[:, 9]))
         fix = decl.Fix(*map(float, gps[good[0], 1:4])) if len(good) else None
-        chosen = decl.choose(self.decoder.params, fix, self._date(), self.declination_deg, self.home, where="vehicle")
+        facts = FlightFacts(dict(self.decoder.params), identify_vehicle(self.decoder.texts)[0], fix, self._date(),
+                            where="vehicle")
+        policy = self.policy = decide(self.options, facts)
+        chosen = policy.declination
         self.declination, self.declination_choice = chosen.rad, chosen
         self.awaiting_fix = chosen.kind in ("held", "none")
         self.events.append(Event(t, "info", f"declination {chosen.text()}"))
         if has_mag and not chosen.known:
             self.events.append(Event(t, "warn", decl.NO_DECLINATION))
-
-    def _choose_trim(self, t: float, missing: bool) -> None:
-        """The session's board trim, on the parameters the vehicle sent so far (replay: the log's)."""
-        if not self.apply_trim:
-            return
-        self.trim = board_trim(self.decoder.params)
+        self.events += [Event(t, "info", note) for note in policy.notes]
+        self.trim = policy.trim_for(self.apply_trim)
         if self.trim is not None:
             self.events.append(Event(t, "info", f"board trim {describe(self.trim)} (AHRS_TRIM_X/Y): the estimates are "
                                                 "turned by it, as the autopilot turns its own attitude"))
-        elif missing and self.expect_declination:
-            self.events.append(Event(t, "info", "no AHRS_TRIM_X/Y from the vehicle: no board trim applied "
-                                                "(an ArduPilot vehicle with a trim scores off by it)"))
 
     def _trimmed(self, series: AttitudeSeries) -> AttitudeSeries:
         return series if self.trim is None else trimmed(series, self.trim)

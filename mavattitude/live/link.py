@@ -446,19 +446,13 @@ class RateRequester:
                               f"{max(1, int(round(hz)))} Hz (REQUEST_DATA_STREAM)")
 
 
-def request_identity(conn, target: tuple[int, int]) -> None:
-    """Ask for AUTOPILOT_VERSION (firmware), the declination parameters with the ones that
-    say whether the autopilot computes it (``declination.DECLINATION_PARAMS``) and the board
-    trim (``trim.TRIM_PARAMS``); a vehicle answers those it has."""
-    from ..declination import DECLINATION_PARAMS
-    from ..trim import TRIM_PARAMS
-
+def request_identity(conn, target: tuple[int, int], params: tuple[str, ...] = ()) -> None:
+    """Ask for AUTOPILOT_VERSION (firmware) and, by PARAM_REQUEST_READ, the parameters
+    ``params`` (a run's policy reads them: ``core.policy.WANTED_PARAMS``), in that order; a
+    vehicle answers those it has."""
     conn.mav.command_long_send(*target, mavlink2.MAV_CMD_REQUEST_MESSAGE, 0,
                                mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 0, 0, 0, 0, 0, 0)
-    for name, _, auto_name, _ in DECLINATION_PARAMS:
-        conn.mav.param_request_read_send(*target, name.encode(), -1)
-        conn.mav.param_request_read_send(*target, auto_name.encode(), -1)
-    for name in TRIM_PARAMS:
+    for name in params:
         conn.mav.param_request_read_send(*target, name.encode(), -1)
 
 

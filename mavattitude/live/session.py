@@ -20,7 +20,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 
-from ..declination import Fix
+from ..core.policy import WANTED_PARAMS, RunOptions
 from ..errors import InputError
 from ..events import Event
 from ..scoring.imucheck import COARSE_RATE_HZ
@@ -64,23 +64,17 @@ def default_record_path() -> str:
 
 @dataclass
 class LiveOptions:
+    """A session's link and what it estimates (``run``: the options a replay takes too; the
+    session decides the run's policy on the vehicle's parameters, ``policy.decide``)."""
     url: str = "udpin:0.0.0.0:14550"
     baud: int = 115200
     sysid: int | None = None  # the vehicle: default the first autopilot heard
-    names: list[str] = field(default_factory=lambda: ["mahony"])
-    params: dict | None = None
+    run: RunOptions = field(default_factory=lambda: RunOptions(("mahony",)))
     imu_rate: float = 50.0  # Hz asked of the vehicle for its IMU message (ATTITUDE: up to 50 Hz)
-    request: bool = True  # ask for rates (False: listen only)
-    imu_source: str | None = None  # e.g. RAW_IMU, SCALED_IMU2 (default: the best that arrives)
+    request: bool = True  # ask for rates and the policy's parameters (False: listen only)
     window: float = 10.0  # s of the rolling metrics
     timeout: float = 5.0  # s without packets: link lost
     record: str | None = None  # .tlog path (None: no recording)
-    warmup: float = 10.0
-    declination_deg: float | None = None  # --declination (the estimators get radians)
-    home: Fix | None = None  # --home
-    reference: str = "autopilot"
-    use_mag: bool = True
-    trim: bool = True  # turn the estimates by the vehicle's board trim (AHRS_TRIM_X/Y) before scoring, as replay
     duration: float | None = None  # s of wall time, then stop
     sink: Sink | None = None  # where the Rerun view goes (sink.plan_sink), if anywhere
     record_latency: bool = False
@@ -121,7 +115,7 @@ def _peak_rss_mb() -> float | None:
 
 
 def _wanted_rates(opts: LiveOptions) -> dict[str, float]:
-    imu = opts.imu_source if opts.imu_source in IMU_MESSAGES else "RAW_IMU"
+    imu = opts.run.imu if opts.run.imu in IMU_MESSAGES else "RAW_IMU"
     return {imu: opts.imu_rate, "ATTITUDE": min(opts.imu_rate, 50.0), "GPS_RAW_INT": 5.0,
             "SCALED_PRESSURE": min(opts.imu_rate, 10.0)}
 
@@ -193,10 +187,8 @@ class _Session:
         self.datagrams = is_datagram_link(self.conn)  # each read a whole datagram (UDP)
         self.recorder = TlogRecorder(opts.record) if opts.record else None
         self.monitor = LinkMonitor(timeout_s=opts.timeout)
-        self.est = LiveEstimation(opts.names, opts.params, opts.declination_deg, opts.use_mag, opts.imu_source,
-                                  opts.reference, opts.warmup, record_latency=opts.record_latency,
-                                  expect_declination=opts.request, history_s=max(HISTORY_S, 2 * opts.window),
-                                  errors_for_view=bool(opts.sink), home=opts.home, trim=opts.trim)
+        self.est = LiveEstimation(opts.run, record_latency=opts.record_latency, params_asked=opts.request,
+                                  history_s=max(HISTORY_S, 2 * opts.window), errors_for_view=bool(opts.sink))
         self.rec = self.live_view = None
         if opts.sink:
             from ..view.sink import open_sink
@@ -309,11 +301,11 @@ class _Session:
         self._ask(now)
 
     def _ask(self, now: float) -> None:
-        """Ask for the firmware, COMPASS_DEC and the stream rates (at the start, and again
+        """Ask for the firmware, the parameters a run's policy reads and the stream rates (at the start, and again
         after a reboot: rates set by SET_MESSAGE_INTERVAL do not survive one)."""
         if not self.opts.request:
             return
-        request_identity(self.conn, self.vehicle)
+        request_identity(self.conn, self.vehicle, WANTED_PARAMS)
         self.requester = RateRequester(self.conn, self.vehicle, _wanted_rates(self.opts))
         self.requester.start(now)
         self.requested_at = now

@@ -72,6 +72,11 @@ class Comparison:
     broad: dict | None = None
 
 
+def non_finite_warning(name: str, bad: int) -> str:
+    """What replay and live say of an estimator's non-finite attitude samples."""
+    return f"{name}: {bad} non-finite attitude samples (a filter fault; they are left out of the metrics)"
+
+
 def compare(reference: AttitudeSeries, estimate: AttitudeSeries, warmup_s: float = 10.0,
             align_yaw: bool = False, name: str | None = None, restarts=(),
             max_gap_s: float = np.inf, exclude=()) -> Comparison:

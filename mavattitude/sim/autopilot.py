@@ -12,7 +12,8 @@ sensor's own rate. Defaults are modest, as a vehicle's stream-rate parameters us
   the message, 0 restores its default), answered with COMMAND_ACK;
 - REQUEST_DATA_STREAM (ArduPilot's stream groups, ``STREAMS``), no answer (as ArduPilot);
 - MAV_CMD_REQUEST_MESSAGE for AUTOPILOT_VERSION, PARAM_REQUEST_READ and PARAM_REQUEST_LIST
-  (COMPASS_DEC, COMPASS_OFS_*).
+  (``SimFlight.log_params``: COMPASS_DEC, COMPASS_OFS_*, and a test's own); a parameter the
+  flight has not goes unanswered, as on a real vehicle.
 
 SIMSTATE (truth) goes out with ATTITUDE, at its rate, as the .tlog writer pairs them. The
 firmware banner (STATUSTEXT) and the parameters go out at the start and again when a ground
@@ -63,13 +64,16 @@ class SimAutopilot:
     """Sends ``sim`` over a pymavlink connection ``conn`` and answers its requests.
 
     ``rates`` overrides ``DEFAULT_RATES_HZ`` (0 = off). ``record_imu_times`` keeps the send time
-    of every RAW_IMU (for latency measurements). ``sysid``: its MAVLink system id. The MAVLink packer (and its sequence
+    of every RAW_IMU (for latency measurements). ``sysid``: its MAVLink system id.
+    ``announce_params``: send every parameter at the start and to a new ground station (False:
+    only those asked for, as a real ArduPilot). The MAVLink packer (and its sequence
     counter) lives as long as the object, so consecutive ``serve`` calls continue the stream.
     """
 
     def __init__(self, sim, conn, rates: dict[str, float] | None = None, record_imu_times: bool = False,
-                 sysid: int = SYSID):
+                 sysid: int = SYSID, announce_params: bool = True):
         self.sim = sim
+        self.announce_params = announce_params
         self.conn = conn
         self.sysid = sysid
         self.mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=COMPID)
@@ -110,10 +114,11 @@ class SimAutopilot:
         return True
 
     def send_identity(self) -> None:
-        """The firmware STATUSTEXT and the parameters, as at boot."""
+        """The firmware STATUSTEXT and the parameters (``announce_params``), as at boot."""
         text = self.sim.firmware[:STATUSTEXT_MAX].encode()
         self._send("STATUSTEXT", mavlink2.MAVLink_statustext_message(mavlink2.MAV_SEVERITY_INFO, text).pack(self.mav))
-        self.send_params()
+        if self.announce_params:
+            self.send_params()
 
     def send_params(self, only: str | None = None) -> None:
         params = self.sim.log_params
@@ -151,6 +156,7 @@ class SimAutopilot:
                 self.send_params()
             elif name == "PARAM_REQUEST_READ":
                 self.send_params(only=msg.param_id)
+                self.stats.requests.append(f"PARAM_REQUEST_READ {msg.param_id}")
 
     def _command(self, msg) -> None:
         result = mavlink2.MAV_RESULT_ACCEPTED

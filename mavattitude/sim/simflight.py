@@ -48,7 +48,7 @@ class SimFlight:
     # With a DCM primary (SensorParams.dcm_bias): the EKF's estimate, logged beside
     # ``autopilot_q`` (then DCM's) as EKF1 and AHR2 in a .bin, AHRS2 in a .tlog; else None
     ekf_q: np.ndarray | None = None
-    extra_params: dict[str, float] = field(default_factory=dict)  # more parameters for the logs (tests)
+    extra_params: dict[str, float | None] = field(default_factory=dict)  # more parameters for the logs (tests); None: leave one out
 
     @property
     def t(self) -> np.ndarray:
@@ -66,9 +66,10 @@ class SimFlight:
 
     @property
     def log_params(self) -> dict[str, float]:
-        """Autopilot parameters the logs carry: declination (rad) and compass offsets (mGauss)."""
+        """Autopilot parameters the logs carry: declination (rad) and compass offsets (mGauss),
+        and ``extra_params``."""
         offsets_mgauss = self.mag.offsets * 1e7  # tesla -> mGauss
-        return {
+        params = {
             "COMPASS_DEC": self.declination_rad,
             "COMPASS_OFS_X": float(offsets_mgauss[0]),
             "COMPASS_OFS_Y": float(offsets_mgauss[1]),
@@ -76,6 +77,7 @@ class SimFlight:
             **({"AHRS_EKF_USE": 0.0} if self.ekf_q is not None else {}),  # DCM in use, the EKF beside it
             **self.extra_params,
         }
+        return {name: value for name, value in params.items() if value is not None}
 
 
 def simulate(scenario: str, duration: float, seed: int = 0, *, imu_rate: float = 100.0,
