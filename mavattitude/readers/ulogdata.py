@@ -59,6 +59,8 @@ class Topics:
     msg_info_dict: dict[str, object] = field(default_factory=dict)
     dropouts: list[Dropout] = field(default_factory=list)
     file_corruption: bool = False
+    # the logged text lines, tagged or not (pyulog's MessageLogging / MessageLoggingTagged)
+    logged_messages: list = field(default_factory=list)
 
 
 def read_topics(data: bytes, framing: Framing, wanted: list[str]) -> Topics:
@@ -88,6 +90,10 @@ def read_topics(data: bytes, framing: Framing, wanted: list[str]) -> Topics:
             name = payload[3:].decode("utf-8", "ignore")
             if name in wanted:
                 subscribed[msg_id] = (name, multi_id)
+        elif kind in (ord("L"), ord("C")):  # a logged line: parsed by pyulog's own classes
+            from pyulog import ULog
+            out.logged_messages.append((ULog.MessageLogging if kind == ord("L") else ULog.MessageLoggingTagged)(
+                payload, None))
         elif kind == ord("O"):
             out.dropouts.append(Dropout(struct.unpack_from("<H", payload)[0]))
         elif kind == ord("D") and struct.unpack_from("<H", payload)[0] in subscribed:
