@@ -170,7 +170,7 @@ def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
                     segments=segments, segment_index=segment, notes=notes, warnings=warnings, utc_s=decoded.utc_s)
     unusable = fill_series(flight, col, segment)
     flight.vehicle, flight.firmware = decoded.identity or identify_vehicle(decoded.texts)
-    fill_events(flight, col, segment)  # (after the vehicle: it names a .bin's modes)
+    fill_events(flight, col, segment, flight.vehicle or decoded.build)  # (the vehicle names a .bin's modes)
     if not flight.imu and unusable:
         raise InputError(path, "IMU data present but none usable: " + "; ".join(unusable))
     if not flight.imu:

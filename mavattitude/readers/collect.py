@@ -358,3 +358,4 @@ class Decoded:
     warnings: list[str] = field(default_factory=list)  # data lost to damage: the user must hear of it
     identity: tuple[str, str] | None = None  # (vehicle, firmware) when the format says them (ULog)
     utc_s: float | None = None  # UNIX time (s, UTC) of the first valid GPS or system time (``flight.Flight``)
+    build: str | None = None  # a .bin's vehicle by its VER record's build type, where no text names it

@@ -43,7 +43,7 @@ import numpy as np
 from ..errors import InputError, reraise_interrupt
 from .collect import Collector, Decoded, first_utc, gps_to_unix
 from .dfrecords import decode, open_log, scan_log
-from .logevents import ARMED_EVENTS, ERROR, INFO, err_text
+from .logevents import ARMED_EVENTS, BUILD_TYPES, ERROR, INFO, err_text
 
 MILLIGAUSS_TO_TESLA = 1e-7  # 1 mG = 1e-3 G = 1e-7 T
 DEG = math.pi / 180.0
@@ -119,7 +119,8 @@ def _decoded(records, order: dict, counts: dict, **notes) -> Decoded:
     parm, msg, ver = (texts.get(name, {}) for name in TEXT_TYPES)
     params = {name: float(value) for name, value in zip(parm.get("Name", []), parm.get("Value", []))}
     texts = list(msg.get("Message", [])) + list(ver.get("FWS", []))
-    return Decoded(col, params, texts, counts, utc_s=utc_s, **notes)
+    build = BUILD_TYPES.get(int(ver["BU"][0])) if "BU" in ver and len(ver["BU"]) else None
+    return Decoded(col, params, texts, counts, utc_s=utc_s, build=build, **notes)
 
 
 def damage_notes(scan, size: int) -> list[str]:

@@ -24,6 +24,8 @@ from .collect import Collector
 
 INFO, ERROR = 6, 3  # MAVLink severities (MAV_SEVERITY)
 ARMED_EVENTS = {10: 1, 11: 0}  # ArduPilot's LogEvent: ARMED, DISARMED
+# ArduPilot's APM_BUILD types (a VER record's BU): the vehicle where no text names it
+BUILD_TYPES = {1: "ArduRover", 2: "ArduCopter", 3: "ArduPlane", 4: "AntennaTracker", 7: "ArduSub"}
 # ArduPilot's vehicles as MAVLink types, for pymavlink's mode tables
 MAV_TYPES = {"ArduCopter": 2, "ArduPlane": 1, "ArduRover": 10, "ArduSub": 12, "AntennaTracker": 5}
 # ArduPilot's LogErrorSubsystem (AP_Logger.h): the ERR message's Subsys; ECode 0 is "resolved"
@@ -61,10 +63,10 @@ def ardupilot_mode_names(vehicle: str | None) -> dict[int, str]:
     return mavutil.mode_mapping_bynumber(MAV_TYPES.get(vehicle or "", -1)) or {}
 
 
-def fill_events(flight: Flight, col: Collector, segment: int) -> None:
-    """The flight's modes, arming and messages from the collector's event rows in ``segment``
-    (after ``flight.vehicle`` is known: it names a .bin's modes)."""
-    names = ardupilot_mode_names(flight.vehicle)
+def fill_events(flight: Flight, col: Collector, segment: int, vehicle: str | None) -> None:
+    """The flight's modes, arming and messages from the collector's event rows in ``segment``;
+    ``vehicle`` ("ArduCopter") names a .bin's mode numbers."""
+    names = ardupilot_mode_names(vehicle)
     for attr, kind in (("modes", "mode"), ("arming", "armed"), ("messages", "text")):
         rows = [(key, *col.events(kind, key, segment)) for key in col.event_keys(kind)]
         rows = [r for r in rows if len(r[1])]
