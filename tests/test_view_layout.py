@@ -173,3 +173,33 @@ def test_a_log_that_ends_tumbling_opens_before_the_tumble():
     burst = ((t > 56.5) & (t < 57.5)) | ((t > 58.0) & (t < 58.8))  # through 65° twice, level at the end
     q = quat.from_euler(np.where(burst, np.radians(100.0), 0.0), np.zeros_like(t), np.zeros_like(t))
     assert view.upset_runs(t, q) == [(t[burst][0], t[-1])]
+
+
+def test_the_logs_modes_arming_and_lines_in_a_band_and_the_events_tab(tmp_path):
+    from mavattitude.flight import LabelSeries
+    from mavattitude.view.flightlog import MAX_NAMED_LINES, flight_events
+
+    result = make_replay(duration=30.0)
+    fl = result.flight
+    fl.modes = LabelSeries("MODE", np.array([30.0, 40.0, 50.0]), np.array([0, 5, 0]), ["MANUAL", "LOITER", "MANUAL"])
+    fl.arming = LabelSeries("EV", np.array([35.0, 55.0]), np.array([1, 0]), ["armed", "disarmed"])
+    n = MAX_NAMED_LINES + 5
+    fl.messages = LabelSeries("MSG+ERR", 30.0 + np.arange(n) * 0.5, np.array([3] + [6] * (n - 1)),
+                              ["ERR: CRASH_CHECK 1"] + [f"line {i}" for i in range(1, n)])
+    paths, bp = _paths(result, tmp_path)
+    # one bar entity per mode (MANUAL's two spans share one), the armed bar, a dot per line up to the cap
+    assert {p for p in paths if p.startswith("log/modes/")} == {"log/modes/00", "log/modes/01"}
+    assert "log/armed" in paths
+    assert len({p for p in paths if p.startswith("log/lines/")}) == MAX_NAMED_LINES + 1  # the rest share one
+    band = [v for v in _views(bp.root_container) if "flight modes" in str(v.name)]
+    assert len(band) == 1 and any("/log/**" in str(r) for r in band[0].contents)
+    legend = next(v for v in _views(bp.root_container) if str(v.name) == "legend")
+    assert any("/log/modes/**" in str(r) for r in legend.contents)
+    events = flight_events(fl)
+    assert [e.text for e in events[:3]] == ["mode MANUAL (log)", "mode LOITER (log)", "mode MANUAL (log)"]
+    assert next(e for e in events if "CRASH_CHECK" in e.text).level == "error"
+
+
+def test_no_band_without_the_logs_events(tmp_path):
+    _, bp = _paths(make_replay(duration=30.0), tmp_path)
+    assert not [v for v in _views(bp.root_container) if "flight modes" in str(v.name)]

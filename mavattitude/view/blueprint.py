@@ -11,6 +11,7 @@ import rerun.blueprint as rrb
 from ..metrics import AXES
 from .style import *  # noqa: F403
 from .style import _part
+from .flightlog import BAND, BAND_RANGE
 
 # ---------------------------------------------------------------- blueprint
 
@@ -48,7 +49,7 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
                    diagnostics: dict[str, Sequence[str]] | None = None, has_phase: bool = False,
                    has_track: bool = False, live_window: float | None = None, attitude_range_deg=None,
                    diagnostic_ranges: dict[str, dict[str, tuple[float, float]]] | None = None,
-                   scored: Sequence[str] | None = None) -> rrb.Blueprint:
+                   scored: Sequence[str] | None = None, log_band: bool = False) -> rrb.Blueprint:
     """The layout: per-axis attitude and error plots on the left, the 3D attitude boxes top
     right, map / summary / events in tabs below it.
 
@@ -67,6 +68,8 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
     ``has_track``: a "track" tab, the GPS and estimated tracks in 3D.
     ``live_window``: a live session's "link" tab (its first): the rolling MAE over that many
     seconds (``rolling/<axis>/<s>``) and the link's arrival rates and losses (``link/...``).
+    ``log_band``: a band plot above the time plots with the log's own modes, arming and text
+    lines (``flightlog``); the legend names the modes' colours.
 
     One legend names every colour, in a narrow plot of its own between the time plots and the
     3D view (it covers no data); the reference is the thick line of the value plots, and the
@@ -109,8 +112,14 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
         ))
     # The legend has a plot of its own beside the others: the roll lines of every series on a
     # y range no line reaches, so it names every colour and covers no data.
+    band = []
+    if log_band:
+        band = [rrb.TimeSeriesView(origin="/", name="the log's flight modes (bars; hover: name), armed, its lines (◆)",
+                                   axis_x=link, contents=[f"+ /{BAND}/**"], plot_legend=rrb.PlotLegend(visible=False),
+                                   axis_y=rrb.ScalarAxis(range=BAND_RANGE, zoom_lock=True))]
     legend = rrb.TimeSeriesView(origin="/", name="legend", axis_x=link,
-                                contents=_contents(series, lambda n: attitude_path(AXES[0], n)),
+                                contents=_contents(series, lambda n: attitude_path(AXES[0], n))
+                                + ([f"+ /{BAND}/modes/**", f"+ /{BAND}/armed"] if log_band else []),
                                 axis_y=rrb.ScalarAxis(range=(LEGEND_Y, LEGEND_Y + 1.0), zoom_lock=True),
                                 plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True))
     span = SLOT_SPACING * (min(n_slots, SLOTS_PER_ROW) - 1)
@@ -152,7 +161,8 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
     # the tabs (summary table, events, diagnostics) as tall as the boxes: the table shows whole
     right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[1, 1])
     return rrb.Blueprint(
-        rrb.Horizontal(rrb.Vertical(*rows), legend, right, column_shares=[14, 3, 9]),
+        rrb.Horizontal(rrb.Vertical(*band, *rows, row_shares=[1] * len(band) + [4] * len(rows)), legend, right,
+                       column_shares=[14, 3, 9]),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="collapsed", timeline=TIMELINE,

@@ -20,6 +20,7 @@ from . import ranges
 from .blueprint import map_zoom_for, send_blueprint
 from .columns import *  # noqa: F403
 from .columns import _gps_fix
+from .flightlog import flight_events, has_band, log_flight_band
 from .marks import log_event_markers, log_events, log_spans
 from .style import *  # noqa: F403
 
@@ -227,7 +228,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
                        diagnostic_ranges=_diagnostic_ranges(diagnostics, imu_t, span),
                        has_gps=has_gps, map_zoom=map_zoom_for(gps_ll[:, 0], gps_ll[:, 1]) if has_gps else None,
                        time_span=span, diagnostics={n: list(d) for n, d in diagnostics.items()},
-                       has_phase=result.phase is not None,
+                       has_phase=result.phase is not None, log_band=has_band(fl),
                        has_track=has_gps and bool(estimated_tracks(result))
                        and result.aiding is not None and result.aiding.origin is not None)
 
@@ -266,7 +267,8 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
         log_tracks(rec, result, colors)
     rec.log("summary", rr.TextDocument(summary_markdown(result), media_type="text/markdown"),
             static=True)
-    log_events(rec, list(result.events) + _summary_events(result, b))
+    log_events(rec, list(result.events) + flight_events(fl) + _summary_events(result, b))
+    log_flight_band(rec, fl)
     att_top = {axis: hi - 0.04 * (hi - lo) for axis, (lo, hi) in att_ranges.items()}
     err_top = {axis: 0.92 * r for axis, r in err_ranges.items()}
     spans = _data_spans(result)
