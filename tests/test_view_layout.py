@@ -203,3 +203,26 @@ def test_the_logs_modes_arming_and_lines_in_a_band_and_the_events_tab(tmp_path):
 def test_no_band_without_the_logs_events(tmp_path):
     _, bp = _paths(make_replay(duration=30.0), tmp_path)
     assert not [v for v in _views(bp.root_container) if "flight modes" in str(v.name)]
+
+
+def test_accel_state_codes_as_named_spans():
+    sent = {}
+
+    class Rec:
+        def log(self, path, entity, **k):
+            sent.setdefault(path, {})["style"] = entity
+
+        def send_columns(self, path, indexes, columns):
+            sent.setdefault(path, {})["n"] = sum(len(c.as_arrow_array()) for c in columns)
+
+    t = np.arange(0.0, 10.0, 0.01)  # 100 Hz
+    codes = np.zeros(len(t), np.int8)
+    codes[100:150] = 2  # one run
+    codes[300:302] = 1
+    codes[305:307] = 1  # two runs 0.03 s apart: one bar
+    codes[800:810] = 1  # another bar
+    view.log_state_spans(Rec(), "ncs-eskf", t, codes, ("used", "skipped", "down-weighted"))
+    root = view.series_root("ncs-eskf")
+    assert set(sent) == {f"{root}/diagnostics/accel_states/1", f"{root}/diagnostics/accel_states/2"}
+    assert sent[f"{root}/diagnostics/accel_states/1"]["n"] == 2 * 3  # two bars, three points each
+    assert sent[f"{root}/diagnostics/accel_states/2"]["n"] == 3

@@ -187,7 +187,7 @@ def _diagnostics_tab(name: str, keys: Sequence[str], link, ranges: dict[str, tup
         plots.append(rrb.TimeSeriesView(
             origin="/", name=DIAGNOSTIC_TITLES.get(group, group), axis_x=link,
             contents=[f"+ /{series_root(name)}", f"+ /{series_root(name)}/diagnostics/{_part(group)}/**"],
-            plot_legend=rrb.PlotLegend(corner="RightTop", visible=any(parts)), **extra))
+            plot_legend=rrb.PlotLegend(corner="RightTop", visible=any(parts) or group == STATE_GROUP), **extra))
     n = DIAGNOSTIC_PLOTS_PER_PAGE
     pages = [rrb.Grid(*plots[i:i + n], grid_columns=2 if len(plots[i:i + n]) > 1 else 1,
                       name=name if len(plots) <= n else f"{name} {i // n + 1}")
