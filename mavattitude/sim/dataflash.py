@@ -137,8 +137,8 @@ SIM = LogFormat(75, "SIM", "QccCfLLffff", "TimeUS,Roll,Pitch,Yaw,Alt,Lat,Lng,Q1,
            "sddhmDU????", "FBBB0GG????")
 IMT = LogFormat(204, "IMT", "QBfffffffff", "TimeUS,I,DelT,DelvT,DelaT,DelAX,DelAY,DelAZ,DelVX,DelVY,DelVZ",
            "s#sssrrrnnn", "F-000000000")
-MODE = LogFormat(86, "MODE", "QMBB", "TimeUS,Mode,ModeNum,Rsn", "s---", "F---")
-EV = LogFormat(87, "EV", "QB", "TimeUS,Id", "s-", "F-")
+MODE = LogFormat(117, "MODE", "QMBB", "TimeUS,Mode,ModeNum,Rsn", "s---", "F---")
+EV = LogFormat(180, "EV", "QB", "TimeUS,Id", "s-", "F-")
 FORMATS = (FMT, UNIT, FMTU, MULT, PARM, MSG, VER, IMU, IMT, MAG, GPS, GPA, BARO, ATT, SIM, MODE, EV)
 # With a DCM primary (``SimFlight.ekf_q``): the EKF beside it (ArduCopter 3.4's EKF1 layout) and the
 # secondary AHR2, which is the EKF while DCM is in use
