@@ -57,11 +57,15 @@ def log_evaluation(rec: rr.RecordingStream, rows: Sequence[LogRow], names: Seque
                 rrb.TimeSeriesView(origin="/", name="tilt error per log (deg; x: the log's number in the logs tab)",
                                    contents=[f"+ /{series_root(n)}/tilt" for n in names],
                                    axis_y=rrb.ScalarAxis(range=(0.0, top)),
+                                   axis_x=rrb.TimeAxis(view_range=rr.TimeRange(  # every log, none on an edge
+                                       start=rrb.TimeRangeBoundary.absolute(seq=-1),
+                                       end=rrb.TimeRangeBoundary.absolute(seq=len(rows)))),
                                    plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True)),
                 rrb.TextLogView(origin="logs", name="logs: number, scores, the command for its own recording"),
                 row_shares=[3, 2]),
             rrb.TextDocumentView(origin="report", name="report"),
             column_shares=[3, 2]),
+        rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="collapsed", timeline=TIMELINE)), make_active=True, make_default=True)
     rec.log("report", rr.TextDocument(report_md, media_type="text/markdown"), static=True)
     for name in names:
