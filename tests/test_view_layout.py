@@ -191,9 +191,9 @@ def test_the_logs_modes_arming_and_lines_in_a_band_and_the_events_tab(tmp_path):
     assert {p for p in paths if p.startswith("log/modes/")} == {"log/modes/00", "log/modes/01"}
     assert "log/armed" in paths
     assert len({p for p in paths if p.startswith("log/lines/")}) == MAX_NAMED_LINES + 1  # the rest share one
-    band = [v for v in _views(bp.root_container) if "flight modes" in str(v.name)]
-    assert len(band) == 1 and any("/log/**" in str(r) for r in band[0].contents)
-    legend = next(v for v in _views(bp.root_container) if str(v.name) == "legend")
+    band = [v for v in _views(bp.root_container) if str(v.name).startswith("the log's")]
+    assert len(band) == 2 and all(any("/log/**" in str(r) for r in v.contents) for v in band)  # atop each column
+    legend = next(v for v in _views(bp.root_container) if str(v.name) == "flight modes")
     assert any("/log/modes/**" in str(r) for r in legend.contents)
     events = flight_events(fl)
     assert [e.text for e in events[:3]] == ["mode MANUAL (log)", "mode LOITER (log)", "mode MANUAL (log)"]
@@ -202,7 +202,7 @@ def test_the_logs_modes_arming_and_lines_in_a_band_and_the_events_tab(tmp_path):
 
 def test_no_band_without_the_logs_events(tmp_path):
     _, bp = _paths(make_replay(duration=30.0), tmp_path)
-    assert not [v for v in _views(bp.root_container) if "flight modes" in str(v.name)]
+    assert not [v for v in _views(bp.root_container) if str(v.name).startswith(("the log's", "flight modes"))]
 
 
 def test_accel_state_codes_as_named_spans():
