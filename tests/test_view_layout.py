@@ -226,3 +226,9 @@ def test_accel_state_codes_as_named_spans():
     assert set(sent) == {f"{root}/diagnostics/accel_states/1", f"{root}/diagnostics/accel_states/2"}
     assert sent[f"{root}/diagnostics/accel_states/1"]["n"] == 2 * 3  # two bars, three points each
     assert sent[f"{root}/diagnostics/accel_states/2"]["n"] == 3
+
+
+def test_state_labels_fit_a_legend():
+    assert view.state_label(1, "skipped") == "1 skipped"
+    label = view.state_label(4, "used the low-passed reading (the closer of the two; accel_tau)")
+    assert label == "4 used the low-passed rea…" and len(label) == 26

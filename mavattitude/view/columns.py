@@ -254,6 +254,13 @@ STATE_COLORS = ((215, 40, 40), (235, 140, 0), (120, 90, 200), (40, 150, 160), (1
 STATE_WIDTH = 8.0  # ui points: bars
 
 
+def state_label(code: int, state: str, width: int = 26) -> str:
+    """A state's name short enough for a legend beside small plots: "2 skipped: horizontal man…"
+    (the estimator's own words; ``mavattitude estimators`` has them whole)."""
+    text = f"{code} {state.split(' (')[0]}"
+    return text if len(text) <= width else text[:width - 1] + "…"
+
+
 def log_state_spans(rec: rr.RecordingStream, name: str, t, codes, states, *,
                     join_s: float = 1.0 / DIAGNOSTIC_MAX_HZ) -> None:
     """An estimator's accelerometer-state codes (``states``: the meaning of each, 0 used) as
@@ -281,7 +288,7 @@ def log_state_spans(rec: rr.RecordingStream, name: str, t, codes, states, *,
         y[2::3] = np.nan
         path = f"{series_root(name)}/diagnostics/{STATE_GROUP}/{code}"
         rec.log(path, rr.SeriesLines(colors=[STATE_COLORS[(code - 1) % len(STATE_COLORS)]],
-                                     names=[f"{code}: {states[code]}"[:90]], widths=[STATE_WIDTH]), static=True)
+                                     names=[state_label(code, states[code])], widths=[STATE_WIDTH]), static=True)
         rec.send_columns(path, indexes=[_time(tk)], columns=rr.Scalars.columns(scalars=y))
 
 

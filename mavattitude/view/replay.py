@@ -235,7 +235,8 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
         states = _accel_states(name, diag)
         keys[name] = [STATE_GROUP if states and k == "accel_state" else k for k in diag]
         if states:
-            diagnostic_ranges.setdefault(name, {})[STATE_GROUP] = (0.4, len(states) - 0.4)
+            # the bars in the lower half, the legend naming them in the upper
+            diagnostic_ranges.setdefault(name, {})[STATE_GROUP] = (0.4, 2.0 * (len(states) - 1) + 0.6)
     if blueprint:
         send_blueprint(rec, series=names, scored=list(scored), n_slots=len(series),
                        error_range_deg=err_ranges, attitude_range_deg=att_ranges,

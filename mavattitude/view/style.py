@@ -138,7 +138,7 @@ def ghost_path(name: str) -> str:
 DIAGNOSTIC_TITLES = {
     "cov_trace": "covariance trace",
     "accel_state": "accelerometer update (0 used, 1+ skipped / down-weighted)",
-    "accel_states": "accelerometer update: a bar where not used as is (legend, hover: why)",
+    "accel_states": "accelerometer update: bars where not used (legend: why)",
     "adaptive_r": "mahony-ekf adaptive R",
     "accel_weight": "accelerometer trust w (1 full, 0 skipped)",
     "reset": "watchdog reset (1 at a reset)",
