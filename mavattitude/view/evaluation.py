@@ -37,6 +37,18 @@ class LogRow:
     command: str = ""  # the replay that writes its own recording
 
 
+def _log_columns():
+    """The log's number, level and line (the line names the log: its entity path would repeat it)."""
+    enc = rrb.encodings
+    try:
+        return rrb.TextLogColumns(
+            timeline_columns=[enc.TimelineColumn(TIMELINE)],
+            text_log_columns=[enc.TextLogColumn("LogLevel"), enc.TextLogColumn("Body"),
+                              enc.TextLogColumn("EntityPath", visible=False)])
+    except Exception:  # noqa: BLE001 - unstable blueprint type; the default is fine
+        return None
+
+
 def log_line(k: int, row: LogRow) -> str:
     """The logs tab's line: "#3 flight.bin: ok · cpf-ekf 0.88 · mahony 1.25 | mavattitude replay ..."."""
     scores = " · ".join(f"{n} {v:.2f}" for n, v in sorted(row.scores.items(), key=lambda kv: kv[1]))
@@ -61,7 +73,8 @@ def log_evaluation(rec: rr.RecordingStream, rows: Sequence[LogRow], names: Seque
                                        start=rrb.TimeRangeBoundary.absolute(seq=-1),
                                        end=rrb.TimeRangeBoundary.absolute(seq=len(rows)))),
                                    plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True)),
-                rrb.TextLogView(origin="logs", name="logs: number, scores, the command for its own recording"),
+                rrb.TextLogView(origin="logs", name="logs: number, scores, the command for its own recording",
+                                columns=_log_columns()),
                 row_shares=[3, 2]),
             rrb.TextDocumentView(origin="report", name="report"),
             column_shares=[3, 2]),
