@@ -186,6 +186,7 @@ def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]
 
 def _add_logged_messages(col: Collector, messages) -> None:
     """The logged text lines as event rows: level '0'-'7' is the MAVLink severity."""
+    messages = [m for m in messages if 0 <= m.timestamp < 1 << 62]  # a damaged time: dropped (as by the clock)
     if not messages:
         return
     at = np.array([m.timestamp for m in messages], np.int64)
