@@ -32,13 +32,13 @@ def replay(log, estimators=("mahony",), reference: str = "autopilot", params: di
            use_mag: bool = True, trim: bool = True, imu_source: str | None = None,
            home: tuple[float, float] | None = None):
     """Run ``estimators`` over a log (a path, or a flight from ``load``) and score them, as
-    ``mavattitude replay`` does: a ``pipeline.ReplayResult`` with ``metrics`` (the --json
+    ``mavattitude replay`` does: a ``commands.replay.ReplayResult`` with ``metrics`` (the --json
     dict), ``estimates`` (name -> series with ``t``, ``q``, ``euler``), ``reference``,
     ``reference_info`` (its stream and algorithm), ``stream_comparisons`` (the autopilot's other
     streams scored against it), ``events``, and ``write_json``, ``write_csv``, ``write_rrd``.
 
     ``reference``: "autopilot" (the attitude in use), "truth", "ekf" or a stream ``info``
-    lists, e.g. "EKF1" (``pipeline.choose_reference``).
+    lists, e.g. "EKF1" (``commands.replay.choose_reference``).
 
     ``params``: {estimator: {parameter: value}} (or a parameter dataclass), checked against
     each parameter's valid range; ``declination`` in degrees (default: as the autopilot had it,
@@ -48,8 +48,8 @@ def replay(log, estimators=("mahony",), reference: str = "autopilot", params: di
     "delta" (default: the best the log has).
     """
     from .declination import Fix
-    from .params import build, log_defaults
-    from .pipeline import run_replay
+    from .core.params import build, log_defaults
+    from .commands.replay import run_replay
 
     flight = log if hasattr(log, "imu") else load(log)
     names = list(estimators)

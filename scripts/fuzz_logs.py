@@ -94,10 +94,10 @@ def _damage_fmt(b: bytearray, rng: random.Random) -> None:
 def replay_or_error(path: Path, estimators=("mahony",)) -> str:
     """'read' or 'error' (a clean InputError); anything else raises."""
     from mavattitude.errors import InputError
-    from mavattitude.info import render, summarize
-    from mavattitude.pipeline import run_replay
+    from mavattitude.commands.info import render, summarize
+    from mavattitude.commands.replay import run_replay
     from mavattitude.readers import read_log
-    from mavattitude.report import format_table
+    from mavattitude.commands.report import format_table
 
     try:
         flight = read_log(str(path))

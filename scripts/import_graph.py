@@ -16,13 +16,14 @@ Layers, bottom to top; an import is *upward* when a module imports one in a high
    the readers, the estimators, the parameter declarations (paramspec), the simulator, the
    input side of a live link (link, loss, recorder), small shared helpers (errors, events,
    outputs, progress, signals, growing, kernel_cache, declination, phase, aiding).
-1. core: the estimation core (runner, warmup), the parameter sets built from the
-   declarations (params), live's stepping of the core (live.estimation), and scoring
-   (metrics, running_metrics, refcheck, broadscore, imucheck, report).
-2. view: everything that draws with Rerun and where it goes (view, live.display, sink). It
-   shows what the commands produce and imports from them only their result types (for type
-   checking), so it sits below them: replay, live and ``bench --live`` hand their results to it.
-3. commands: replay (pipeline), evaluate and its report, tune, bench, info, the live session.
+1. core: the estimation core (core/: runner, warmup, the parameter sets built from the
+   declarations), live's stepping of the core (live.estimation), scoring (scoring/) and
+   replay's report (commands.report, which live's final table uses too).
+2. view: everything that draws with Rerun and where it goes (view/, live's display and the
+   sink included). It shows what the commands produce and imports from them only their result
+   types (for type checking), so it sits below them: replay, live and ``bench --live`` hand
+   their results to it.
+3. commands: replay, evaluate and its report, tune, bench, info (commands/), the live session.
 4. front: the command line (cli, __main__) and the Python API (the package's ``__init__``).
 
 A module the table does not place is an error: a new module is given its layer here.
@@ -41,11 +42,9 @@ LAYERS = [
     ("foundation", ["_version", "quaternion", "flight", "earth", "trim", "diagcolumns", "errors", "events", "growing", "kernel_cache", "signals",
                     "progress", "outputs", "declination", "phase", "aiding", "paramspec", "readers", "estimators",
                     "sim", "live.link", "live.loss", "live.recorder"]),
-    ("core", ["runner", "warmup", "params", "live.estimation", "metrics", "running_metrics", "refcheck",
-              "broadscore", "imucheck", "report"]),
-    ("view", ["view", "live.display", "sink"]),
-    ("commands", ["pipeline", "evaluate", "evalreport", "rankstats", "tune", "bench", "bench_live", "bench_read",
-                  "info", "live", "live.session"]),
+    ("core", ["core", "live.estimation", "scoring", "commands.report"]),
+    ("view", ["view"]),
+    ("commands", ["commands", "live", "live.session"]),
     ("front", ["cli", "__main__", ""]),  # "": the package's __init__, the Python API
 ]
 
@@ -78,13 +77,15 @@ def _imports(tree: ast.AST):
     """(node, inside a function) for every import that can run (not under TYPE_CHECKING)."""
     def visit(node, lazy):
         for child in ast.iter_child_nodes(node):
+            if not isinstance(child, (ast.stmt, ast.excepthandler, ast.match_case)):
+                continue  # an import is a statement: expressions never hold one
             if isinstance(child, ast.If) and _is_type_checking(child.test):
                 for other in child.orelse:
                     yield from visit(other, lazy)
                 continue
             if isinstance(child, (ast.Import, ast.ImportFrom)):
                 yield child, lazy
-            yield from visit(child, lazy or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)))
+            yield from visit(child, lazy or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)))
     yield from visit(tree, False)
 
 

@@ -51,7 +51,7 @@ def rate_sweep(paths: list[Path], rates: list[float]) -> None:
 def accel_readings(paths: list[Path]) -> None:
     import mavattitude
     from mavattitude.flight import GRAVITY
-    from mavattitude.imucheck import accel_at_rest
+    from mavattitude.scoring.imucheck import accel_at_rest
     from mavattitude.readers import best_imu_source, imu_rate
 
     for path in paths:

@@ -22,7 +22,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from mavattitude.evalreport import tilt_score
+from mavattitude.commands.evalreport import tilt_score
 
 SHARED = Path(__file__).resolve().parent.parent.parent / "shared"
 

@@ -19,11 +19,11 @@ from pathlib import Path
 
 
 def main() -> None:
-    from mavattitude.bench_live import LIVE_IMU_HZ, _probe_sender, _session_against
+    from mavattitude.commands.bench_live import LIVE_IMU_HZ, _probe_sender, _session_against
     from mavattitude.estimators import ESTIMATORS
-    from mavattitude.live.display import FILE
-    from mavattitude.sink import plan_sink
-    from mavattitude.warmup import warm_up
+    from mavattitude.view.live import FILE
+    from mavattitude.view.sink import plan_sink
+    from mavattitude.core.warmup import warm_up
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--estimators", default="all", help="comma-separated names, or all")

@@ -26,9 +26,9 @@ def main() -> int:
     ap.add_argument("--speeds", default="10,20,30", help="times real time, comma-separated")
     ap.add_argument("--seconds", type=float, default=60.0, help="wall seconds of each stream")
     args = ap.parse_args()
-    from mavattitude.bench_live import rate_probe
+    from mavattitude.commands.bench_live import rate_probe
     from mavattitude.estimators import ESTIMATORS
-    from mavattitude.warmup import warm_up
+    from mavattitude.core.warmup import warm_up
 
     names = list(ESTIMATORS) if args.estimators == "all" else args.estimators.split(",")
     warm_up(names)

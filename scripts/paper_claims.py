@@ -154,7 +154,7 @@ def run_broad() -> Path | None:
 
 
 def load_evaluation(folder: Path) -> dict:
-    from mavattitude.evalreport import tilt_score
+    from mavattitude.commands.evalreport import tilt_score
 
     ev = corpus(folder)
     records = [json.loads(p.read_text()) for p in sorted((folder / "logs").glob("*.json"))]

@@ -16,8 +16,8 @@ import json
 import statistics
 from pathlib import Path
 
-from mavattitude.evalreport import tilt_score
-from mavattitude.rankstats import reference_family
+from mavattitude.commands.evalreport import tilt_score
+from mavattitude.scoring.rankstats import reference_family
 
 
 def main() -> int:

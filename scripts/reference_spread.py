@@ -27,8 +27,8 @@ import numpy as np
 
 from mavattitude import load
 from mavattitude.errors import InputError
-from mavattitude.metrics import compare
-from mavattitude import refcheck
+from mavattitude.scoring.metrics import compare
+from mavattitude.scoring import refcheck
 from mavattitude.readers.attitudes import name_attitudes
 
 ROOT = Path(__file__).resolve().parents[1]

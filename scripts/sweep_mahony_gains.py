@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from mavattitude.estimators.mahony import MahonyParams
-from mavattitude.pipeline import run_replay
+from mavattitude.commands.replay import run_replay
 from mavattitude.readers import read_log
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from mavattitude.estimators import ESTIMATORS
-from mavattitude.tune import OBJECTIVES, aggregate
+from mavattitude.commands.tune import OBJECTIVES, aggregate
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -11,7 +11,7 @@ import numpy as np
 from mavattitude import quaternion as quat
 from mavattitude.estimators import align, create
 from mavattitude.flight import MagSeries
-from mavattitude.runner import held_magnetometer
+from mavattitude.core.runner import held_magnetometer
 from mavattitude.sim import SensorParams, simulate
 
 

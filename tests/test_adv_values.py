@@ -234,7 +234,7 @@ def test_evaluate_succeeds_when_some_log_was_scored(capsys, tmp_path):
 def test_replay_settings_are_checked_once_before_any_log(change, text):
     """Not per log, as "internal error" for each (evaluate --warmup=-- did that)."""
     from mavattitude.errors import UsageError
-    from mavattitude.pipeline import ReplaySettings
+    from mavattitude.commands.replay import ReplaySettings
 
     with pytest.raises(UsageError, match=re.escape(text)):
         replace(ReplaySettings(names=("mahony",)), **change).check()

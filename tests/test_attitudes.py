@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from conftest import SHARED_LOGS, read_shared
-from mavattitude import info, quaternion as quat
+from mavattitude.commands import info
+from mavattitude import quaternion as quat
 from mavattitude.flight import AttitudeSeries, Flight
 from mavattitude.readers import read_log
 from mavattitude.readers.attitudes import name_attitudes

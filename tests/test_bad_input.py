@@ -23,7 +23,7 @@ import pytest
 from conftest import SAMPLE_LOGS, SHARED_LOGS, installed_estimators, one_line, run
 from mavattitude.errors import InputError
 from mavattitude.estimators import ESTIMATORS, create
-from mavattitude.params import describe
+from mavattitude.core.params import describe
 from mavattitude.readers import read_log
 from mavattitude.readers.dfrecords import open_log, scan_log
 from mavattitude.sim import simulate, write_log
@@ -119,11 +119,12 @@ def test_a_live_recording_never_replaces_a_file(capsys, tmp_path):
 @pytest.fixture
 def no_reading(monkeypatch):
     """Fails the test if the log is read: the option must be refused before."""
-    import mavattitude.cli as cli
+    from mavattitude.cli import info, replay
 
     def refuse(*args, **kwargs):
         raise AssertionError("the log was read before a bad option was refused")
-    monkeypatch.setattr(cli, "_read", refuse)
+    for command in (info, replay):  # the commands that read one log here
+        monkeypatch.setattr(command, "read_log_file", refuse)
 
 
 def test_missing_folders_are_created(capsys, tmp_path):
@@ -192,7 +193,7 @@ def test_spawn_without_a_display_fails_at_once(capsys, monkeypatch, no_reading):
 
 
 def test_web_ports_in_use_move_to_free_ones(capsys):
-    from mavattitude.sink import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, plan_sink
+    from mavattitude.view.sink import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, plan_sink
 
     held = []
     for port in (DEFAULT_WEB_PORT, DEFAULT_GRPC_PORT):
@@ -247,7 +248,7 @@ class BlackHole:
 
 
 def _cli_process(args, timeouts="FLUSH_TIMEOUT_S=3; s.SHUTDOWN_TIMEOUT_S=2"):
-    code = (f"import sys; import mavattitude.sink as s; s.{timeouts}; from mavattitude.cli import main; "
+    code = (f"import sys; import mavattitude.view.sink as s; s.{timeouts}; from mavattitude.cli import main; "
             f"sys.exit(main({[str(a) for a in args]!r}))")
     # Ctrl-C as a terminal delivers it: a test run started as a background job (`cmd &` in a
     # script, some CI runners) ignores SIGINT, and its children inherit that

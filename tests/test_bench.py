@@ -15,7 +15,7 @@ from mavattitude.estimators import ESTIMATORS, Estimator, all_names, available
 from mavattitude.estimators.base import MAX_STEP_S
 from mavattitude.estimators.mahony import Mahony, MahonyParams
 from mavattitude.flight import MagSeries
-from mavattitude.runner import held_magnetometer
+from mavattitude.core.runner import held_magnetometer
 from mavattitude.sim import simulate
 
 SHORT = ["bench", "--duration", "20", "--imu-rate", "100", "--repeat", "1"]
@@ -192,7 +192,7 @@ def test_mahony_kernel_matches_the_vector_formulation(use_mag):
 def test_live_figure_runs_and_reports(capsys):
     """``bench --live`` end to end on a short stream (the figures are not judged here: speed
     targets live in the benchmark, not in tests)."""
-    from mavattitude.bench_live import format_live, run_live_bench
+    from mavattitude.commands.bench_live import format_live, run_live_bench
 
     # the simulated vehicle sits still for its first seconds: estimates begin when it moves
     figures = run_live_bench(["mahony"], seconds=10.0, say=lambda line: None, probe_seconds=2.0)
@@ -219,7 +219,7 @@ def test_live_figure_runs_and_reports(capsys):
 def test_rss_growth_is_the_slope_of_the_second_half():
     """A session that fills its history, then stays flat, grows 0 MB an hour; one that keeps
     growing is extrapolated from its slope (10 min of 1 kHz data in 30 s here)."""
-    from mavattitude.bench_live import _rss_figures
+    from mavattitude.commands.bench_live import _rss_figures
 
     t = np.arange(0.0, 30.0, 0.25) + 100.0
     flat = np.minimum(300.0 + 10.0 * (t - 100.0), 350.0) + np.where(np.arange(len(t)) % 2, 3.0, -3.0)

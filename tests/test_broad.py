@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from mavattitude.broadscore import broad_measures, broad_text, error_angles
+from mavattitude.scoring.broadscore import broad_measures, broad_text, error_angles
 from mavattitude.errors import InputError
 from mavattitude.flight import GRAVITY, AttitudeSeries
-from mavattitude.metrics import compare
+from mavattitude.scoring.metrics import compare
 from mavattitude.quaternion import conjugate, from_euler, multiply, rotate, to_euler
 from mavattitude.readers import read_log, sniff_format
 from mavattitude.readers.broad import NEEDS_H5PY
@@ -91,7 +91,7 @@ def test_reader_skips_nan_truth_and_keeps_the_movement_spans(tmp_path):
 
 
 def test_replay_scores_only_the_movement_samples(tmp_path):
-    from mavattitude.pipeline import run_replay
+    from mavattitude.commands.replay import run_replay
 
     movement = np.zeros(3000, bool)
     movement[1500:2500] = True
@@ -142,7 +142,7 @@ def test_a_trial_with_a_bad_rate_or_shape(tmp_path):
 
 
 def test_evaluate_finds_hdf5_trials(tmp_path):
-    from mavattitude.evaluate import find_logs
+    from mavattitude.commands.evaluate import find_logs
 
     write_trial(tmp_path / "a.hdf5", np.array([1.0, 0, 0, 0]))
     write_trial(tmp_path / "b.H5", np.array([1.0, 0, 0, 0]))

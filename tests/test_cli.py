@@ -217,7 +217,7 @@ def test_set_and_params_file_reach_the_estimator(tmp_path, capsys):
 def test_plane_log_supplies_the_eq_kf_airspeed_param_unless_the_user_sets_it():
     from types import SimpleNamespace
 
-    from mavattitude.params import build, log_defaults
+    from mavattitude.core.params import build, log_defaults
 
     plane = SimpleNamespace(vehicle="ArduPlane", params={"TRIM_ARSPD_CM": 1200.0})
     values, notes = log_defaults(plane, ["mahony", "eq-kf"])
@@ -258,7 +258,7 @@ def test_bad_toml_names_the_file(tmp_path, capsys):
 
 
 def test_a_ctrl_c_that_numba_returns_as_a_system_error_is_an_interrupt(tmp_path, capsys, monkeypatch):
-    from mavattitude import pipeline
+    from mavattitude.commands import replay as pipeline
     from mavattitude.errors import is_interrupt
 
     assert is_interrupt(KeyboardInterrupt()) and not is_interrupt(SystemError("a bug")) and not is_interrupt(None)
@@ -269,7 +269,7 @@ def test_a_ctrl_c_that_numba_returns_as_a_system_error_is_an_interrupt(tmp_path,
 
 
 def test_a_system_error_that_is_no_interrupt_stays_a_bug(capsys, monkeypatch):
-    from mavattitude import pipeline
+    from mavattitude.commands import replay as pipeline
 
     def bug(*args, **kwargs):
         raise SystemError("a bug")

@@ -16,7 +16,7 @@ from mavattitude import quaternion as quat
 from mavattitude.aiding import Aiding, from_sim
 from mavattitude.estimators import ESTIMATORS, align, create
 from mavattitude.flight import GRAVITY
-from mavattitude.params import build
+from mavattitude.core.params import build
 
 NAMES = estimator_params()
 
@@ -233,7 +233,7 @@ def test_a_second_process_loads_the_compiled_kernels_from_the_cache(tmp_path):
     import sys
 
     env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path)}
-    probe = ("import sys; from mavattitude.estimators import ESTIMATORS, needs_compile; from mavattitude.warmup import compile_kernels; "
+    probe = ("import sys; from mavattitude.estimators import ESTIMATORS, needs_compile; from mavattitude.core.warmup import compile_kernels; "
              "names = ['mahony', 'eskf']; print(needs_compile(names)); compile_kernels(names); "
              "misses = sum(sum(k.stats.cache_misses.values()) for n in names for k in ESTIMATORS[n].kernels); "
              "print(misses)")

@@ -157,13 +157,13 @@ def test_px4_s_automatic_declination_is_bit_0_of_ekf2_decl_type():
 
 
 def test_the_warning_for_no_declination_is_said_once_with_one_wording(tmp_path, capsys):
-    from mavattitude.pipeline import run_replay
+    from mavattitude.commands.replay import run_replay
 
     flight = _static(COMPASS_DEC=None)
     flight.gps = None
     result = run_replay(flight, ["mahony"])
     assert [e.text for e in result.events if e.level == "warn" and "declination" in e.text] == [decl.NO_DECLINATION]
-    from mavattitude.info import summarize
+    from mavattitude.commands.info import summarize
     assert summarize(flight)["warnings"].count(decl.NO_DECLINATION) == 1
     assert summarize(flight)["declination_deg"] is None
 

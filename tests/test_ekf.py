@@ -13,7 +13,7 @@ from mavattitude import quaternion as quat
 from mavattitude.estimators import ESTIMATORS, align
 from mavattitude.estimators.ekf import (Ekf, EkfParams, accel_model, heading_model, level_field,
                                         transition)
-from mavattitude.params import build
+from mavattitude.core.params import build
 
 
 def _xi(q):

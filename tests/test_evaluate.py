@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 
 from conftest import SAMPLE_LOGS, SHARED_LOGS, kernel_interrupt, process_group
-from mavattitude import evalreport as er
+from mavattitude.commands import evalreport as er
 from mavattitude.cli import main
-from mavattitude.evaluate import find_logs, record_name
+from mavattitude.commands.evaluate import find_logs, record_name
 
 ESTIMATORS = "mahony,ncs-eskf"
 
@@ -223,7 +223,7 @@ def test_shared_logs_all_estimators(tmp_path):
 
 
 def test_an_interrupt_inside_a_kernel_is_never_a_logs_result(logs, tmp_path, capsys, monkeypatch):
-    from mavattitude import evaluate as ev
+    from mavattitude.commands import evaluate as ev
 
     monkeypatch.setattr(ev, "_replay", kernel_interrupt)
     with pytest.raises(KeyboardInterrupt):
@@ -235,7 +235,7 @@ def test_an_interrupt_inside_a_kernel_is_never_a_logs_result(logs, tmp_path, cap
 
 
 def test_an_internal_error_is_tried_again_on_resume(logs, tmp_path, capsys, monkeypatch):
-    from mavattitude import evaluate as ev
+    from mavattitude.commands import evaluate as ev
 
     replay = ev._replay
 

@@ -13,12 +13,12 @@ import pytest
 
 from conftest import SAMPLE_LOGS
 from mavattitude import estimators as est
-from mavattitude import imucheck
+from mavattitude.scoring import imucheck
 from mavattitude.cli import main
 from mavattitude.flight import GRAVITY
-from mavattitude.info import summarize
+from mavattitude.commands.info import summarize
 from mavattitude.readers import read_log
-from mavattitude.report import NOT_MEANINGFUL, YAW_ALIGNED_NOTE, YAW_DRIFT
+from mavattitude.commands.report import NOT_MEANINGFUL, YAW_ALIGNED_NOTE, YAW_DRIFT
 from mavattitude.sim import simulate, write_log
 
 

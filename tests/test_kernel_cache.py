@@ -53,7 +53,7 @@ def test_a_first_compile_says_each_estimator_and_the_time_so_far(monkeypatch):
     import sys
     import time
 
-    import mavattitude.warmup as est
+    import mavattitude.core.warmup as est
     from mavattitude.progress import StepsLine
 
     compiled_here = []

@@ -17,15 +17,20 @@ def _show(found, pick):
     return "\n".join(f"{e.source}:{e.line} -> {e.target}" for e in pick(found))
 
 
-def test_the_package_has_no_import_circle_and_no_upward_import():
-    modules, found = graph.edges(ROOT / "mavattitude", "mavattitude")
+@pytest.fixture(scope="module")
+def package_graph():
+    return graph.edges(ROOT / "mavattitude", "mavattitude")
+
+
+def test_the_package_has_no_import_circle_and_no_upward_import(package_graph):
+    modules, found = package_graph
     assert len(modules) > 50 and len(found) > 300  # the whole package was read
     assert graph.cycles(modules, found) == [], "an import circle (run scripts/import_graph.py)"
     assert graph.upward(found) == [], "upward imports:\n" + _show(found, graph.upward)
 
 
-def test_every_module_has_a_layer():
-    modules, _ = graph.edges(ROOT / "mavattitude", "mavattitude")
+def test_every_module_has_a_layer(package_graph):
+    modules, _ = package_graph
     for name in modules:
         graph.layer_of(name)  # raises for a module the table does not place
 

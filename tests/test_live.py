@@ -29,7 +29,7 @@ from mavattitude.live.recorder import TlogRecorder
 from mavattitude import quaternion as quat
 from conftest import installed_estimators
 from mavattitude.phase import PhaseTracker
-from mavattitude.pipeline import run_replay
+from mavattitude.commands.replay import run_replay
 from mavattitude.readers import read_log
 from mavattitude.sim import simulate
 from mavattitude.sim.autopilot import SimAutopilot
@@ -560,7 +560,7 @@ def test_a_session_keeps_only_its_last_seconds_and_scores_as_replay(monkeypatch,
     estimates what replay of the same packets does, to the bit, and its final metrics
     (scored as it went) are replay's."""
     from mavattitude.live import estimation
-    from mavattitude.runner import IMU
+    from mavattitude.core.runner import IMU
 
     monkeypatch.setattr(estimation, "FORGET_EVERY_S", 0.7)
     monkeypatch.setattr(estimation, "SCORE_EVERY_S", 0.3)
@@ -775,7 +775,7 @@ def test_an_interrupt_numba_could_only_report_is_raised_after_the_compile():
     traceback on stderr, and the compile goes on): taken quietly, raised once it is over."""
     from types import SimpleNamespace
 
-    from mavattitude.warmup import _noticing_interrupts
+    from mavattitude.core.warmup import _noticing_interrupts
 
     before = sys.unraisablehook
     with pytest.raises(KeyboardInterrupt):

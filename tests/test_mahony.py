@@ -11,8 +11,8 @@ from mavattitude.estimators import align, create
 from mavattitude.estimators.alignment import detect_still
 from mavattitude.estimators.mahony import Mahony
 from mavattitude.flight import AttitudeSeries, MagSeries
-from mavattitude.metrics import compare
-from mavattitude.runner import held_magnetometer
+from mavattitude.scoring.metrics import compare
+from mavattitude.core.runner import held_magnetometer
 from mavattitude.sim import SensorParams, simulate
 
 

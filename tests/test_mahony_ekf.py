@@ -15,7 +15,7 @@ from mavattitude.estimators.mahony import MahonyParams
 from mavattitude.estimators.mahony_ekf import (MahonyEkf, MahonyEkfParams, predict,
                                                quaternion_update)
 from mavattitude.flight import GRAVITY
-from mavattitude.params import build
+from mavattitude.core.params import build
 
 
 def _xi(q):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mavattitude.flight import AttitudeSeries
-from mavattitude.metrics import AXES, axis_metrics, compare
+from mavattitude.scoring.metrics import AXES, axis_metrics, compare
 from mavattitude.quaternion import from_euler
 
 

@@ -16,7 +16,7 @@ from mavattitude.estimators.ncs_eskf import (NcsEskf, NcsEskfParams, ncs_accel_j
                                              ncs_accel_model, ncs_error_propagate, ncs_predict,
                                              ncs_update)
 from mavattitude.flight import GRAVITY
-from mavattitude.params import build
+from mavattitude.core.params import build
 
 G_N = np.array([0.0, 0.0, GRAVITY])
 

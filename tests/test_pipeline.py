@@ -9,9 +9,9 @@ import pytest
 from mavattitude import quaternion as quat
 from mavattitude.errors import InputError
 from mavattitude.flight import ImuSeries, MagSeries
-from mavattitude.pipeline import run_replay
+from mavattitude.commands.replay import run_replay
 from mavattitude.readers import read_log
-from mavattitude.runner import held_magnetometer
+from mavattitude.core.runner import held_magnetometer
 
 
 def test_mag_is_held_until_stale():
@@ -75,7 +75,7 @@ def test_low_imu_rate_warns(sim_logs):
 def test_estimating_in_steps_changes_nothing_and_reports_progress(sim_logs, monkeypatch):
     """An hour is estimated in steps of ``STEP_ROWS`` (bounded scratch memory): every
     estimate and diagnostic is bit-identical to one step, and the progress climbs to 1."""
-    from mavattitude import runner
+    from mavattitude.core import runner
     from conftest import installed_estimators
 
     names = installed_estimators()
@@ -118,7 +118,7 @@ def test_warnings_are_one_line_per_kind_with_the_count_and_the_first_times():
 def test_many_imu_gaps_are_one_warning_line_and_every_one_stays_in_the_json(capsys):
     from conftest import SAMPLE_LOGS
     from mavattitude.events import grouped_lines
-    from mavattitude.runner import GAP_KIND
+    from mavattitude.core.runner import GAP_KIND
 
     flight = read_log(str(SAMPLE_LOGS / "static.bin"))
     holes = [(8.0, 11.0), (14.0, 17.5), (20.0, 23.0), (26.0, 30.0), (33.0, 36.0)]
@@ -161,7 +161,7 @@ def test_the_aiding_kept_is_what_the_estimator_was_handed(sim_logs):
     """The runner keeps the aiding only at the IMU rows that had a measurement; given back
     at every row (NaN elsewhere) it is, to the bit, what cpf-ekf was handed, chunk by chunk."""
     from mavattitude import aiding as aid
-    from mavattitude.runner import Runner
+    from mavattitude.core.runner import Runner
 
     flight = read_log(str(sim_logs["figure8.bin"][1]))
     runner = Runner(["cpf-ekf"], imu_source="IMU[0]")

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from mavattitude import evalreport as er
-from mavattitude.rankstats import (against_baseline, bootstrap_median_interval, counted_wins, reference_family,
+from mavattitude.commands import evalreport as er
+from mavattitude.scoring.rankstats import (against_baseline, bootstrap_median_interval, counted_wins, reference_family,
                                    sign_test_p)
 
 

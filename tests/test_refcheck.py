@@ -10,7 +10,7 @@ from conftest import read_shared
 from mavattitude import quaternion as quat
 from mavattitude.flight import AttitudeSeries, Flight
 from mavattitude.readers import read_log
-from mavattitude.refcheck import DISAGREE_DEG, autopilot_disagreement
+from mavattitude.scoring.refcheck import DISAGREE_DEG, autopilot_disagreement
 from mavattitude.sim import SensorParams, simulate, write_log
 
 
@@ -70,7 +70,7 @@ def test_the_88_degree_log_is_flagged_and_modern_logs_are_not():
 
 
 def test_replay_leaves_the_disagreement_unscored(tmp_path):
-    from mavattitude.pipeline import run_replay
+    from mavattitude.commands.replay import run_replay
 
     sim = simulate("figure8", 60.0, seed=3, imu_rate=50.0, params=SensorParams(dcm_bias=(0.01, 0.0, 0.0)))
     t = sim.t
@@ -85,8 +85,8 @@ def test_replay_leaves_the_disagreement_unscored(tmp_path):
 
 
 def test_a_reference_not_trusted_anywhere_says_so_when_nothing_is_scored(tmp_path):
-    from mavattitude.pipeline import run_replay
-    from mavattitude.report import nothing_scored
+    from mavattitude.commands.replay import run_replay
+    from mavattitude.commands.report import nothing_scored
 
     sim = simulate("figure8", 40.0, seed=3, imu_rate=50.0, params=SensorParams(dcm_bias=(0.01, 0.0, 0.0)))
     off = quat.from_euler(np.full(len(sim.t), math.radians(20.0)), 0 * sim.t, 0 * sim.t)

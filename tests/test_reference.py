@@ -13,7 +13,7 @@ from conftest import SAMPLE_LOGS, shared_log
 from mavattitude import quaternion as quat
 from mavattitude.cli import main
 from mavattitude.flight import AttitudeSeries, Flight
-from mavattitude.pipeline import NoReference, choose_reference, run_replay
+from mavattitude.commands.replay import NoReference, choose_reference, run_replay
 from mavattitude.readers import read_log
 from mavattitude.sim import SensorParams, simulate, write_log
 from mavattitude.view import _series, summary_markdown

@@ -8,9 +8,9 @@ import pytest
 
 import mavattitude
 from mavattitude.flight import AttitudeSeries
-from mavattitude.metrics import AXES, AxisMetrics, Comparison, compare
+from mavattitude.scoring.metrics import AXES, AxisMetrics, Comparison, compare
 from mavattitude.quaternion import from_euler, to_euler
-from mavattitude.report import (BUCKET_KEYS, CSV_HEADER, NOT_MEANINGFUL, YAW_ALIGNED_NOTE, YAW_DRIFT,
+from mavattitude.commands.report import (BUCKET_KEYS, CSV_HEADER, NOT_MEANINGFUL, YAW_ALIGNED_NOTE, YAW_DRIFT,
                                 _fixed_point_csv, format_table, to_json_dict, write_csv, write_json)
 
 ATT_REF = {"stream": "ATT", "algorithm": "DCM", "choice": "autopilot"}

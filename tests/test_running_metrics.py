@@ -7,8 +7,8 @@ import pytest
 
 from mavattitude import quaternion as quat
 from mavattitude.flight import AttitudeSeries
-from mavattitude.metrics import AXES, compare
-from mavattitude.running_metrics import SKETCH_RATIO, RunningAxis, RunningComparison
+from mavattitude.scoring.metrics import AXES, compare
+from mavattitude.scoring.running_metrics import SKETCH_RATIO, RunningAxis, RunningComparison
 
 
 def _session(seed: int, yaw_offsets=(0.0, 0.0)):
@@ -88,7 +88,7 @@ def test_running_axis_quantiles_and_circular_r2_on_wide_errors():
     running = RunningAxis(circular=True)
     for part in np.array_split(np.arange(len(error)), 7):
         running.add(error[part], heading[part])
-    from mavattitude.metrics import axis_metrics
+    from mavattitude.scoring.metrics import axis_metrics
     whole = axis_metrics(error, heading, circular=True)
     got = running.metrics()
     assert got.sigma1 == pytest.approx(whole.sigma1, rel=1e-3) and got.sigma3 == pytest.approx(whole.sigma3, rel=1e-3)

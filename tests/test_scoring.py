@@ -10,7 +10,7 @@ import pytest
 
 from mavattitude import quaternion as quat
 from mavattitude.cli import main
-from mavattitude.pipeline import board_trim, trimmed
+from mavattitude.commands.replay import board_trim, trimmed
 from mavattitude.readers import read_log
 from mavattitude.sim import simulate, write_log
 
@@ -69,7 +69,7 @@ def test_no_trim_in_the_log_means_none_applied(tmp_path):
 
 def test_no_estimate_is_interpolated_across_a_gap_or_a_restart():
     from mavattitude.flight import AttitudeSeries
-    from mavattitude.metrics import compare
+    from mavattitude.scoring.metrics import compare
 
     def yaw_series(t, yaw_deg):
         return AttitudeSeries("x", t, np.array([quat.from_euler(0.0, 0.0, math.radians(y)) for y in yaw_deg]))
@@ -94,7 +94,7 @@ def test_a_logged_imu_gap_is_neither_scored_nor_bridged(tmp_path):
     """The static sample log with 6 s of IMU cut out (the attitude log goes on): the runner
     restarts, the reference samples in the hole are counted, not scored."""
     from conftest import SAMPLE_LOGS
-    from mavattitude.pipeline import run_replay
+    from mavattitude.commands.replay import run_replay
 
     flight = read_log(str(SAMPLE_LOGS / "static.bin"))
     for source, imu in flight.imu.items():
@@ -143,8 +143,8 @@ def test_a_reference_the_imu_contradicts_is_flagged_and_not_scored(broken_refere
 def test_repeated_reference_times_are_a_note_on_the_whole_log_not_a_span():
     """What happened and what was done, said plainly: on the terminal, and in the JSON as a
     note of its own, not a span with no end; everything left is scored."""
-    from mavattitude.pipeline import run_replay
-    from mavattitude.refcheck import whole_log_notes
+    from mavattitude.commands.replay import run_replay
+    from mavattitude.scoring.refcheck import whole_log_notes
 
     flight = read_log(str(__import__("conftest").SAMPLE_LOGS / "static.bin"))
     assert whole_log_notes(flight.attitude, 0) == [] and whole_log_notes(flight.attitude, 1) == []

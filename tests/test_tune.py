@@ -14,10 +14,10 @@ from conftest import SAMPLE_LOGS
 from mavattitude.cli import main
 from mavattitude.errors import UsageError
 from mavattitude.estimators import ESTIMATORS
-from mavattitude.evaluate import evaluate_log
-from mavattitude.params import build, load_file, search_space, to_toml
-from mavattitude.pipeline import ReplaySettings
-from mavattitude.tune import DIVERGED_DEG, TuneSettings, deal_folds, log_score, space_for, tune
+from mavattitude.commands.evaluate import evaluate_log
+from mavattitude.core.params import build, load_file, search_space, to_toml
+from mavattitude.commands.replay import ReplaySettings
+from mavattitude.commands.tune import DIVERGED_DEG, TuneSettings, deal_folds, log_score, space_for, tune
 
 optuna = pytest.importorskip("optuna", reason="tune needs the optional extra: pip install 'mavattitude[tune]'")
 
@@ -43,7 +43,7 @@ def test_every_estimator_searches_a_space_around_its_defaults(name):
 
 
 def test_a_search_range_is_checked_where_it_is_declared():
-    from mavattitude.params import param
+    from mavattitude.core.params import param
 
     with pytest.raises(ValueError, match="outside its own search range"):
         param(0.2, "[0, inf)", "log [1, 10]")

@@ -15,7 +15,7 @@ from pyulog import ULog
 from conftest import shared_log
 from mavattitude.cli import main
 from mavattitude.declination import for_flight
-from mavattitude.pipeline import ReplaySettings, replay_flight
+from mavattitude.commands.replay import ReplaySettings, replay_flight
 from mavattitude.readers import read_log
 from mavattitude.sim import simulate, write_log
 

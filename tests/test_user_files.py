@@ -64,7 +64,7 @@ def test_a_fifo_as_the_parameter_file_is_one_line_at_once(capsys, fifo):
 def test_evaluate_and_tune_pass_by_a_fifo_in_a_folder_or_pattern(capsys, tmp_path):
     from argparse import Namespace
 
-    from mavattitude.cli import _logs_to_run
+    from mavattitude.cli.common import logs_to_run
 
     logs = tmp_path / "logs"
     logs.mkdir()
@@ -72,16 +72,16 @@ def test_evaluate_and_tune_pass_by_a_fifo_in_a_folder_or_pattern(capsys, tmp_pat
     os.mkfifo(logs / "flight.bin")
     for paths in ([logs], [logs / "*.bin"]):
         with deadline(20):
-            found = _logs_to_run(Namespace(scheduler=None, paths=[str(p) for p in paths]))
+            found = logs_to_run(Namespace(scheduler=None, paths=[str(p) for p in paths]))
         assert [os.path.basename(p) for p in found] == ["static.bin"]
         assert capsys.readouterr().err == f"note: passed by {logs / 'flight.bin'} (a FIFO): not a regular file\n"
 
 
 @pytest.mark.parametrize("option", ["--json", "--rrd", "--export"])
 def test_a_fifo_as_an_output_is_refused_before_the_replay(capsys, monkeypatch, tmp_path, fifo, option):
-    import mavattitude.cli as cli
+    from mavattitude.cli import replay
 
-    monkeypatch.setattr(cli, "_read", lambda *a, **k: pytest.fail("the log was read before the output was refused"))
+    monkeypatch.setattr(replay, "read_log_file", lambda *a, **k: pytest.fail("the log was read before the output was refused"))
     target = fifo
     if option == "--export":  # a FIFO where one of its CSV files goes
         target = tmp_path / "out"
@@ -180,7 +180,7 @@ def test_evaluate_replaces_only_its_own_files(capsys, tmp_path):
     for _ in range(2):  # its own it replaces, the second time from the record it resumes from
         code, _, err = run(capsys, "evaluate", logs, "--out", out, "-q", "-j", "1")
         assert code == 0, err
-    from mavattitude.evalreport import has_parquet
+    from mavattitude.commands.evalreport import has_parquet
     assert sorted(p.name for p in out.iterdir() if p.is_file()) == sorted(names[:None if has_parquet() else -1])
 
 
@@ -240,7 +240,7 @@ def test_a_study_is_only_ever_optunas(capsys, tmp_path):
     code, _, err = run(capsys, *args, "--study", corrupt)
     assert code == 1 and f"{corrupt}: --study: " in one_line(err) and "SQLAlchemy" not in err
     from mavattitude.outputs import Outputs
-    from mavattitude.tune import open_study
+    from mavattitude.commands.tune import open_study
 
     study = tmp_path / "study.db"
     for _ in range(2):  # a new study, then Optuna's own (test_tune runs and resumes one)

@@ -19,11 +19,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from mavattitude import quaternion as quat  # noqa: E402
 from mavattitude import view  # noqa: E402
 from mavattitude.flight import AttitudeSeries, Flight, GpsSeries, ImuSeries  # noqa: E402
-from mavattitude.metrics import AXES, AxisMetrics, Comparison  # noqa: E402
+from mavattitude.scoring.metrics import AXES, AxisMetrics, Comparison  # noqa: E402
 from mavattitude.events import Event  # noqa: E402
-from mavattitude.pipeline import ReplayResult  # noqa: E402
+from mavattitude.commands.replay import ReplayResult  # noqa: E402
 from mavattitude.outputs import Outputs  # noqa: E402
-from mavattitude.sink import close_sink, open_sink, plan_sink  # noqa: E402
+from mavattitude.view.sink import close_sink, open_sink, plan_sink  # noqa: E402
 
 # ---------------------------------------------------------------- synthetic replay
 
@@ -295,15 +295,13 @@ def test_chunks_log_like_the_whole():
         assert a == b, path
 
 
-def test_long_log_is_fast(tmp_path):
-    """An hour at 400 Hz with two estimators stays in seconds and a modest file."""
-    import time
+@pytest.mark.slow
+def test_an_hour_long_log_makes_a_modest_file(tmp_path):
+    """An hour at 400 Hz with two estimators: decimated to what a screen shows (its time is
+    measured by scripts/rrd_size.py and bench --read, not tested)."""
     result = make_replay(duration=3600.0, att_hz=10.0, truth_hz=50.0)
-    start = time.perf_counter()
     write_rrd(result, tmp_path / "hour.rrd")
-    elapsed = time.perf_counter() - start
     size_mb = (tmp_path / "hour.rrd").stat().st_size / 1e6
-    assert elapsed < 30.0, elapsed
     assert size_mb < 200, size_mb
 
 
@@ -322,7 +320,7 @@ if __name__ == "__main__":
 def test_an_estimate_without_heading_is_shown_as_it_is_scored():
     """The yaw plot and the box of an estimator with no heading reference carry the offset its
     yaw error had removed, span by span (restarts), so value and error plots agree."""
-    from mavattitude.metrics import compare
+    from mavattitude.scoring.metrics import compare
     from mavattitude.view import shown_estimate
 
     t = np.arange(0.0, 60.0, 0.02)

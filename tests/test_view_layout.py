@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from mavattitude import quaternion as quat  # noqa: E402
 from mavattitude import view  # noqa: E402
 from mavattitude.flight import AttitudeSeries  # noqa: E402
-from mavattitude.metrics import AXES  # noqa: E402
+from mavattitude.scoring.metrics import AXES  # noqa: E402
 from test_view import make_replay  # noqa: E402
 
 

@@ -46,13 +46,13 @@ from .. import quaternion as quat
 from ..events import Event
 from ..flight import AttitudeSeries
 from ..growing import Growing
-from ..metrics import AXES, Comparison, compare
+from ..scoring.metrics import AXES, Comparison, compare
 from ..readers import IMU_LIMITS, MAG_LIMITS, earth_field_power, pick_imu, pick_mag
 from ..readers.collect import CORRUPT, HELD, ClockTracker
 from ..readers.tlog import MessageDecoder
-from ..imucheck import rate_not_meaningful
-from ..runner import IMU, Chunk, Runner
-from ..running_metrics import RunningComparison, joined
+from ..scoring.imucheck import rate_not_meaningful
+from ..core.runner import IMU, Chunk, Runner
+from ..scoring.running_metrics import RunningComparison, joined
 from ..trim import TRIM_PARAMS, board_trim, describe, trimmed
 from .loss import SampleLoss
 

@@ -23,8 +23,8 @@ from datetime import datetime, timezone
 from ..declination import Fix
 from ..errors import InputError
 from ..events import Event
-from ..imucheck import COARSE_RATE_HZ
-from ..sink import Sink
+from ..scoring.imucheck import COARSE_RATE_HZ
+from ..view.sink import Sink
 from .estimation import HISTORY_S, LiveEstimation
 from ..readers import enum_name, identify_vehicle
 from ..readers.tlog import IMU_MESSAGES, is_vehicle
@@ -129,7 +129,7 @@ def _wanted_rates(opts: LiveOptions) -> dict[str, float]:
 def run_live(opts: LiveOptions, stop=lambda: False, status=None, say=None) -> LiveResult:
     """Run a session until a signal, ``opts.duration`` or ``stop()``. ``status``: a
     ``display.StatusLine`` (default one on stderr); ``say``: where lines go (default status)."""
-    from .display import StatusLine
+    from ..view.live import StatusLine
 
     status = status or StatusLine()
     session = _Session(opts, status, say or status.message)
@@ -199,8 +199,8 @@ class _Session:
                                   errors_for_view=bool(opts.sink), home=opts.home, trim=opts.trim)
         self.rec = self.live_view = None
         if opts.sink:
-            from ..sink import open_sink
-            from .display import LiveView
+            from ..view.sink import open_sink
+            from ..view.live import LiveView
             self.rec = open_sink(opts.sink, "mavattitude", f"live {opts.url}")
             self.live_view = LiveView(self.rec, self.est, opts.window, to_file=opts.sink.kind == "rrd")
         self.start = time.monotonic()
@@ -397,7 +397,7 @@ class _Session:
             self.live_view.push(chunk)
         self._show_events()
         if self.live_view is not None:
-            from ..sink import close_sink
+            from ..view.sink import close_sink
             self.live_view.flush()
             try:
                 close_sink(self.rec, self.opts.sink)

@@ -8,7 +8,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ..metrics import AXES
+from ..scoring.metrics import AXES
 from .style import *  # noqa: F403
 from .style import _part
 from .flightlog import BAND, BAND_RANGE

@@ -12,12 +12,12 @@ import rerun as rr
 from .. import quaternion as quat
 from ..aiding import ned_to_geodetic
 from ..flight import GpsSeries
-from ..metrics import AXES
-from ..runner import REINIT_GAP_S
+from ..scoring.metrics import AXES
+from ..core.runner import REINIT_GAP_S
 from .style import *  # noqa: F403
 
-if TYPE_CHECKING:  # for types only: replay (pipeline) is above the view and draws through it
-    from ..pipeline import ReplayResult
+if TYPE_CHECKING:  # for types only: replay (commands.replay) is above the view and draws through it
+    from ..commands.replay import ReplayResult
 
 
 # ---------------------------------------------------------------- static set-up

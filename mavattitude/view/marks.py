@@ -10,7 +10,7 @@ import numpy as np
 import rerun as rr
 
 from ..events import Event
-from ..metrics import AXES
+from ..scoring.metrics import AXES
 from .columns import _time
 
 _LEVELS = {"info": rr.TextLogLevel.INFO, "warn": rr.TextLogLevel.WARN,

@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import quaternion as quat
-from ..metrics import AXES
+from ..scoring.metrics import AXES
 
-if TYPE_CHECKING:  # for types only: replay (pipeline) is above the view and draws through it
-    from ..pipeline import ReplayResult
+if TYPE_CHECKING:  # for types only: replay (commands.replay) is above the view and draws through it
+    from ..commands.replay import ReplayResult
 
 UPSET_TILT_DEG = 65.0  # beyond this the vehicle is not flying level enough to be in a normal flight
 UPSET_HOLD_S = 2.0  # and staying there this long (a flip is a fraction of a second)

@@ -13,9 +13,9 @@ from ..declination import NO_DECLINATION
 from ..diagcolumns import only
 from ..events import Event
 from ..flight import AttitudeSeries
-from ..metrics import AXES
-from ..report import spread_lines
-from ..runner import REINIT_GAP_S, STEP_ROWS
+from ..scoring.metrics import AXES
+from ..commands.report import spread_lines
+from ..core.runner import REINIT_GAP_S, STEP_ROWS
 from . import ranges
 from .blueprint import map_zoom_for, send_blueprint
 from .columns import *  # noqa: F403
@@ -24,8 +24,8 @@ from .flightlog import flight_events, has_band, log_flight_band
 from .marks import log_event_markers, log_events, log_spans
 from .style import *  # noqa: F403
 
-if TYPE_CHECKING:  # for types only: replay (pipeline) is above the view and draws through it
-    from ..pipeline import ReplayResult
+if TYPE_CHECKING:  # for types only: replay (commands.replay) is above the view and draws through it
+    from ..commands.replay import ReplayResult
 
 # ---------------------------------------------------------------- the whole replay
 

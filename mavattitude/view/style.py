@@ -61,7 +61,7 @@ FALLBACK_COLORS: tuple[Color, ...] = (  # an estimator not named above (in the o
 ROLE_COLORS: dict[str, Color] = {
     "autopilot": AUTOPILOT_COLOR, "truth": TRUTH_COLOR, "reference": REFERENCE_COLOR,
 }
-STREAM_PREFIX = "autopilot:"  # the autopilot's other streams: "autopilot:EKF1 (EKF1)" (pipeline.stream_row)
+STREAM_PREFIX = "autopilot:"  # the autopilot's other streams: "autopilot:EKF1 (EKF1)" (commands.replay.stream_row)
 STREAM_COLORS: tuple[Color, ...] = ((180, 165, 0), (255, 135, 135), (165, 165, 225), (150, 105, 90))
 
 

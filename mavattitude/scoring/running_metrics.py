@@ -23,10 +23,10 @@ import math
 
 import numpy as np
 
-from .flight import AttitudeSeries
+from ..flight import AttitudeSeries
 from .metrics import (AXES, BUCKET_EDGES_DEG, SIGMA1_LEVEL, SIGMA3_LEVEL, YAW_ALIGN_WINDOW_S, AxisMetrics,
                       Comparison, circular_mean_deg, compare)
-from .quaternion import normalize, to_euler, wrap_deg
+from ..quaternion import normalize, to_euler, wrap_deg
 
 SKETCH_MIN_DEG = 1e-6  # |error| below this counts in the first bin
 SKETCH_RATIO = 1.002  # neighbouring bin edges: 0.2 % apart, so a bin's middle is within 0.1 % of its values

@@ -54,7 +54,7 @@ def _cpu(fn, repeat: int) -> float:
 def _pymavlink_bin(path: str) -> int:
     from pymavlink import DFReader
 
-    from .readers.dataflash import WANTED
+    from ..readers.dataflash import WANTED
 
     log = DFReader.DFReader_binary(path, zero_time_base=True)
     n = 0
@@ -66,7 +66,7 @@ def _pymavlink_bin(path: str) -> int:
 def _pymavlink_tlog(path: str) -> int:
     from pymavlink import mavutil
 
-    from .readers.tlog import OTHER_MESSAGES, SAMPLE_MESSAGES, STREAM_MESSAGES
+    from ..readers.tlog import OTHER_MESSAGES, SAMPLE_MESSAGES, STREAM_MESSAGES
 
     mavutil.set_dialect("ardupilotmega")
     log = mavutil.mavmmaplog(path)
@@ -79,7 +79,7 @@ def _pymavlink_tlog(path: str) -> int:
 def _pyulog(path: str) -> int:
     from pyulog import ULog
 
-    from .readers.ulog import TOPICS
+    from ..readers.ulog import TOPICS
 
     return len(ULog(path, message_name_filter_list=TOPICS, disable_str_exceptions=True).data_list)
 
@@ -87,10 +87,10 @@ def _pyulog(path: str) -> int:
 def read_figures(path: str, repeat: int = 3) -> dict:
     """Our reader and the reference one (pymavlink's, or pyulog for a ULog) on one log: CPU
     seconds, MB/s and the ratio, under keys that name the reference (``x_pymavlink``, ``x_pyulog``)."""
-    from .readers import read_log, sniff_format
-    from .readers.dataflash import read_dataflash
-    from .readers.tlog import read_tlog
-    from .readers.ulog import read_ulog
+    from ..readers import read_log, sniff_format
+    from ..readers.dataflash import read_dataflash
+    from ..readers.tlog import read_tlog
+    from ..readers.ulog import read_ulog
 
     kind = sniff_format(path)
     reader, reference, theirs_fn = {"bin": (read_dataflash, "pymavlink", _pymavlink_bin),
@@ -110,7 +110,7 @@ def decoded_mb(path: str) -> float:
     """The size of the arrays the reader hands over for a log (every series of the flight)."""
     import numpy as np
 
-    from .readers import read_log
+    from ..readers import read_log
 
     flight = read_log(path)
     series = [*flight.imu.values(), *flight.mag.values(), flight.gps, flight.baro, flight.attitude, flight.truth]
@@ -139,8 +139,8 @@ def run_read_bench(logs: list[str], scenario: str = "figure8", duration: float =
                    imu_rate: float = 400.0, repeat: int = 3, say=print) -> dict:
     """Every figure (see the module docstring); ``logs``: real logs to read besides the
     simulated one (``duration`` s of ``scenario`` at ``imu_rate``: by default, the hour)."""
-    from .estimators import ESTIMATORS, needs_compile
-    from .warmup import precompile
+    from ..estimators import ESTIMATORS, needs_compile
+    from ..core.warmup import precompile
 
     precompile(needs_compile(list(ESTIMATORS))).wait()
     with tempfile.TemporaryDirectory(prefix="mavattitude-bench-") as tmp:

@@ -41,9 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import quaternion as quat
-from .flight import GRAVITY, AttitudeSeries, Flight, GpsSeries, ImuSeries
-from .readers.attitudes import MOST as SAME_SHARE, name_attitudes
+from .. import quaternion as quat
+from ..flight import GRAVITY, AttitudeSeries, Flight, GpsSeries, ImuSeries
+from ..readers.attitudes import MOST as SAME_SHARE, name_attitudes
 
 TILT_AT_REST_DEG = 5.0
 REST_RATE = 0.05  # rad/s, mean over 1 s

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, UsageError, check_not_special, reraise_interrupt, special_file
-from .pipeline import NoReference, ReplaySettings
-from .progress import clock
+from ..errors import InputError, UsageError, check_not_special, reraise_interrupt, special_file
+from .replay import NoReference, ReplaySettings
+from ..progress import clock
 
 LOG_SUFFIXES = (".bin", ".tlog", ".ulg", ".hdf5", ".h5")  # .hdf5/.h5: BROAD trials
 RECORD_VERSION = 2  # 2: the reference as an object, its stream, algorithm and spread, the autopilot's streams
@@ -39,8 +39,8 @@ def find_logs(paths: list[str], passed: list[str] | None = None) -> list[str]:
     .tlog, .ulg and .hdf5/.h5 (BROAD) files (any case) that are logs by their content, and glob patterns. In order,
     each once; InputError for a path that names nothing, or a file named that is no regular file.
     A FIFO or device a folder or pattern holds is passed by, and its path added to ``passed``."""
-    from .readers import sniff_format
-    from .readers.broad import NEEDS_H5PY
+    from ..readers import sniff_format
+    from ..readers.broad import NEEDS_H5PY
 
     found: list[str] = []
     for path in paths:
@@ -87,7 +87,7 @@ def record_name(path: str) -> str:
 def settings_key(settings: ReplaySettings) -> str:
     """What a record was computed with, the settings and the code: a record made with other
     settings, or by another version of mavattitude, is redone."""
-    from .kernel_cache import sources_stamp
+    from ..kernel_cache import sources_stamp
 
     options = json.dumps(asdict(settings), sort_keys=True, default=str)
     return hashlib.sha1((options + sources_stamp(kernels_only=False)).encode()).hexdigest()[:16]
@@ -97,7 +97,7 @@ def settings_key(settings: ReplaySettings) -> str:
 
 
 def evaluate_log(path: str, settings: ReplaySettings, data: bytes | None = None, keep: bool = False) -> dict:
-    """Replay one log as ``replay`` does (``pipeline.replay_flight``) and return its record:
+    """Replay one log as ``replay`` does (``commands.replay.replay_flight``) and return its record:
     ``status`` ("ok", "failed" or "skipped"), ``facts``, ``metrics`` (``replay --json``'s
     estimators), ``error``. ``data``: the log's bytes, for a worker that cannot see ``path``.
     ``keep``: keep the decoded log in this process for the next replay of it (``tune`` replays
@@ -132,8 +132,8 @@ _kept: dict = {}  # (log path, segment) -> its Flight, in a process replaying lo
 
 
 def _replay(local: str, path: str, settings: ReplaySettings, flight=None, keep: bool = False) -> dict:
-    from .pipeline import choose_imu, replay_flight
-    from .readers import read_log
+    from .replay import choose_imu, replay_flight
+    from ..readers import read_log
 
     if flight is None:
         flight = read_log(local, segment=settings.segment)
@@ -173,7 +173,7 @@ def write_recording(path, records: list[dict], names: list[str], reference: str,
     import rerun as rr
 
     from . import evalreport as er
-    from .view.evaluation import LogRow, log_evaluation
+    from ..view.evaluation import LogRow, log_evaluation
 
     by_log = er.scores(records)
     rows = []
@@ -193,8 +193,8 @@ def write_recording(path, records: list[dict], names: list[str], reference: str,
 
 def log_facts(flight, source: str) -> dict:
     """What kind of log it is, for the results table (``source``: the IMU estimated from)."""
-    from .readers import imu_rate
-    from .runner import REINIT_GAP_S
+    from ..readers import imu_rate
+    from ..core.runner import REINIT_GAP_S
 
     t = flight.imu[source].t
     return {"format": flight.format, "vehicle": flight.vehicle, "firmware": flight.firmware,
@@ -378,7 +378,7 @@ def _start_worker(parent: int) -> None:
     A worker whose parent died without ending it (SIGKILL, a crash) ends as well."""
     import signal
 
-    from .signals import end_with_parent
+    from ..signals import end_with_parent
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     end_with_parent(parent)

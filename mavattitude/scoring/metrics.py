@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .flight import AttitudeSeries
-from .quaternion import interpolate, normalize, to_euler, wrap_deg
+from ..flight import AttitudeSeries
+from ..quaternion import interpolate, normalize, to_euler, wrap_deg
 
 AXES = ("roll", "pitch", "yaw")
 BUCKET_EDGES_DEG = (0.5, 1.0, 2.0)  # shares below 0.5°, 0.5-1°, 1-2°, above 2°

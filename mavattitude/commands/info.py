@@ -6,12 +6,12 @@ import os
 
 import numpy as np
 
-from . import estimators as est
-from .declination import NO_DECLINATION, for_flight
-from .flight import GRAVITY, Flight
-from .imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful, rate_warning
-from .readers import best_imu_source, imu_rate
-from .readers.attitudes import name_attitudes
+from .. import estimators as est
+from ..declination import NO_DECLINATION, for_flight
+from ..flight import GRAVITY, Flight
+from ..scoring.imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful, rate_warning
+from ..readers import best_imu_source, imu_rate
+from ..readers.attitudes import name_attitudes
 
 
 def _rate(t: np.ndarray) -> float:

@@ -14,7 +14,7 @@ import threading
 import time
 from contextlib import contextmanager
 
-from .estimators import create, needs_compile
+from ..estimators import create, needs_compile
 
 # Seconds each estimator's kernels take to compile the first time (measured here, one core,
 # with ``warm_up``), to share the work out fairly between processes.
@@ -167,7 +167,7 @@ def precompile(names: list[str], progress=None, also=()) -> Compiling:
         loads[k] += COMPILE_SECONDS[name]
     # a compiling process ends with its parent (a SIGTERM may end that before it waits for them)
     code = ("import sys; from mavattitude.signals import end_with_parent; end_with_parent(int(sys.argv[1])); "
-            "from mavattitude.warmup import compile_kernels; compile_kernels(sys.argv[2:], report=sys.stdout)")
+            "from mavattitude.core.warmup import compile_kernels; compile_kernels(sys.argv[2:], report=sys.stdout)")
     return Compiling((subprocess.Popen([sys.executable, "-c", code, str(os.getpid()), *share], stdout=subprocess.PIPE,
                                        stderr=subprocess.DEVNULL) for share in shares), pending, progress, also)
 
@@ -177,7 +177,7 @@ def compile_kernels(names: list[str], report=None) -> None:
     ``report``: a stream told "NAME TIME" (``time.time()``) as each is done."""
     import numpy as np
 
-    from .aiding import Aiding
+    from ..aiding import Aiding
     n = 5
     t = np.arange(n) * 0.01
     for name in names:

@@ -17,9 +17,9 @@ import math
 
 import numpy as np
 
-from .outputs import SVG_MARK, WRITTEN_BY, json_text
-from .rankstats import FAMILIES, RESAMPLES, format_p, logs_text, rankings
-from .refcheck import DISAGREE_DEG, DISAGREE_MIN_S
+from ..outputs import SVG_MARK, WRITTEN_BY, json_text
+from ..scoring.rankstats import FAMILIES, RESAMPLES, format_p, logs_text, rankings
+from ..scoring.refcheck import DISAGREE_DEG, DISAGREE_MIN_S
 from .report import BUCKET_KEYS
 
 AXES = ("roll", "pitch", "yaw")

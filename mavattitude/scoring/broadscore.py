@@ -25,9 +25,9 @@ import os
 
 import numpy as np
 
-from .flight import AttitudeSeries
+from ..flight import AttitudeSeries
 from .metrics import Comparison
-from .quaternion import conjugate, interpolate, multiply, normalize
+from ..quaternion import conjugate, interpolate, multiply, normalize
 
 MEASURES = ("total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg")
 PUBLISHED = {"Madgwick": "published_madgwick_average_rmse.json", "Mahony": "published_mahony_average_rmse.json"}
@@ -106,7 +106,7 @@ def broad_text(records: list[dict], names: list[str], measure: str = "inclinatio
     """``evaluate``'s BROAD tables: ``measure`` (all three when a row has them) per trial and per
     group (the trials.json beside the trials), each estimator beside the published Madgwick and
     Mahony (TAGP) figures; "" when no record is a BROAD trial."""
-    from .readers.broad import trial_groups
+    from ..readers.broad import trial_groups
 
     broad = broad_records(records)
     if not broad:

@@ -21,8 +21,8 @@ import time
 from dataclasses import dataclass
 from urllib.parse import quote, urlsplit
 
-from .errors import InputError, UsageError
-from .outputs import Output, Outputs
+from ..errors import InputError, UsageError
+from ..outputs import Output, Outputs
 
 KINDS = ("rrd", "spawn", "connect", "web")
 RERUN_SCHEMES = {"rerun": 9876, "rerun+http": 9876, "rerun+https": 443}

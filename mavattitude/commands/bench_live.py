@@ -90,9 +90,9 @@ class _Fade:
 
 def _sender(port: int, seconds: float, out_dir: str) -> None:
     """The child process: simulate, stream, write what was sent when."""
-    from .live.link import open_link
-    from .sim import simulate
-    from .sim.autopilot import SimAutopilot
+    from ..live.link import open_link
+    from ..sim import simulate
+    from ..sim.autopilot import SimAutopilot
 
     sim = simulate("figure8", seconds + SETTLE_S, seed=0, imu_rate=LIVE_IMU_HZ)
     conn = open_link(f"udpout:127.0.0.1:{port}")
@@ -107,9 +107,9 @@ def _sender(port: int, seconds: float, out_dir: str) -> None:
 
 
 def _probe_sender(port: int, speed: float, sim_seconds: float, out: str) -> None:
-    from .live.link import open_link
-    from .sim import simulate
-    from .sim.autopilot import SimAutopilot
+    from ..live.link import open_link
+    from ..sim import simulate
+    from ..sim.autopilot import SimAutopilot
 
     sim = simulate("figure8", sim_seconds, seed=0, imu_rate=LIVE_IMU_HZ)
     conn = open_link(f"udpout:127.0.0.1:{port}")
@@ -123,8 +123,8 @@ def _session_against(sender, args: tuple, names: list[str], **options):
     """A live session running ``names`` (more ``LiveOptions`` in ``options``) while a child
     process runs ``sender(port, *args)``: started once the session listens, the session ends
     when it is done. Returns the session's result."""
-    from .live import LiveOptions, run_live
-    from .live.display import StatusLine
+    from ..live import LiveOptions, run_live
+    from ..view.live import StatusLine
 
     port = _free_port()
     child = multiprocessing.get_context("spawn").Process(target=sender, args=(port, *args), daemon=True)
@@ -153,7 +153,7 @@ def rate_probe(names: list[str], speed: float = RATE_PROBE_SPEED, seconds: float
 
 
 def _rate_probe(names: list[str], speed: float, seconds: float) -> dict:
-    from .warmup import warm_up
+    from ..core.warmup import warm_up
 
     warm_up(names)
     rss: list[tuple[float, float]] = []  # (monotonic s, MB)
@@ -201,7 +201,7 @@ def _rss_figures(rss: list[tuple[float, float]], start: float, end: float, sampl
 def run_live_bench(names: list[str], seconds: float = 60.0, say=print, probe_seconds: float = RATE_PROBE_S) -> dict:
     """Stream ``seconds`` of 1 kHz IMU to a live session running ``names``, then probe the rate
     it holds for ``probe_seconds``; the figures as a dict."""
-    from .warmup import warm_up
+    from ..core.warmup import warm_up
 
     warm_up(names)
     say(f"live: streaming {seconds:g} s of RAW_IMU at {LIVE_IMU_HZ:g} Hz and ATTITUDE at "

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .flight import AttitudeSeries
-from .metrics import AXES, AxisMetrics, Comparison
-from .outputs import json_text
-from .quaternion import to_euler, wrap_deg
+from ..flight import AttitudeSeries
+from ..scoring.metrics import AXES, AxisMetrics, Comparison
+from ..outputs import json_text
+from ..quaternion import to_euler, wrap_deg
 
 BUCKET_KEYS = ("lt_0.5", "0.5_1", "1_2", "gt_2")  # [0,0.5), [0.5,1), [1,2), [2,inf) degrees
 YAW_DRIFT = "drift (no heading reference)"  # beside the yaw of an estimator without one
@@ -83,7 +83,7 @@ def reference_spread(streams: dict[str, Comparison]) -> dict | None:
     """The reference's own spread: how far the autopilot's other estimates are from it.
 
     ``roll`` and ``pitch``: the smallest MAE (°) on that axis among the autopilot's other
-    streams scored against the reference (``pipeline.score_autopilot_streams``; copies of the
+    streams scored against the reference (``commands.replay.score_autopilot_streams``; copies of the
     reference left out); ``tilt``: the smallest mean of roll and pitch MAE among them (one
     stream's). The closest other estimate is the least the reference is known to be uncertain
     by: a lead between estimators smaller than this is not measured by this reference. Each
@@ -130,9 +130,9 @@ def to_json_dict(log: str, reference: dict, comparisons: dict[str, Comparison],
                  declination=None, streams: dict[str, Comparison] | None = None) -> dict:
     """The JSON summary: ``{"log", "reference", "estimators": {name: {"roll": M, "pitch": M, "yaw": M}}}``.
 
-    ``reference``: ``{"stream": "ATT", "algorithm": "DCM", "choice": "autopilot"}`` (``pipeline.Reference``;
+    ``reference``: ``{"stream": "ATT", "algorithm": "DCM", "choice": "autopilot"}`` (``commands.replay.Reference``;
     a live session's algorithm is null). ``streams`` (the autopilot's other streams scored
-    against the reference, ``pipeline.score_autopilot_streams``) adds ``autopilot_streams``
+    against the reference, ``commands.replay.score_autopilot_streams``) adds ``autopilot_streams``
     ({row name: as an estimator's, without extras}) and ``reference_spread_deg`` ({"roll",
     "pitch", "tilt"}: ``reference_spread``; null without another stream, and against truth).
 

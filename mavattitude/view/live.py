@@ -19,9 +19,9 @@ import rerun as rr
 from .. import quaternion as quat
 from .. import view
 from ..growing import Growing
-from ..metrics import AXES
-from ..runner import Chunk
-from .estimation import LiveEstimation
+from ..scoring.metrics import AXES
+from ..core.runner import Chunk
+from ..live.estimation import LiveEstimation
 
 @dataclass(frozen=True)
 class Rates:

@@ -25,8 +25,8 @@ from __future__ import annotations
 import re
 import sys
 
-from .errors import InputError, UsageError, check_not_special
-from .paramspec import (  # noqa: F401 - the declarations, also offered here (see the docstring)
+from ..errors import InputError, UsageError, check_not_special
+from ..paramspec import (  # noqa: F401 - the declarations, also offered here (see the docstring)
     Interval, Search, convert, describe, fail, make, param, search_space, valid_interval)
 
 if sys.version_info >= (3, 11):
@@ -71,7 +71,7 @@ def build(names: list[str], file_values: dict | None = None, assignments: list[s
     ``log_values`` (see ``log_defaults``), then the file, then the assignments. Every value is
     checked, a file's tables for estimators not in ``names`` too (one file may serve several
     runs); an assignment to an estimator not in ``names`` would do nothing, and is an error."""
-    from .estimators import ESTIMATORS
+    from ..estimators import ESTIMATORS
 
     values: dict[str, dict[str, tuple[object, str]]] = {}
     for name, table in (log_values or {}).items():

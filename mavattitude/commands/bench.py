@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ._version import __version__
-from .errors import UsageError, reraise_interrupt
-from .flight import MagSeries
-from .outputs import json_text
+from .._version import __version__
+from ..errors import UsageError, reraise_interrupt
+from ..flight import MagSeries
+from ..outputs import json_text
 
 MIN_X_IMUFUSION = 5.0  # every estimator: at least this many times imufusion's samples/s
 # ... except these, whose work per sample is of another order: cpf-ekf propagates a 20×20
@@ -86,10 +86,10 @@ def _say(text: str) -> None:
 def make_data(scenario: str = "figure8", duration: float = 3600.0, imu_rate: float = 400.0,
               seed: int = 0) -> BenchData:
     """Simulate the flight and prepare the estimators' inputs and starting point."""
-    from .aiding import from_sim
-    from .estimators import align
-    from .runner import held_magnetometer
-    from .sim import simulate
+    from ..aiding import from_sim
+    from ..estimators import align
+    from ..core.runner import held_magnetometer
+    from ..sim import simulate
 
     _say(f"simulating {scenario}, {duration:g} s at {imu_rate:g} Hz "
          f"({int(round(duration * imu_rate)):,} IMU samples) ...")
@@ -114,7 +114,7 @@ def make_data(scenario: str = "figure8", duration: float = 3600.0, imu_rate: flo
 
 
 def _run_once(name: str, data: BenchData, use_mag: bool, n: int) -> float:
-    from .estimators import create
+    from ..estimators import create
 
     estimator = create(name, declination=data.declination)
     estimator.initialize(data.q0.copy(), data.gyro_bias.copy())
@@ -145,7 +145,7 @@ def time_estimator(name: str, data: BenchData, use_mag: bool, repeat: int) -> fl
 
 def imufusion_available() -> bool:
     """Whether the imufusion estimator (``estimators.rivals``) can run; if not, says how to install it."""
-    from .estimators import available
+    from ..estimators import available
 
     if available("imufusion"):
         _say(f"imufusion is not installed, so there is no comparison with it: {INSTALL_HINT}")
@@ -179,7 +179,7 @@ def run_bench(names: list[str], scenario: str = "figure8", duration: float = 360
               imu_rate: float = 400.0, seed: int = 0, repeat: int = 3,
               imufusion_samples: int = 200_000) -> dict:
     """Simulate, time every named estimator and imufusion; the result as a JSON-ready dict."""
-    from .estimators import ESTIMATORS, needs_compile
+    from ..estimators import ESTIMATORS, needs_compile
 
     data = make_data(scenario, duration, imu_rate, seed)
     has_imufusion = imufusion_available()
@@ -244,7 +244,7 @@ def _settings_json() -> dict:
     """The yardstick's settings: the imufusion estimator's defaults, in its NED convention."""
     from dataclasses import asdict
 
-    from .estimators.rivals import ImufusionParams
+    from ..estimators.rivals import ImufusionParams
     return {"convention": "NED", **asdict(ImufusionParams())}
 
 
@@ -301,7 +301,7 @@ def run(names: list[str], scenario: str, duration: float, imu_rate: float, seed:
         live_seconds: float | None = None) -> int:
     """The ``bench`` command: checks its options, runs, prints the table, writes the JSON.
     ``live_seconds``: also the live figure (``bench_live``), streaming that long."""
-    from .sim import SCENARIOS
+    from ..sim import SCENARIOS
 
     if scenario not in SCENARIOS:
         raise UsageError(f"unknown scenario {scenario!r}; choose from: {', '.join(SCENARIOS)}")

@@ -9,25 +9,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import aiding as aid
-from . import declination as decl
-from . import quaternion as quat
-from . import estimators as est
-from .broadscore import broad_measures
-from .errors import InputError, UsageError
-from .events import Event
-from .flight import GRAVITY, AttitudeSeries, Flight
-from .imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful
-from .metrics import Comparison, compare
-from .params import build, log_defaults
-from .phase import PhaseSeries
-from .refcheck import autopilot_disagreement, check_reference, excluded_spans, whole_log_notes
-from .readers import best_imu_source, imu_rate, mag_for_imu
-from .readers.attitudes import SECONDARY_KEYS, NamedAttitude, name_attitudes
-from .runner import REINIT_GAP_S, STEP_ROWS, Runner
-from .trim import board_trim as trim_of
-from .trim import describe
-from .trim import trimmed  # noqa: F401  (replay's callers and tests take it from here)
+from .. import aiding as aid
+from .. import declination as decl
+from .. import quaternion as quat
+from .. import estimators as est
+from ..scoring.broadscore import broad_measures
+from ..errors import InputError, UsageError
+from ..events import Event
+from ..flight import GRAVITY, AttitudeSeries, Flight
+from ..scoring.imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful
+from ..scoring.metrics import Comparison, compare
+from ..core.params import build, log_defaults
+from ..phase import PhaseSeries
+from ..scoring.refcheck import autopilot_disagreement, check_reference, excluded_spans, whole_log_notes
+from ..readers import best_imu_source, imu_rate, mag_for_imu
+from ..readers.attitudes import SECONDARY_KEYS, NamedAttitude, name_attitudes
+from ..core.runner import REINIT_GAP_S, STEP_ROWS, Runner
+from ..trim import board_trim as trim_of
+from ..trim import describe
+from ..trim import trimmed  # noqa: F401  (replay's callers and tests take it from here)
 
 
 REFERENCE_WORDS = ("autopilot", "truth", "ekf")  # --reference besides a stream's name
@@ -127,7 +127,7 @@ class ReplayResult:
 
     def write_json(self, path) -> None:
         """The metrics as JSON (``replay --json``)."""
-        from .outputs import Outputs
+        from ..outputs import Outputs
         from .report import estimator_extras, write_json
         with Outputs(inputs=[self.flight.path]) as outputs, outputs.file(path, "write_json", "json").writing() as to:
             write_json(to, self.flight.path, self.reference_object, self.comparisons, estimator_extras(self),
@@ -143,9 +143,9 @@ class ReplayResult:
 
     def write_rrd(self, path) -> None:
         """The Rerun recording (``replay --rrd``)."""
-        from . import view
-        from .outputs import Outputs
-        from .sink import close_sink, open_sink, plan_sink
+        from .. import view
+        from ..outputs import Outputs
+        from ..view.sink import close_sink, open_sink, plan_sink
         with Outputs(inputs=[self.flight.path]) as outputs:
             sink = plan_sink("rrd", path, outputs)
             rec = open_sink(sink, "mavattitude", str(self.flight.path))

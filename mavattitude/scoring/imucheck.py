@@ -44,10 +44,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .estimators.alignment import MAX_PLAUSIBLE_BIAS_RAD_S, MIN_STILL_S, MIN_STILL_SAMPLES, STILL_ACCEL_MS2, \
+from ..estimators.alignment import MAX_PLAUSIBLE_BIAS_RAD_S, MIN_STILL_S, MIN_STILL_SAMPLES, STILL_ACCEL_MS2, \
     STILL_GYRO_RAD_S
-from .estimators.gravity import G_BOUND, plausible_g
-from .flight import GRAVITY
+from ..estimators.gravity import G_BOUND, plausible_g
+from ..flight import GRAVITY
 
 MEANINGFUL_RATE_HZ = 9.5  # Hz: below it, scores are not meaningful (see the module docstring)
 COARSE_RATE_HZ = 20.0  # Hz: below it, a warning that estimates are coarse and lag

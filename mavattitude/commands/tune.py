@@ -31,11 +31,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .errors import InputError, UsageError
+from ..errors import InputError, UsageError
 from .evalreport import tilt_score
-from .params import Search, build, search_space
-from .pipeline import ReplaySettings
-from .progress import clock
+from ..core.params import Search, build, search_space
+from .replay import ReplaySettings
+from ..progress import clock
 
 DIVERGED_DEG = 90.0  # a log's tilt error when the estimate diverged: as if the filter knew no tilt
 OBJECTIVES = ("median", "mean", "geomean")
@@ -115,8 +115,8 @@ def aggregate(values, objective: str) -> float:
 def space_for(settings: TuneSettings) -> dict[str, Search]:
     """The fields searched: those with a search range, less those fixed by --set. UsageError
     when nothing is left, or for the paper's own filter (strict: its values are published)."""
-    from .estimators import ESTIMATORS
-    from .params import parse_assignment
+    from ..estimators import ESTIMATORS
+    from ..core.params import parse_assignment
 
     name = settings.estimator
     space = search_space(ESTIMATORS[name].Params)
@@ -413,7 +413,7 @@ def _g(x) -> str:
 def tuned_toml(result: TuneResult, settings: TuneSettings, command: str) -> str:
     """The parameters to run with (``--params``): the user's file values and --set values for
     this estimator, and the final fit's values, with where they came from in a comment."""
-    from .params import parse_assignment, to_toml
+    from ..core.params import parse_assignment, to_toml
 
     name = settings.estimator
     chosen = build([name], settings.replay.file_values, settings.replay.assignments,

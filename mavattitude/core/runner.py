@@ -34,15 +34,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import aiding as aid
-from . import estimators as est
-from . import quaternion as quat
-from .diagcolumns import Column, Series
-from .events import Event
-from .flight import AttitudeSeries
-from .growing import Growing
-from .imucheck import rate_warning
-from .phase import STALE_S, PhaseTracker, pressure_height
+from .. import aiding as aid
+from .. import estimators as est
+from .. import quaternion as quat
+from ..diagcolumns import Column, Series
+from ..events import Event
+from ..flight import AttitudeSeries
+from ..growing import Growing
+from ..scoring.imucheck import rate_warning
+from ..phase import STALE_S, PhaseTracker, pressure_height
 
 # An IMU gap longer than this restarts the estimators from a fresh alignment: after it the
 # vehicle may be anywhere (logging paused while disarmed, a crash and a pick-up).
