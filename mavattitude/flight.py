@@ -117,6 +117,24 @@ class AttitudeSeries:
 
 
 @dataclass
+class LabelSeries:
+    """What the log says happened, one row per change, on the autopilot clock: flight modes
+    (``value`` the autopilot's mode number, ``label`` its name), arming (``value`` 1 armed, 0
+    disarmed) or the autopilot's own text lines (``value`` the MAVLink severity, 0 emergency to 7
+    debug; ``label`` the text: MSG, ERR, STATUSTEXT, a ULog's logged messages). Readers:
+    ``readers.logevents``."""
+    source: str  # "MODE", "HEARTBEAT", "vehicle_status", "EV", "MSG+ERR", ...
+    t: np.ndarray  # (N,) s, in the order the log holds them (not always increasing: a text's time is its writer's)
+    value: np.ndarray  # (N,) int
+    label: list[str]
+
+    def spans(self, end: float) -> list[tuple[float, float, int, str]]:
+        """(start, end, value, label) of each row until the next (the last until ``end``)."""
+        ends = list(self.t[1:]) + [max(end, float(self.t[-1]))] if len(self.t) else []
+        return [(float(a), float(b), int(v), name) for a, b, v, name in zip(self.t, ends, self.value, self.label)]
+
+
+@dataclass
 class Flight:
     path: str
     format: str  # "bin", "tlog", "ulg" or "broad" (a BROAD trial: readers.broad)
@@ -143,6 +161,10 @@ class Flight:
     # (its clock went back); the record holds the segment ``segment_index`` only.
     segments: list[tuple[float, float]] = field(default_factory=list)
     segment_index: int = 0
+    # What the log says happened (``LabelSeries``): its flight modes, arming and text lines
+    modes: LabelSeries | None = None
+    arming: LabelSeries | None = None
+    messages: LabelSeries | None = None
     notes: list[str] = field(default_factory=list)  # things the reader fixed or noticed
     warnings: list[str] = field(default_factory=list)  # data the reader had to leave out (damage)
     repeated: dict[str, int] = field(default_factory=dict)  # series -> samples dropped for repeating a time

@@ -12,9 +12,10 @@ Not part of the package: a development tool only.
 Under software rendering the viewer ingests slowly: a 1-2 minute replay (a few MB) needs
 --wait 150-200 before every plot is filled; take --shots 3 to watch it fill. --click X,Y
 clicks viewport pixels afterwards and saves OUT-clickN.png. At 1600x1000, a replay with a GPS
-track and an estimated track has its tabs at "GPS track" 1104,611, "track" 1210,611,
-"summary" 1315,611, "events" 1396,611, "diagnostics" 1468,611 (the legend's column sits left of
-them); the middle of the timeline is 830,986.
+track and an estimated track has its tabs at "GPS track" 1097,517, "track" 1202,517,
+"summary" 1307,517, "events" 1388,517, "diagnostics" 1457,517 (the legend's column sits left of
+them), and the diagnostics' estimator tabs on the row below (y 546: ncs-eskf 1317, eq-kf 1394 on
+a replay of all nine); the middle of the timeline is 830,986.
 """
 from __future__ import annotations
 

@@ -185,7 +185,9 @@ def test_a_damaged_ulog_reads_into_the_same_flight_both_ways(simulated, tmp_path
     """Damage is cut out before either decoder: ours reads the valid messages where they lie,
     pyulog the repaired copy, and the flights agree."""
     data = bytearray(simulated.read_bytes())
+    starts = frame(bytes(data)).data_at  # a message's header: damage the framing itself
     for at in (len(data) // 3, len(data) // 2):
+        at = int(starts[np.searchsorted(starts, at)])
         data[at:at + 16] = bytes(16)  # where pyulog alone would stop reading (issue 23)
     path = tmp_path / "damaged.ulg"
     path.write_bytes(bytes(data))

@@ -173,3 +173,62 @@ def test_a_log_that_ends_tumbling_opens_before_the_tumble():
     burst = ((t > 56.5) & (t < 57.5)) | ((t > 58.0) & (t < 58.8))  # through 65° twice, level at the end
     q = quat.from_euler(np.where(burst, np.radians(100.0), 0.0), np.zeros_like(t), np.zeros_like(t))
     assert view.upset_runs(t, q) == [(t[burst][0], t[-1])]
+
+
+def test_the_logs_modes_arming_and_lines_in_a_band_and_the_events_tab(tmp_path):
+    from mavattitude.flight import LabelSeries
+    from mavattitude.view.flightlog import MAX_NAMED_LINES, flight_events
+
+    result = make_replay(duration=30.0)
+    fl = result.flight
+    fl.modes = LabelSeries("MODE", np.array([30.0, 40.0, 50.0]), np.array([0, 5, 0]), ["MANUAL", "LOITER", "MANUAL"])
+    fl.arming = LabelSeries("EV", np.array([35.0, 55.0]), np.array([1, 0]), ["armed", "disarmed"])
+    n = MAX_NAMED_LINES + 5
+    fl.messages = LabelSeries("MSG+ERR", 30.0 + np.arange(n) * 0.5, np.array([3] + [6] * (n - 1)),
+                              ["ERR: CRASH_CHECK 1"] + [f"line {i}" for i in range(1, n)])
+    paths, bp = _paths(result, tmp_path)
+    # one bar entity per mode (MANUAL's two spans share one), the armed bar, a dot per line up to the cap
+    assert {p for p in paths if p.startswith("log/modes/")} == {"log/modes/00", "log/modes/01"}
+    assert "log/armed" in paths
+    assert len({p for p in paths if p.startswith("log/lines/")}) == MAX_NAMED_LINES + 1  # the rest share one
+    band = [v for v in _views(bp.root_container) if str(v.name).startswith("the log's")]
+    assert len(band) == 2 and all(any("/log/**" in str(r) for r in v.contents) for v in band)  # atop each column
+    legend = next(v for v in _views(bp.root_container) if str(v.name) == "flight modes")
+    assert any("/log/modes/**" in str(r) for r in legend.contents)
+    events = flight_events(fl)
+    assert [e.text for e in events[:3]] == ["mode MANUAL (log)", "mode LOITER (log)", "mode MANUAL (log)"]
+    assert next(e for e in events if "CRASH_CHECK" in e.text).level == "error"
+
+
+def test_no_band_without_the_logs_events(tmp_path):
+    _, bp = _paths(make_replay(duration=30.0), tmp_path)
+    assert not [v for v in _views(bp.root_container) if str(v.name).startswith(("the log's", "flight modes"))]
+
+
+def test_accel_state_codes_as_named_spans():
+    sent = {}
+
+    class Rec:
+        def log(self, path, entity, **k):
+            sent.setdefault(path, {})["style"] = entity
+
+        def send_columns(self, path, indexes, columns):
+            sent.setdefault(path, {})["n"] = sum(len(c.as_arrow_array()) for c in columns)
+
+    t = np.arange(0.0, 10.0, 0.01)  # 100 Hz
+    codes = np.zeros(len(t), np.int8)
+    codes[100:150] = 2  # one run
+    codes[300:302] = 1
+    codes[305:307] = 1  # two runs 0.03 s apart: one bar
+    codes[800:810] = 1  # another bar
+    view.log_state_spans(Rec(), "ncs-eskf", t, codes, ("used", "skipped", "down-weighted"))
+    root = view.series_root("ncs-eskf")
+    assert set(sent) == {f"{root}/diagnostics/accel_states/1", f"{root}/diagnostics/accel_states/2"}
+    assert sent[f"{root}/diagnostics/accel_states/1"]["n"] == 2 * 3  # two bars, three points each
+    assert sent[f"{root}/diagnostics/accel_states/2"]["n"] == 3
+
+
+def test_state_labels_fit_a_legend():
+    assert view.state_label(1, "skipped") == "1 skipped"
+    label = view.state_label(4, "used the low-passed reading (the closer of the two; accel_tau)")
+    assert label == "4 used the low-passed rea…" and len(label) == 26

@@ -33,6 +33,8 @@ def add_parser(sub) -> None:
                    help="the estimator ratios are taken to (default mahony; run too if not listed)")
     workers_args(p)
     p.add_argument("--out", default="evaluation", metavar="DIR", help="where the results go (default evaluation/)")
+    p.add_argument("--rrd", metavar="FILE", help="also a Rerun recording of the run: each log's tilt error per "
+                                                 "estimator, a line per log with the replay command for its own")
     trim_arg(p)
     segment_arg(p)
     force_arg(p)
@@ -42,7 +44,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from ..commands import evalreport as er
     from ..scoring.broadscore import broad_text
-    from ..commands.evaluate import Progress, run_logs
+    from ..commands.evaluate import Progress, run_logs, write_recording
 
     names = estimator_names(args.estimators)
     if args.ship_logs and not args.scheduler:
@@ -58,6 +60,7 @@ def run(args) -> int:
         files = {name: outputs.file(out / name, "--out", kind) for name, kind in (
             ("results.csv", "csv"), ("summary.json", "json"), ("report.md", "md"), ("tilt_error.svg", "svg"),
             ("results.parquet", "parquet"))}
+        rrd = outputs.file(args.rrd, "--rrd", "rrd") if args.rrd else None
         records_dir = out / "logs"
         records_dir.mkdir(exist_ok=True)
         if not args.scheduler:
@@ -84,6 +87,9 @@ def run(args) -> int:
         for name, text in texts.items():
             with files[name].writing() as path:
                 Path(path).write_text(text)
+        if rrd is not None:
+            with rrd.writing() as path:
+                write_recording(path, records, names, args.reference, texts["report.md"])
         parquet = er.has_parquet()
         if parquet:
             with files["results.parquet"].writing() as path:
@@ -94,7 +100,7 @@ def run(args) -> int:
     print(f"{len(records)} logs: {summary['scored']} scored, {len(summary['not_meaningful'])} not meaningful, "
           f"{len(summary['failed'])} failed, "
           f"{len(summary['skipped'])} skipped; written to {out}/ (report.md, summary.json, results.csv"
-          f"{', results.parquet' if parquet else ''}, tilt_error.svg)")
+          f"{', results.parquet' if parquet else ''}, tilt_error.svg)" + (f"; the recording {args.rrd}" if args.rrd else ""))
     if records and len(summary["failed"]) == len(records):  # some failing among others is a result; all is not
         raise InputError(", ".join(args.paths), f"every one of the {len(records)} logs failed; "
                                                 f"the reasons are above and in {out / 'report.md'}")

@@ -165,6 +165,33 @@ def _replay(local: str, path: str, settings: RunOptions, flight=None, keep: bool
             "suspects": metrics["scoring"]["reference_suspect"], "reference_notes": metrics["scoring"]["reference_notes"]}
 
 
+def write_recording(path, records: list[dict], names: list[str], reference: str, report_md: str) -> None:
+    """``evaluate --rrd``: the run as one Rerun recording (``view.evaluation``): each log's tilt
+    error per estimator, a line per log with the ``replay`` command that writes its own
+    recording beside this one, and the report."""
+    import shlex
+
+    import rerun as rr
+
+    from . import evalreport as er
+    from ..view.evaluation import LogRow, log_evaluation
+
+    by_log = er.scores(records)
+    rows = []
+    for r in records:
+        why = er.not_meaningful(r) if r["status"] == "ok" else r.get("error")
+        status = "not meaningful" if r["status"] == "ok" and why else r["status"]
+        own = Path(path).parent / (Path(r["log"]).stem + ".rrd")
+        command = (f"mavattitude replay {shlex.quote(r['log'])} --estimators {','.join(names)} "
+                   f"--reference {shlex.quote(reference)} --rrd {shlex.quote(str(own))}")
+        rows.append(LogRow(r["log"], status, by_log.get(r["log"], {}), why or "", command))
+    rec = rr.RecordingStream("mavattitude-evaluate")
+    rec.save(str(path))
+    log_evaluation(rec, rows, names, report_md)
+    rec.flush()
+    rec.disconnect()
+
+
 def log_facts(flight, source: str) -> dict:
     """What kind of log it is, for the results table (``source``: the IMU estimated from)."""
     from ..readers import imu_rate

@@ -244,7 +244,7 @@ def nothing_scored(comparisons: dict[str, Comparison], warmup_s: float) -> str |
 def format_events(result) -> str:
     """One line per estimator state other than "used": how often and how long the
     accelerometer update was skipped or down-weighted (a watchdog's resets are warnings)."""
-    lines = []
+    lines = [modes] if (modes := modes_line(result.flight)) else []
     n = len(result.flight.imu[result.imu_source].t)
     for name, states in result.estimator_events.items():
         for state, c in states.items():
@@ -253,6 +253,17 @@ def format_events(result) -> str:
                              f"{c['seconds']:.1f} s "
                              f"({100.0 * c['samples'] / max(n, 1):.1f} % of samples)")
     return "\n".join(lines) + ("\n" if lines else "")
+
+
+def modes_line(flight) -> str | None:
+    """The flight modes the log says were flown, each with its time in all ("modes: ALT_HOLD
+    31.2 s, LOITER 52.0 s"), in the order first flown; None when the log has none."""
+    if flight.modes is None:
+        return None
+    held: dict[str, float] = {}
+    for start, end, _, name in flight.modes.spans(flight.time_span[1]):
+        held[name] = held.get(name, 0.0) + end - start
+    return "modes: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in held.items())
 
 
 def write_json(path, log: str, reference: dict, comparisons: dict[str, Comparison],

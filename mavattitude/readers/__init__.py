@@ -20,6 +20,7 @@ from ..flight import Flight
 from ..kernel_cache import cached
 from .broad import HDF5_SIGNATURE, looks_like_broad, read_broad
 from .dataflash import read_dataflash
+from .logevents import fill_events
 from .series import IMU_LIMITS, MAG_LIMITS, earth_field_power, fill_series
 from .sources import (IMU_PREFERENCE, best_imu_source, enum_name, identify_vehicle, imu_rate, mag_for_imu,
                       pick_imu, pick_mag)
@@ -169,6 +170,7 @@ def read_log(path: str, segment: int | None = None, progress=None) -> Flight:
                     segments=segments, segment_index=segment, notes=notes, warnings=warnings, utc_s=decoded.utc_s)
     unusable = fill_series(flight, col, segment)
     flight.vehicle, flight.firmware = decoded.identity or identify_vehicle(decoded.texts)
+    fill_events(flight, col, segment, flight.vehicle or decoded.build)  # (the vehicle names a .bin's modes)
     if not flight.imu and unusable:
         raise InputError(path, "IMU data present but none usable: " + "; ".join(unusable))
     if not flight.imu:

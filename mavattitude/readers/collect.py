@@ -25,6 +25,12 @@ not take part in following the clock: each of their samples takes the segment of
 before it in the file that did, or is dropped as corrupt when its time is more than ``JUMP_S``
 from that sample's. So reading more streams leaves every other series, the segments and the
 counts of corrupt samples as they were.
+
+What the log says happened (``add_events``: flight modes, arming, text lines) follows the same
+way, with two differences: a message without a time of its own (an old .bin's MODE, EV, ERR and
+MSG; a .tlog's HEARTBEAT and STATUSTEXT) takes the time of the last clocked sample before it in
+the file (the first after it when none is before), and ``events`` keeps every row of a segment in
+file order, repeats included (two lines written in the same microsecond are two lines).
 """
 from __future__ import annotations
 
@@ -168,6 +174,8 @@ class Collector:
         self._order = 0
         self._series: dict[tuple[str, str], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._segment_spans: list[tuple[float, float]] = []
+        self._events: dict[tuple[str, str], list] = {}  # (kind, key) -> chunks of (order, t, values, labels)
+        self._event_rows: dict[tuple[str, str], tuple] = {}  # (kind, key) -> (t, values, labels, segment)
         self.outliers = 0  # samples dropped as corrupt (their time fits no clock)
 
     def add(self, kind: str, key: str, t: float, row: tuple) -> None:
@@ -185,6 +193,15 @@ class Collector:
         """Many samples of one series: ``order`` places them in the file (e.g. record offsets)."""
         self._chunks.setdefault((kind, key), []).append(
             (np.asarray(order, np.int64), np.asarray(t, np.float64), np.asarray(values, np.float64)))
+
+    def add_events(self, kind: str, key: str, order, t, values, labels=None) -> None:
+        """Rows of what the log says happened (see the module docstring): ``t`` in seconds,
+        NaN where the message has no time of its own; ``values`` a number per row, ``labels``
+        a text per row (or None)."""
+        order = np.asarray(order, np.int64)
+        labels = [""] * len(order) if labels is None else [str(x) for x in labels]
+        self._events.setdefault((kind, key), []).append(
+            (order, np.asarray(t, np.float64), np.asarray(values, np.float64), labels))
 
     def finish(self) -> None:
         """Call after the last sample: follows the clock and assigns segments."""
@@ -213,6 +230,8 @@ class Collector:
         seg[sort] = seg_sorted
         if followers:
             self._follow(followers, order[sort], t_sorted, seg_sorted)
+        if self._events:
+            self._place_events(order[sort], t_sorted, seg_sorted)
         self.outliers = int(np.count_nonzero(seg < 0))
         n_segments = int(seg.max()) + 1 if len(seg) else 0
         spans = []
@@ -236,6 +255,39 @@ class Collector:
             before = clocked[np.maximum(last, 0)] if len(clocked) else np.zeros_like(last)
             near = (last >= 0) & (np.abs(times - t[before]) <= JUMP_S)
             self._series[k] = (at, times, values, np.where(near, seg[before], CORRUPT))
+
+    def _place_events(self, order: np.ndarray, t: np.ndarray, seg: np.ndarray) -> None:
+        """Each event row takes the segment of the last clocked sample before it in the file
+        (the first after it when none is before), and its time where it has none; CORRUPT when
+        its own time is more than JUMP_S from that sample's."""
+        clocked = np.flatnonzero(seg >= 0)
+        events, self._events = self._events, {}
+        for k, chunks in events.items():
+            at = np.concatenate([c[0] for c in chunks])
+            times = np.concatenate([c[1] for c in chunks])
+            values = np.concatenate([c[2] for c in chunks])
+            labels = [x for c in chunks for x in c[3]]
+            if not len(clocked):
+                continue
+            before = np.searchsorted(order, at, side="right") - 1
+            last = np.searchsorted(clocked, before, side="right") - 1
+            near_sample = clocked[np.maximum(last, 0)]  # (last -1: none before, the first after)
+            times = np.where(np.isfinite(times), times, t[near_sample])
+            label = np.where(np.abs(times - t[near_sample]) <= JUMP_S, seg[near_sample], CORRUPT)
+            by_place = np.argsort(at, kind="stable")
+            self._event_rows[k] = (times[by_place], values[by_place], [labels[i] for i in by_place],
+                                   label[by_place])
+
+    def events(self, kind: str, key: str, segment: int) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """(t, values, labels) of one event series' rows in one segment, in file order."""
+        if (kind, key) not in self._event_rows:
+            return np.empty(0), np.empty(0), []
+        t, values, labels, seg = self._event_rows[(kind, key)]
+        mine = np.flatnonzero(seg == segment)
+        return t[mine], values[mine], [labels[i] for i in mine]
+
+    def event_keys(self, kind: str) -> list[str]:
+        return [k for (kd, k) in self._event_rows if kd == kind]
 
     @property
     def segments(self) -> list[tuple[float, float]]:
@@ -306,3 +358,4 @@ class Decoded:
     warnings: list[str] = field(default_factory=list)  # data lost to damage: the user must hear of it
     identity: tuple[str, str] | None = None  # (vehicle, firmware) when the format says them (ULog)
     utc_s: float | None = None  # UNIX time (s, UTC) of the first valid GPS or system time (``flight.Flight``)
+    build: str | None = None  # a .bin's vehicle by its VER record's build type, where no text names it

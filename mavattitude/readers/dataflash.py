@@ -19,8 +19,10 @@ degrees, 'L' 1e-7 degrees -> degrees, but not the FMTU multipliers):
 | AHR2, EKF1, NKF1/XKF1 (with C: per core), NKF6/XKF6 (old logs: core 1), DCM | Roll, Pitch, Yaw | degrees |
 | SIM | Roll, Pitch, Yaw (+ Q1..Q4 when present) | degrees; quaternion |
 | PARM | Name, Value | as the parameter |
+| MODE, EV, ARM, ERR, MSG (``logevents``) | Mode (ModeNum); Id; ArmState; Subsys, ECode; Message | mode number, event id, text |
 
-Time: ``TimeUS`` (µs since boot) or, in old logs, ``TimeMS`` (ms). Old GPS messages carry
+Time: ``TimeUS`` (µs since boot) or, in old logs, ``TimeMS`` (ms); old logs' MODE, EV, ERR and
+MSG have no time: they take the last sample's before them (``Collector.add_events``). Old GPS messages carry
 GPS time-of-week in ``TimeMS`` and the boot time in ``T`` (ms): we use ``T``. GYR and ACC carry
 the sensor's own sample time in ``SampleUS``: we use it.
 
@@ -41,10 +43,12 @@ import numpy as np
 from ..errors import InputError, reraise_interrupt
 from .collect import Collector, Decoded, first_utc, gps_to_unix
 from .dfrecords import decode, open_log, scan_log
+from .logevents import ARMED_EVENTS, BUILD_TYPES, ERROR, INFO, err_text
 
 MILLIGAUSS_TO_TESLA = 1e-7  # 1 mG = 1e-3 G = 1e-7 T
 DEG = math.pi / 180.0
 TEXT_TYPES = ("PARM", "MSG", "VER")  # parameters and who wrote the log, not samples
+EVENT_TYPES = ("MODE", "EV", "ARM", "ERR", "MSG")  # what the log says happened (``logevents``)
 MAX_INSTANCE = 9  # sensor instances ArduPilot numbers (0-based); beyond: a corrupt record
 
 # The sensor messages kept per instance: the collector's kind and the columns of their values
@@ -62,7 +66,7 @@ SENSORS = {
 ATTITUDE_STREAMS = ("AHR2", "EKF1", "NKF1", "NKF6", "XKF1", "XKF6", "DCM")
 SECOND_CORE = {"NKF6": "NKF1", "XKF6": "XKF1"}
 WANTED = ["IMU", "IMU2", "IMU3", "GYR", "ACC", "IMT", "IMT2", "IMT3", "MAG", "MAG2", "MAG3", "GPS", "BARO",
-          "ATT", "SIM", "PARM", "MSG", "VER", *ATTITUDE_STREAMS]
+          "ATT", "SIM", "PARM", "MSG", "VER", "MODE", "EV", "ARM", "ERR", *ATTITUDE_STREAMS]
 
 
 def read_dataflash(path: str, progress=None) -> Decoded:
@@ -93,8 +97,16 @@ def _decoded(records, order: dict, counts: dict, **notes) -> Decoded:
     texts = {}
     utc_s = None
     for name, r in records:
+        if name in EVENT_TYPES:
+            try:
+                _collect_events(col, name, r, order[name])
+            except (KeyError, TypeError, ValueError) as exc:  # damage, as below: said, the rest read
+                notes.setdefault("warnings", []).append(f"{name}: its columns do not fit ({exc}): "
+                                                        f"{len(order[name])} records skipped")
         if name in TEXT_TYPES:
             texts[name] = r
+            continue
+        if name in EVENT_TYPES:
             continue
         if name == "GPS" and utc_s is None:
             utc_s = _gps_utc(r)
@@ -107,7 +119,8 @@ def _decoded(records, order: dict, counts: dict, **notes) -> Decoded:
     parm, msg, ver = (texts.get(name, {}) for name in TEXT_TYPES)
     params = {name: float(value) for name, value in zip(parm.get("Name", []), parm.get("Value", []))}
     texts = list(msg.get("Message", [])) + list(ver.get("FWS", []))
-    return Decoded(col, params, texts, counts, utc_s=utc_s, **notes)
+    build = BUILD_TYPES.get(int(ver["BU"][0])) if "BU" in ver and len(ver["BU"]) else None
+    return Decoded(col, params, texts, counts, utc_s=utc_s, build=build, **notes)
 
 
 def damage_notes(scan, size: int) -> list[str]:
@@ -193,6 +206,29 @@ def _collect(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
         else:
             col.add_columns("truth_euler", "SIM", order, t,
                             np.column_stack([r["Roll"], r["Pitch"], r["Yaw"]]) * DEG)
+
+
+def _collect_events(col: Collector, name: str, r: dict, order: np.ndarray) -> None:
+    """MODE, EV, ARM, ERR, MSG into the collector's event rows (``logevents``); NaN times where
+    the records have none (old logs)."""
+    t = r["TimeUS"] * 1e-6 if "TimeUS" in r else r["TimeMS"] * 1e-3 if "TimeMS" in r else np.full(len(order), np.nan)
+    if name == "MODE":
+        mode = r["ModeNum"] if "ModeNum" in r else r["Mode"]
+        if mode.dtype.kind in "OSU":  # a name rather than a number
+            col.add_events("mode", name, order, t, np.full(len(order), -1), [str(m) for m in mode])
+        else:
+            col.add_events("mode", name, order, t, mode)
+    elif name == "EV":
+        ids = np.asarray(r["Id"], np.int64)
+        arm = np.isin(ids, list(ARMED_EVENTS))
+        col.add_events("armed", name, order[arm], t[arm], [ARMED_EVENTS[i] for i in ids[arm].tolist()])
+    elif name == "ARM":
+        col.add_events("armed", name, order, t, np.asarray(r["ArmState"], np.int64) != 0)
+    elif name == "ERR":
+        col.add_events("text", name, order, t, np.full(len(order), ERROR),
+                       [err_text(s, c) for s, c in zip(r["Subsys"].tolist(), r["ECode"].tolist())])
+    elif name == "MSG":
+        col.add_events("text", name, order, t, np.full(len(order), INFO), [str(m) for m in r["Message"]])
 
 
 def _gps_utc(r: dict) -> float | None:

@@ -15,6 +15,7 @@ Units as sent (MAVLink common/ardupilotmega definitions):
 | SIMSTATE (ArduPilot SITL truth) | roll, pitch, yaw | rad |
 | SYSTEM_TIME | time_unix_usec (else GPS_RAW_INT time_usec when a UNIX time) | µs: the log's date |
 | PARAM_VALUE | param_id, param_value | - |
+| HEARTBEAT, STATUSTEXT (``logevents``; no time of their own) | custom_mode, base_mode; severity, text | mode number and armed bit; text |
 
 Time: the autopilot's ``time_boot_ms`` / ``time_usec`` (µs since boot), never the ground
 station's receive time. A message without a boot time (SIMSTATE, or a GPS_RAW_INT with a
@@ -44,6 +45,7 @@ HPA_TO_PA = 100.0
 # A time_usec larger than this (~31 years) is a UNIX time, not time since boot.
 EPOCH_THRESHOLD_US = 1e15
 MAV_AUTOPILOT_INVALID = 8
+MAV_MODE_FLAG_SAFETY_ARMED = 128
 
 TLOG_SEARCH_BYTES = 1 << 16  # a ground station's header before the first record (1,359 bytes seen)
 TLOG_TIME_RANGE_US = (946684800e6, 4102444800e6)  # a record's UNIX time: 2000 to 2100
@@ -272,6 +274,7 @@ def read_tlog(path: str, progress=None) -> Decoded:
             order[name] = packets.offsets[rows]
     col = Collector()
     _collect(col, columns, order)
+    _collect_events(col, [(packets.offsets[i], m) for i, m in notes.items() if mine[i]])
     gps_utc = first_utc(np.asarray(columns["GPS_RAW_INT"].time_usec, np.float64) * 1e-6) \
         if "GPS_RAW_INT" in columns else None  # older ArduPilot sends the fix's UNIX time there
     out = Decoded(col, decoder.params, decoder.texts, packets.counts, warnings=_damage(packets),
@@ -313,6 +316,24 @@ def _collect(col: Collector, columns: dict, order: dict) -> None:
             kind, values = sample_values(name, m)
             values = np.column_stack([np.broadcast_to(np.asarray(v, np.float64), t.shape) for v in values])
             col.add_columns(kind, name, at[has_time], t[has_time], values[has_time])
+
+
+def _collect_events(col: Collector, notes: list) -> None:
+    """The vehicle's modes and arming (its autopilot's HEARTBEAT: not a gimbal's or a camera's)
+    and its STATUSTEXT lines (``notes``: (offset, message) in file order) as event rows; they
+    carry no time: each takes the last sample's before it (``Collector.add_events``)."""
+    from pymavlink import mavutil
+
+    beats = [(at, m) for at, m in notes if m.get_type() == "HEARTBEAT" and m.autopilot != MAV_AUTOPILOT_INVALID]
+    texts = [(at, m) for at, m in notes if m.get_type() == "STATUSTEXT"]
+    for kind, rows, value, label in (
+            ("mode", beats, lambda m: m.custom_mode, mavutil.mode_string_v10),
+            ("armed", beats, lambda m: bool(m.base_mode & MAV_MODE_FLAG_SAFETY_ARMED), None),
+            ("text", texts, lambda m: m.severity, lambda m: m.text)):
+        if rows:
+            col.add_events(kind, "STATUSTEXT" if kind == "text" else "HEARTBEAT", [at for at, _ in rows],
+                           np.full(len(rows), np.nan), [value(m) for _, m in rows],
+                           None if label is None else [label(m) for _, m in rows])
 
 
 def _damage(packets) -> list[str]:

@@ -18,6 +18,8 @@ taken at ``timestamp_sample`` where the topic has it set (when the sensor sample
 | vehicle_attitude | q[4] (the estimator in use: EKF2, or the Q filter; ``readers.attitudes``) | [w, x, y, z], body FRD -> NED |
 | estimator_attitude (instances: each EKF2 of a multi-EKF PX4) | q[4] | as vehicle_attitude |
 | vehicle_attitude_groundtruth (SITL) | q[4] | as vehicle_attitude |
+| vehicle_status (``logevents``) | nav_state, arming_state | PX4's enums: the flight mode, armed (2) |
+| logged messages ('L', 'C') | log_level, timestamp, message | '0'-'7' (emergency .. debug), µs, text |
 
 The IMU is ``sensor_combined``: PX4's selected IMU (``sensor_selection``), the one its EKF uses.
 ``vehicle_imu[i]`` (every IMU, as delta angles and velocities) is the ``delta`` family where the
@@ -36,6 +38,7 @@ import numpy as np
 from ..earth import height_pressure
 from ..errors import InputError
 from .collect import Collector, Decoded, first_utc
+from .logevents import PX4_ARMED, PX4_ARMING_STATES, PX4_NAV_STATES
 from .ulogdata import Unsupported, read_topics
 from .ulogrecords import frame
 
@@ -44,7 +47,7 @@ S_PER_US = 1e-6
 RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: the *_timestamp_relative of a sensor not in this sample
 TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_magnetometer", "vehicle_gps_position", "sensor_gps",
           "vehicle_air_data", "vehicle_attitude", "vehicle_attitude_groundtruth", "sensor_selection",
-          "estimator_attitude"]
+          "estimator_attitude", "vehicle_status"]
 
 
 def read_ulog(path: str, progress=None) -> Decoded:
@@ -85,6 +88,9 @@ def read_ulog(path: str, progress=None) -> Decoded:
             _add_topic(col, d.name, key, d.data, notes)
         except KeyError as exc:  # a PX4 version that names a field otherwise
             warnings.append(f"{key}: not read, it has no field {exc.args[0]!r} (a PX4 version not known here)")
+    # (pyulog keeps the tagged lines apart; our decoder lists them with the others)
+    tagged = getattr(ulog, "logged_messages_tagged", {})
+    _add_logged_messages(col, ulog.logged_messages + [m for lines in tagged.values() for m in lines])
     selected = _selected_imu(ulog.data_list)
     if selected:
         notes.append(f"{selected} is the IMU PX4 selected (sensor_selection); sensor_combined carries its samples")
@@ -113,9 +119,10 @@ def _read_pyulog(path: str, data: bytes, framing):
 
     source = io.BytesIO(framing.repaired(data)) if framing.damage or framing.header else path
     try:
-        return ULog(source, message_name_filter_list=TOPICS, disable_str_exceptions=True)
+        ulog = ULog(source, message_name_filter_list=TOPICS, disable_str_exceptions=True)
     except Exception as exc:  # noqa: BLE001 - pyulog raises what it meets (struct.error, ValueError, ...)
         raise InputError(path, f"not a readable ULog (header damaged: {type(exc).__name__}: {exc})") from None
+    return ulog
 
 
 def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]) -> None:
@@ -165,9 +172,26 @@ def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]
             col.add_columns("gps", key, order, t, _gps_rows(data))
         elif name == "vehicle_air_data":
             col.add_columns("baro", key, order, t, np.column_stack([data["baro_pressure_pa"], data["baro_alt_meter"]]))
+        elif name == "vehicle_status":
+            nav_state = data["nav_state"].astype(np.int64)
+            col.add_events("mode", name, order, t, nav_state,
+                           [PX4_NAV_STATES.get(v, f"nav_state {v}") for v in nav_state.tolist()])
+            state = data["arming_state"].astype(np.int64)
+            known = np.isin(state, PX4_ARMING_STATES)  # not init, reboot, in-air restore
+            col.add_events("armed", name, order[known], t[known], np.isin(state[known], PX4_ARMED))
         elif name in ("vehicle_attitude", "vehicle_attitude_groundtruth", "estimator_attitude"):
             kind = {"vehicle_attitude": "att_quat", "vehicle_attitude_groundtruth": "truth_quat"}.get(name, "stream_quat")
             col.add_columns(kind, key, order, t, vector("q", n=4))
+
+
+def _add_logged_messages(col: Collector, messages) -> None:
+    """The logged text lines as event rows: level '0'-'7' is the MAVLink severity."""
+    messages = [m for m in messages if 0 <= m.timestamp < 1 << 62]  # a damaged time: dropped (as by the clock)
+    if not messages:
+        return
+    at = np.array([m.timestamp for m in messages], np.int64)
+    level = np.array([m.log_level - ord("0") if ord("0") <= m.log_level <= ord("7") else 6 for m in messages])
+    col.add_events("text", "logged_messages", at, at * S_PER_US, level, [m.message for m in messages])
 
 
 def _add_relative(col: Collector, kind: str, key: str, data: dict, sensor: str, order, rows) -> int:

@@ -52,6 +52,14 @@ class Dropout:
 
 
 @dataclass
+class LoggedLine:
+    """A logged text line, as pyulog's ``MessageLogging`` (damaged text is replaced, not raised)."""
+    log_level: int  # '0'-'7' as a byte: emergency .. debug
+    timestamp: int  # µs
+    message: str
+
+
+@dataclass
 class Topics:
     """What ``readers.ulog`` takes from pyulog's ``ULog``, under the same names."""
     data_list: list[Topic] = field(default_factory=list)
@@ -59,6 +67,8 @@ class Topics:
     msg_info_dict: dict[str, object] = field(default_factory=dict)
     dropouts: list[Dropout] = field(default_factory=list)
     file_corruption: bool = False
+    # the logged text lines, tagged or not (``LoggedLine``)
+    logged_messages: list = field(default_factory=list)
 
 
 def read_topics(data: bytes, framing: Framing, wanted: list[str]) -> Topics:
@@ -88,6 +98,11 @@ def read_topics(data: bytes, framing: Framing, wanted: list[str]) -> Topics:
             name = payload[3:].decode("utf-8", "ignore")
             if name in wanted:
                 subscribed[msg_id] = (name, multi_id)
+        elif kind in (ord("L"), ord("C")) and len(payload) >= (9 if kind == ord("L") else 11):
+            # a logged line (tagged: a uint16 tag after the level): level, timestamp, text
+            at = 1 if kind == ord("L") else 3
+            out.logged_messages.append(LoggedLine(payload[0], struct.unpack_from("<Q", payload, at)[0],
+                                                  bytes(payload[at + 8:]).decode("utf-8", "replace")))
         elif kind == ord("O"):
             out.dropouts.append(Dropout(struct.unpack_from("<H", payload)[0]))
         elif kind == ord("D") and struct.unpack_from("<H", payload)[0] in subscribed:

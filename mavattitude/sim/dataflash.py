@@ -25,6 +25,8 @@ What is written (TimeUS: µs since boot):
 - BARO, I = 0, at the baro rate: Alt m above the ground at boot, Press Pa, Temp degC;
 - with a DCM primary (``SimFlight.ekf_q``): ATT is DCM's (AEKF 0), and EKF1 and AHR2 carry the
   EKF's estimate on ATT's ticks (their other fields zero, or AHR2's position the truth's);
+- MODE at each mode change, EV (Id 10, armed) at take-off and MSG with the text line of the
+  flight's ``script`` (``SimFlight.script``);
 - ATT (the autopilot's estimate; DesRoll.. = Roll.., AEKF 3) and SIM (truth: Roll/Pitch/Yaw deg,
   Alt m above sea level, Lat/Lng deg, Q1..Q4 with Q1 >= 0) on every ``att_every``-th IMU sample,
   25 Hz by default. Yaw fields are 0-360° headings.
@@ -135,7 +137,9 @@ SIM = LogFormat(75, "SIM", "QccCfLLffff", "TimeUS,Roll,Pitch,Yaw,Alt,Lat,Lng,Q1,
            "sddhmDU????", "FBBB0GG????")
 IMT = LogFormat(204, "IMT", "QBfffffffff", "TimeUS,I,DelT,DelvT,DelaT,DelAX,DelAY,DelAZ,DelVX,DelVY,DelVZ",
            "s#sssrrrnnn", "F-000000000")
-FORMATS = (FMT, UNIT, FMTU, MULT, PARM, MSG, VER, IMU, IMT, MAG, GPS, GPA, BARO, ATT, SIM)
+MODE = LogFormat(117, "MODE", "QMBB", "TimeUS,Mode,ModeNum,Rsn", "s---", "F---")
+EV = LogFormat(180, "EV", "QB", "TimeUS,Id", "s-", "F-")
+FORMATS = (FMT, UNIT, FMTU, MULT, PARM, MSG, VER, IMU, IMT, MAG, GPS, GPA, BARO, ATT, SIM, MODE, EV)
 # With a DCM primary (``SimFlight.ekf_q``): the EKF beside it (ArduCopter 3.4's EKF1 layout) and the
 # secondary AHR2, which is the EKF while DCM is in use
 EKF1 = LogFormat(142, "EKF1", "QccCfffffffccc", "TimeUS,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ",
@@ -246,6 +250,7 @@ def _data(sim, imt: bool = False) -> list[np.ndarray]:
         q = sim.ekf_q[every] * np.where(sim.ekf_q[every][:, :1] < 0, -1.0, 1.0)
         blocks.append(AHR2.records(n, TimeUS=t_us, Roll=ekf[:, 0], Pitch=ekf[:, 1], Yaw=ekf_yaw, Alt=alt,
                                    Lat=lat, Lng=lon, Q1=q[:, 0], Q2=q[:, 1], Q3=q[:, 2], Q4=q[:, 3]))
+    blocks += _script_records(sim.script)
     q = quat.normalize(sim.truth.q[every])
     q = q * np.where(q[:, :1] < 0, -1.0, 1.0)  # ArduPilot logs the quaternion with w >= 0
     true = np.degrees(quat.to_euler(q))
@@ -253,6 +258,18 @@ def _data(sim, imt: bool = False) -> list[np.ndarray]:
     blocks.append(SIM.records(
         n, TimeUS=t_us, Roll=true[:, 0], Pitch=true[:, 1], Yaw=_heading_deg(true[:, 2]), Alt=alt,
         Lat=lat, Lng=lon, Q1=q[:, 0], Q2=q[:, 1], Q3=q[:, 2], Q4=q[:, 3]))
+    return blocks
+
+
+def _script_records(script) -> list[np.ndarray]:
+    """MODE, EV and MSG records of the flight's script (``SimFlight.script``)."""
+    number = [m[1] for m in script.modes]
+    blocks = [MODE.records(len(number), TimeUS=_us([m[0] for m in script.modes]), Mode=number, ModeNum=number, Rsn=0)]
+    if script.armed_at is not None:
+        blocks.append(EV.records(1, TimeUS=_us([script.armed_at]), Id=10))
+    if script.messages:
+        blocks.append(MSG.records(len(script.messages), TimeUS=_us([t for t, _ in script.messages]),
+                                  Message=np.array([text for _, text in script.messages], dtype="S64")))
     return blocks
 
 

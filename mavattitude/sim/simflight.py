@@ -19,6 +19,20 @@ MAX_IMU_SAMPLES = 3_600_000
 MAX_IMU_RATE_HZ = 10_000.0
 
 
+@dataclass(frozen=True)
+class LogScript:
+    """What the simulated autopilot's logs say happened, written by every writer (tests read it
+    back): a flight mode from the first sample, armed at take-off, another mode two seconds
+    later with a text line saying so. Times fall on the 1 Hz heartbeat ticks (a .tlog carries
+    modes and arming only in its heartbeats)."""
+    modes: tuple[tuple[float, int, int, str, str], ...]  # (t, ArduCopter number, PX4 nav_state, their names)
+    armed_at: float | None  # s; None: never armed (the vehicle never leaves the ground)
+    messages: tuple[tuple[float, str], ...]  # (t, text)
+
+
+MODES = ((0, 0, "STABILIZE", "MANUAL"), (5, 2, "LOITER", "POSCTL"))  # (ArduCopter, PX4 nav_state, names)
+
+
 @dataclass
 class SimFlight:
     """A simulated flight: ground truth and sensor data, SI, on the autopilot clock (s since boot).
@@ -54,6 +68,18 @@ class SimFlight:
     def t(self) -> np.ndarray:
         """IMU timestamps, s since boot."""
         return self.truth.t
+
+    @property
+    def script(self) -> LogScript:
+        """The modes, arming and text line the logs carry (``LogScript``)."""
+        t0, end = float(self.t[0]), float(self.t[-1])
+        armed = t0 + float(np.ceil(self.still_until - t0)) if np.isfinite(self.still_until) else np.inf
+        modes = [(t0, *MODES[0])]
+        messages = []
+        if armed + 2.0 < end:
+            modes.append((armed + 2.0, *MODES[1]))
+            messages.append((armed + 2.0, f"mavattitude-sim: {MODES[1][2]}"))
+        return LogScript(tuple(modes), armed if armed < end else None, tuple(messages))
 
     @property
     def gyro_bias(self) -> np.ndarray:

@@ -10,7 +10,8 @@ What is written, and when:
 
 - once at the start: STATUSTEXT with the firmware string, PARAM_VALUE for COMPASS_DEC (rad) and
   COMPASS_OFS_X/Y/Z (mGauss);
-- 1 Hz: HEARTBEAT (quadrotor, ArduPilot; armed once the vehicle leaves the ground), SYSTEM_TIME;
+- 1 Hz: HEARTBEAT (quadrotor, ArduPilot; the flight mode and arming of the flight's ``script``),
+  SYSTEM_TIME; the script's text lines as STATUSTEXT, after the IMU tick at their time;
 - every IMU sample: RAW_IMU (IMU 0) and SCALED_IMU2 (IMU 1): acceleration mG, rates mrad/s,
   field mGauss (the latest compass sample, as ArduPilot sends it); then ATTITUDE (the autopilot's
   estimate, rad) and SIMSTATE (truth; it has no timestamp, so it follows ATTITUDE in the same tick);
@@ -34,7 +35,7 @@ _STAMP = struct.Struct(">Q")
 STATUSTEXT_MAX = 50  # characters in a STATUSTEXT
 
 # Event kinds, in the order they are written when they share a timestamp.
-HEARTBEAT, START, IMU_TICK, GPS, BARO = range(5)
+HEARTBEAT, START, IMU_TICK, GPS, BARO, TEXT = range(6)
 
 
 def _int_list(values) -> list:
@@ -52,7 +53,7 @@ def write_tlog(sim, path) -> None:
 
     # Each event: (time s, kind, index into that kind's arrays); written in time order.
     streams = [(t_heartbeat, HEARTBEAT), (np.array([t_start]), START), (t_imu, IMU_TICK),
-               (sim.gps.t, GPS), (sim.baro.t, BARO)]
+               (sim.gps.t, GPS), (sim.baro.t, BARO), (np.array([t for t, _ in sim.script.messages]), TEXT)]
     times = np.concatenate([t for t, _ in streams])
     kinds = np.concatenate([np.full(len(t), k) for t, k in streams])
     index = np.concatenate([np.arange(len(t)) for t, _ in streams])
@@ -65,6 +66,8 @@ def write_tlog(sim, path) -> None:
         IMU_TICK: _imu_packets(sim, mav),
         GPS: _gps_packets(sim, mav),
         BARO: _baro_packets(sim, mav),
+        TEXT: lambda i: [mavlink2.MAVLink_statustext_message(
+            mavlink2.MAV_SEVERITY_INFO, sim.script.messages[i][1][:STATUSTEXT_MAX].encode()).pack(mav)],
     }
     with open(Path(path), "wb") as f:
         write = f.write
@@ -84,7 +87,10 @@ def heartbeat_packers(sim, t_heartbeat, mav, epoch_us) -> dict:
     """{message name: packer(i) -> bytes} for the 1 Hz messages at ``t_heartbeat[i]``."""
     base = (mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
             | mavlink2.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED)
-    armed = (t_heartbeat >= sim.still_until).tolist()
+    script = sim.script
+    armed = (t_heartbeat >= (np.inf if script.armed_at is None else script.armed_at)).tolist()
+    starts = np.array([m[0] for m in script.modes])
+    custom = [script.modes[max(k, 0)][1] for k in (np.searchsorted(starts, t_heartbeat, side="right") - 1).tolist()]
     boot_ms = _int_list(t_heartbeat * 1e3)
     unix_us = (epoch_us + np.rint(t_heartbeat * 1e6).astype(np.int64)).tolist()
 
@@ -92,7 +98,7 @@ def heartbeat_packers(sim, t_heartbeat, mav, epoch_us) -> dict:
         mode = base | (mavlink2.MAV_MODE_FLAG_SAFETY_ARMED if armed[i] else 0)
         state = mavlink2.MAV_STATE_ACTIVE if armed[i] else mavlink2.MAV_STATE_STANDBY
         return mavlink2.MAVLink_heartbeat_message(
-            mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, mode, 0, state, 3).pack(mav)
+            mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, mode, custom[i], state, 3).pack(mav)
     return {"HEARTBEAT": heartbeat,
             "SYSTEM_TIME": lambda i: mavlink2.MAVLink_system_time_message(unix_us[i], boot_ms[i]).pack(mav)}
 

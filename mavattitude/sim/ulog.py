@@ -14,6 +14,8 @@ order. pyulog reads what this writes (tested). What is written:
 - vehicle_air_data (baro_pressure_pa, baro_alt_meter);
 - vehicle_attitude (the autopilot's estimate) and vehicle_attitude_groundtruth (truth), q
   [w, x, y, z] body FRD -> NED, at the .bin's ATT rate;
+- vehicle_status (nav_state, arming_state) at 1 Hz and at each change of the flight's ``script``,
+  and its text lines as logged messages ('L', level '6' info);
 - parameters EKF2_MAG_DECL (degrees) and MAV_TYPE (2, quadrotor); the firmware text as
   information ``ver_sw_branch``;
 - with a second attitude (``SimFlight.ekf_q``): vehicle_attitude is the Q complementary filter's
@@ -51,6 +53,9 @@ TOPICS = {
                          ("float", "<f4", 4, "q")],
 }
 TOPICS["vehicle_attitude_groundtruth"] = TOPICS["estimator_attitude"] = TOPICS["vehicle_attitude"]
+TOPICS["vehicle_status"] = [("uint64_t", "<u8", 1, "timestamp"), ("uint8_t", "u1", 1, "nav_state"),
+                            ("uint8_t", "u1", 1, "arming_state")]
+PX4_STANDBY, PX4_ARMED = 1, 2  # vehicle_status.arming_state
 
 
 def write_ulog(sim, path) -> None:
@@ -73,6 +78,9 @@ def write_ulog(sim, path) -> None:
     for msg_id, (name, values) in enumerate(columns.items()):
         definitions.append(_message(b"A", struct.pack("<BH", 0, msg_id) + name.encode()))
         topics.append(_packed(msg_id, TOPICS[name], values))
+    topics += [_logged(text, us) for us, text in zip(np.rint(np.array([t for t, _ in sim.script.messages])
+                                                             * US_PER_S).astype(np.uint64).tolist(),
+                                                     [text for _, text in sim.script.messages])]
     stamps = np.concatenate([rows["timestamp"] for rows in topics])
     with open(Path(path), "wb") as f:
         f.write(HEADER + struct.pack("<Q", int(stamps.min())))
@@ -108,10 +116,33 @@ def _topic_columns(sim) -> dict[str, dict[str, np.ndarray]]:
         "vehicle_attitude_groundtruth": {"timestamp": attitude_t, "timestamp_sample": attitude_t,
                                          "q": sim.truth.q[::every]},
     }
+    topics["vehicle_status"] = _status(sim, us)
     if sim.ekf_q is not None:
         topics["estimator_attitude"] = {"timestamp": attitude_t, "timestamp_sample": attitude_t,
                                         "q": sim.ekf_q[::every]}
     return topics
+
+
+def _status(sim, us) -> dict[str, np.ndarray]:
+    """vehicle_status at 1 Hz and at each change of the script: its nav_state and arming_state."""
+    script = sim.script
+    changes = [m[0] for m in script.modes] + ([script.armed_at] if script.armed_at is not None else [])
+    t = np.unique(np.concatenate([np.arange(sim.t[0], sim.t[-1], 1.0), changes]))
+    starts = np.array([m[0] for m in script.modes])
+    nav = np.array([m[2] for m in script.modes])[np.maximum(np.searchsorted(starts, t, side="right") - 1, 0)]
+    armed = t >= (np.inf if script.armed_at is None else script.armed_at)
+    return {"timestamp": us(t), "nav_state": nav, "arming_state": np.where(armed, PX4_ARMED, PX4_STANDBY)}
+
+
+def _logged(text: str, t_us: int) -> np.ndarray:
+    """A logged message ('L': level '6' info, timestamp, the text) as a one-row array."""
+    data = text.encode()
+    dtype = np.dtype([("size", "<u2"), ("type", "u1"), ("log_level", "u1"), ("timestamp", "<u8"),
+                      ("message", f"S{len(data)}")])
+    row = np.zeros(1, dtype)
+    row["size"], row["type"], row["log_level"], row["timestamp"], row["message"] = \
+        dtype.itemsize - 3, ord("L"), ord("6"), t_us, data
+    return row
 
 
 def _packed(msg_id: int, fields, values: dict) -> np.ndarray:

@@ -11,6 +11,7 @@ import rerun.blueprint as rrb
 from ..scoring.metrics import AXES
 from .style import *  # noqa: F403
 from .style import _part
+from .flightlog import BAND, BAND_RANGE
 
 # ---------------------------------------------------------------- blueprint
 
@@ -48,7 +49,7 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
                    diagnostics: dict[str, Sequence[str]] | None = None, has_phase: bool = False,
                    has_track: bool = False, live_window: float | None = None, attitude_range_deg=None,
                    diagnostic_ranges: dict[str, dict[str, tuple[float, float]]] | None = None,
-                   scored: Sequence[str] | None = None) -> rrb.Blueprint:
+                   scored: Sequence[str] | None = None, log_band: bool = False) -> rrb.Blueprint:
     """The layout: per-axis attitude and error plots on the left, the 3D attitude boxes top
     right, map / summary / events in tabs below it.
 
@@ -67,6 +68,8 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
     ``has_track``: a "track" tab, the GPS and estimated tracks in 3D.
     ``live_window``: a live session's "link" tab (its first): the rolling MAE over that many
     seconds (``rolling/<axis>/<s>``) and the link's arrival rates and losses (``link/...``).
+    ``log_band``: a band plot above the time plots with the log's own modes, arming and text
+    lines (``flightlog``); the legend names the modes' colours.
 
     One legend names every colour, in a narrow plot of its own between the time plots and the
     3D view (it covers no data); the reference is the thick line of the value plots, and the
@@ -85,7 +88,7 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
         link = rrb.TimeAxis(link="Independent", view_range=whole)
     else:
         link = rrb.TimeAxis(link="LinkToGlobal")
-    rows = []
+    values, errors = [], []
     for axis in AXES:
         err_kwargs = {}
         if error_range_deg and error_range_deg.get(axis):
@@ -94,25 +97,37 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
         att_kwargs = {}
         if attitude_range_deg and attitude_range_deg.get(axis):
             att_kwargs["axis_y"] = rrb.ScalarAxis(range=tuple(float(v) for v in attitude_range_deg[axis]))
-        rows.append(rrb.Horizontal(
+        values.append(
             rrb.TimeSeriesView(origin="/", name=f"{axis} (deg; thick: the reference)", axis_x=link,
                                contents=_contents(series, lambda n, a=axis: attitude_path(a, n),
                                                   [f"marks/attitude/{axis}"]),
-                               plot_legend=rrb.PlotLegend(visible=False), **att_kwargs),
+                               plot_legend=rrb.PlotLegend(visible=False), **att_kwargs))
+        errors.append(
             rrb.TimeSeriesView(origin="/", name=f"{axis} error: estimate - reference (deg)", axis_x=link,
                                contents=_contents(scored, lambda n, a=axis: error_path(a, n),
                                                   [f"marks/error/{axis}"])
                                + [f"+ /{error_path(axis, n, scored=False)}/**" for n in scored],
                                plot_legend=rrb.PlotLegend(visible=False),
-                               **err_kwargs),
-            column_shares=[3, 2],
-        ))
+                               **err_kwargs))
     # The legend has a plot of its own beside the others: the roll lines of every series on a
     # y range no line reaches, so it names every colour and covers no data.
     legend = rrb.TimeSeriesView(origin="/", name="legend", axis_x=link,
                                 contents=_contents(series, lambda n: attitude_path(AXES[0], n)),
                                 axis_y=rrb.ScalarAxis(range=(LEGEND_Y, LEGEND_Y + 1.0), zoom_lock=True),
                                 plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True))
+    # The log's own modes, arming and lines: a band atop each column of time plots (so it lines
+    # up with both), and a legend of the modes' colours under the series' legend.
+    columns = [values, errors]
+    if log_band:
+        columns = [[rrb.TimeSeriesView(origin="/", name=name, axis_x=link, contents=[f"+ /{BAND}/**"],
+                                       plot_legend=rrb.PlotLegend(visible=False),
+                                       axis_y=rrb.ScalarAxis(range=BAND_RANGE, zoom_lock=True)), *views]
+                   for name, views in (("the log's modes (bars: hover, legend), armed, its lines (◆: hover)", values),
+                                       ("the log's own account (as left)", errors))]
+        legend = rrb.Vertical(legend, rrb.TimeSeriesView(
+            origin="/", name="flight modes", axis_x=link, contents=[f"+ /{BAND}/modes/**", f"+ /{BAND}/armed"],
+            axis_y=rrb.ScalarAxis(range=(LEGEND_Y, LEGEND_Y + 1.0), zoom_lock=True),
+            plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True)), row_shares=[3, 2])
     span = SLOT_SPACING * (min(n_slots, SLOTS_PER_ROW) - 1)
     depth = ROW_SPACING * ((max(n_slots, 1) - 1) // SLOTS_PER_ROW)
     # Look north from behind and above the rows of boxes (NED: up is -z), a little from
@@ -152,7 +167,8 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
     # the tabs (summary table, events, diagnostics) as tall as the boxes: the table shows whole
     right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[1, 1])
     return rrb.Blueprint(
-        rrb.Horizontal(rrb.Vertical(*rows), legend, right, column_shares=[14, 3, 9]),
+        rrb.Horizontal(*[rrb.Vertical(*views, row_shares=[1] * (len(views) - 3) + [4] * 3) for views in columns],
+                       legend, right, column_shares=[42, 28, 15, 45]),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="collapsed", timeline=TIMELINE,
@@ -177,7 +193,7 @@ def _diagnostics_tab(name: str, keys: Sequence[str], link, ranges: dict[str, tup
         plots.append(rrb.TimeSeriesView(
             origin="/", name=DIAGNOSTIC_TITLES.get(group, group), axis_x=link,
             contents=[f"+ /{series_root(name)}", f"+ /{series_root(name)}/diagnostics/{_part(group)}/**"],
-            plot_legend=rrb.PlotLegend(corner="RightTop", visible=any(parts)), **extra))
+            plot_legend=rrb.PlotLegend(corner="RightTop", visible=any(parts) or group == STATE_GROUP), **extra))
     n = DIAGNOSTIC_PLOTS_PER_PAGE
     pages = [rrb.Grid(*plots[i:i + n], grid_columns=2 if len(plots[i:i + n]) > 1 else 1,
                       name=name if len(plots) <= n else f"{name} {i // n + 1}")

@@ -250,6 +250,48 @@ def log_diagnostic_columns(rec: rr.RecordingStream, name: str, t, diagnostics: d
         rec.send_columns(diagnostic_path(key, name), indexes=[_time(tk)], columns=rr.Scalars.columns(scalars=yk))
 
 
+STATE_COLORS = ((215, 40, 40), (235, 140, 0), (120, 90, 200), (40, 150, 160), (150, 150, 60))
+STATE_WIDTH = 8.0  # ui points: bars
+
+
+def state_label(code: int, state: str, width: int = 26) -> str:
+    """A state's name short enough for a legend beside small plots: "2 skipped: horizontal man…"
+    (the estimator's own words; ``mavattitude estimators`` has them whole)."""
+    text = f"{code} {state.split(' (')[0]}"
+    return text if len(text) <= width else text[:width - 1] + "…"
+
+
+def log_state_spans(rec: rr.RecordingStream, name: str, t, codes, states, *,
+                    join_s: float = 1.0 / DIAGNOSTIC_MAX_HZ) -> None:
+    """An estimator's accelerometer-state codes (``states``: the meaning of each, 0 used) as
+    bars: one entity per code other than 0, at y = code, over each run of it, named by its
+    meaning (the legend and the hover say it). Runs of one code closer than ``join_s`` are one
+    bar: a screen cannot show them apart, and a barcode of single samples reads as nothing."""
+    t = np.asarray(t, dtype=np.float64)
+    codes = np.asarray(codes)
+    ok = np.isfinite(codes.astype(np.float64))
+    t, codes = t[ok], codes[ok].astype(np.int64)
+    if len(t) < 2:
+        return
+    change = np.flatnonzero(np.diff(codes)) + 1
+    starts = np.concatenate([[0], change])
+    ends = np.concatenate([change, [len(t) - 1]])  # a run lasts until the next one's first sample
+    for code in np.unique(codes[starts]):
+        if code == 0 or code >= len(states):
+            continue
+        mine = codes[starts] == code
+        a, b = t[starts[mine]], t[ends[mine]]
+        keep = np.concatenate([[True], a[1:] - b[:-1] > join_s])  # a new bar where the gap is wide
+        a, b = a[keep], np.concatenate([b[np.flatnonzero(keep)[1:] - 1], b[-1:]])
+        tk = np.column_stack([a, b, b + 1e-6]).ravel()
+        y = np.full(len(tk), float(code))
+        y[2::3] = np.nan
+        path = f"{series_root(name)}/diagnostics/{STATE_GROUP}/{code}"
+        rec.log(path, rr.SeriesLines(colors=[STATE_COLORS[(code - 1) % len(STATE_COLORS)]],
+                                     names=[state_label(code, states[code])], widths=[STATE_WIDTH]), static=True)
+        rec.send_columns(path, indexes=[_time(tk)], columns=rr.Scalars.columns(scalars=y))
+
+
 def log_phase_columns(rec: rr.RecordingStream, t, in_air, height_m) -> None:
     """The ground/air phase (a step line, 1 = air) and the height it comes from."""
     rec.log("phase/in_air", rr.SeriesLines(colors=[(230, 120, 40)], names=["in air"], widths=[2.0]),

@@ -20,6 +20,7 @@ from . import ranges
 from .blueprint import map_zoom_for, send_blueprint
 from .columns import *  # noqa: F403
 from .columns import _gps_fix
+from .flightlog import flight_events, has_band, log_flight_band
 from .marks import log_event_markers, log_events, log_spans
 from .style import *  # noqa: F403
 
@@ -206,6 +207,13 @@ def _plotted_diagnostics(result: ReplayResult) -> dict[str, dict[str, np.ndarray
     return out
 
 
+def _accel_states(name: str, diag) -> tuple:
+    """The meanings of an estimator's accel_state codes, when it has them and logged some."""
+    from ..estimators import ESTIMATORS
+
+    return tuple(getattr(ESTIMATORS.get(name), "ACCEL_STATES", ())) if "accel_state" in diag else ()
+
+
 def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool = True) -> None:
     """Log a whole replay into ``rec`` (one recording), with the blueprint unless told not to."""
     fl = result.flight
@@ -221,13 +229,21 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     att_ranges = ranges.attitude_ranges(result, span)
     err_ranges = ranges.error_ranges(scored, span)
     imu_t = fl.imu[result.imu_source].t
+    diagnostic_ranges = _diagnostic_ranges(diagnostics, imu_t, span)
+    keys = {}
+    for name, diag in diagnostics.items():  # the state codes drawn as spans, on a range of their own
+        states = _accel_states(name, diag)
+        keys[name] = [STATE_GROUP if states and k == "accel_state" else k for k in diag]
+        if states:
+            # the bars in the lower half, the legend naming them in the upper
+            diagnostic_ranges.setdefault(name, {})[STATE_GROUP] = (0.4, 2.0 * (len(states) - 1) + 0.6)
     if blueprint:
         send_blueprint(rec, series=names, scored=list(scored), n_slots=len(series),
                        error_range_deg=err_ranges, attitude_range_deg=att_ranges,
-                       diagnostic_ranges=_diagnostic_ranges(diagnostics, imu_t, span),
+                       diagnostic_ranges=diagnostic_ranges,
                        has_gps=has_gps, map_zoom=map_zoom_for(gps_ll[:, 0], gps_ll[:, 1]) if has_gps else None,
-                       time_span=span, diagnostics={n: list(d) for n, d in diagnostics.items()},
-                       has_phase=result.phase is not None,
+                       time_span=span, diagnostics=keys,
+                       has_phase=result.phase is not None, log_band=has_band(fl),
                        has_track=has_gps and bool(estimated_tracks(result))
                        and result.aiding is not None and result.aiding.origin is not None)
 
@@ -256,9 +272,13 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
         log_error_columns(rec, key, c.t, c.error_deg, c.scored, max_hz=hz)
 
     for name, diag in diagnostics.items():
-        if diag:
-            setup_diagnostics(rec, name, diag, color=colors.get(name, (200, 200, 200)))
-            log_diagnostic_columns(rec, name, imu_t, diag, max_hz=min(hz, DIAGNOSTIC_MAX_HZ))
+        states = _accel_states(name, diag)
+        lines = {k: diag[k] for k in diag if not (states and k == "accel_state")}
+        if lines:
+            setup_diagnostics(rec, name, lines, color=colors.get(name, (200, 200, 200)))
+            log_diagnostic_columns(rec, name, imu_t, lines, max_hz=min(hz, DIAGNOSTIC_MAX_HZ))
+        if states:
+            log_state_spans(rec, name, imu_t, diag["accel_state"], states)
     if result.phase is not None:
         log_phase_columns(rec, result.phase.t, result.phase.in_air, result.phase.height_m)
     if has_gps:
@@ -266,7 +286,8 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
         log_tracks(rec, result, colors)
     rec.log("summary", rr.TextDocument(summary_markdown(result), media_type="text/markdown"),
             static=True)
-    log_events(rec, list(result.events) + _summary_events(result, b))
+    log_events(rec, list(result.events) + flight_events(fl) + _summary_events(result, b))
+    log_flight_band(rec, fl)
     att_top = {axis: hi - 0.04 * (hi - lo) for axis, (lo, hi) in att_ranges.items()}
     err_top = {axis: 0.92 * r for axis, r in err_ranges.items()}
     spans = _data_spans(result)

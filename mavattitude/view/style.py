@@ -130,6 +130,7 @@ def ghost_path(name: str) -> str:
 DIAGNOSTIC_TITLES = {
     "cov_trace": "covariance trace",
     "accel_state": "accelerometer update (0 used, 1+ skipped / down-weighted)",
+    "accel_states": "accelerometer update: bars where not used (legend: why)",
     "adaptive_r": "mahony-ekf adaptive R",
     "accel_weight": "accelerometer trust w (1 full, 0 skipped)",
     "reset": "watchdog reset (1 at a reset)",
@@ -148,6 +149,7 @@ DIAGNOSTIC_TITLES = {
     "h_residual": "horizontal manoeuvre acceleration (g)",
     "h_gate": "horizontal acceleration threshold applied (g)",
 }
+STATE_GROUP = "accel_states"  # a replay's accel_state codes as spans (``columns.log_state_spans``)
 COMPASS_GROUPS = ("mag_bias", "earth_field", "innov_mag")  # not plotted without a compass
 AXIS_SUFFIXES = ("x", "y", "z", "n", "e", "d")
 AXIS_COLORS: dict[str, Color] = {"x": (220, 60, 60), "n": (220, 60, 60), "y": (50, 160, 60),
