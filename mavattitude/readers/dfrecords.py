@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import mmap
 import re
+import sys
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -412,12 +413,46 @@ def scan_log(data: np.ndarray, wanted: list[str]) -> Scan:
                 [f"{fmt.name} ({what})" for fmt, what in fixes.values()])
 
 
+def _gather(data: np.ndarray, offsets: np.ndarray, start: int, size: int) -> np.ndarray:
+    """The ``size`` bytes at ``offsets + start`` of ``data``, one row each ((rows, size); the
+    rows ``size`` rounded up to 8 bytes apart). Copied a word at a time, each put together from
+    the two aligned words it straddles, into an array numpy allocates (numpy asks for huge
+    pages; numba's own allocation took twice as long in page faults): 2.5x the byte-by-byte copy."""
+    n_words = (size + 7) // 8
+    out = np.empty((len(offsets), n_words), np.uint64)
+    rows = out.view(np.uint8)
+    words = np.frombuffer(data, np.uint64, count=len(data) // 8)
+    if sys.byteorder == "little":
+        _gather_words(words, offsets, start, out)
+    # a row whose last word straddles the file's end (the last few bytes), or a big-endian
+    # machine: byte by byte
+    slow = np.flatnonzero((offsets + start) // 8 + n_words >= len(words)) if sys.byteorder == "little" \
+        else range(len(offsets))
+    for i in slow:
+        rows[i, :size] = data[offsets[i] + start:offsets[i] + start + size]
+    return rows[:, :size]
+
+
 @njit(cache=True)
-def _gather(data, offsets, start, size):
-    out = np.empty((len(offsets), size), np.uint8)
+def _gather_words(words, offsets, start, out):
+    """``_gather``'s copy (words: the file as aligned uint64), but for rows that run into its
+    last word."""
+    n_words = out.shape[1]
     for i in range(len(offsets)):
-        out[i, :] = data[offsets[i] + start:offsets[i] + start + size]
-    return out
+        at = offsets[i] + start
+        word = at >> 3
+        if word + n_words >= len(words):
+            continue
+        shift = (at & 7) * 8
+        if shift == 0:
+            for j in range(n_words):
+                out[i, j] = words[word + j]
+        else:
+            low = words[word]
+            for j in range(n_words):
+                high = words[word + j + 1]
+                out[i, j] = (low >> shift) | (high << (64 - shift))
+                low = high
 
 
 def decode(data: np.ndarray, scan: Scan, name: str) -> Mapping[str, np.ndarray]:

@@ -95,8 +95,9 @@ def read_topics(data: bytes, framing: Framing, wanted: list[str]) -> Topics:
     if not subscribed:
         return out
     buffer = np.frombuffer(data, np.uint8)
+    offsets_of = framing.data_offsets(list(subscribed))
     for msg_id, (name, multi_id) in subscribed.items():
-        offsets = framing.data_at[framing.data_ids == msg_id]
+        offsets = offsets_of[msg_id]
         if not len(offsets):
             continue  # pyulog lists only topics with data
         dtype = topic_dtype(framing.formats, name)

@@ -74,6 +74,17 @@ class Framing:
     def skipped(self) -> int:
         return sum(end - start for start, end in self.damage)
 
+    def data_offsets(self, ids: list[int]) -> dict[int, np.ndarray]:
+        """Where the data messages of each topic id in ``ids`` start, in file order (one pass
+        over them all: a comparison and a mask per id took 3 ms each on an hour at 400 Hz)."""
+        wanted = np.zeros(1 << 16, np.bool_)
+        wanted[list(ids)] = True
+        counts = np.bincount(self.data_ids, minlength=1 << 16) * wanted
+        starts = np.concatenate([[0], np.cumsum(counts)])
+        out = np.empty(starts[-1], np.int64)
+        _split_by_id(self.data_ids, self.data_at, wanted, starts[:-1].copy(), out)
+        return {i: out[starts[i]:starts[i + 1]] for i in ids}
+
     def notes(self) -> list[str]:
         """The damage, said plainly (nothing for a sound file)."""
         notes = []
@@ -181,6 +192,15 @@ def _pass_data(data, pos, sizes, data_at, data_ids, n_data):
         n_data += 1
         pos += 3 + size
     return pos, n_data
+
+
+@njit(cache=True)
+def _split_by_id(data_ids, data_at, wanted, next_at, out):
+    for i in range(len(data_ids)):
+        msg_id = data_ids[i]
+        if wanted[msg_id]:
+            out[next_at[msg_id]] = data_at[i]
+            next_at[msg_id] += 1
 
 
 _INVALID, _CUT = -1, -2
