@@ -123,7 +123,7 @@ def reader_needs_compile(path: str) -> bool:
     if fmt == "broad":
         return False  # h5py reads it, nothing to compile
     kernels = {"bin": (dfrecords._scan, dfrecords._gather_words), "tlog": (tlogrecords._scan, tlogrecords._gather),
-               "ulg": (ulogrecords._pass_data, dfrecords._gather_words)}[fmt]  # those every read of the format runs
+               "ulg": (ulogrecords._pass, dfrecords._gather_words)}[fmt]  # those every read of the format runs
     return not all(cached(kernel) for kernel in (collect._track, *kernels))
 
 
