@@ -95,6 +95,15 @@ class Scan:
     recovered_formats: list[str] = field(default_factory=list)  # "IMU (its Length)": damaged FMTs repaired
 
 
+    def format_of(self, name: str) -> "Format":
+        """The format of the records of message ``name``."""
+        return next(f for f in self.formats.values() if f.name == name)
+
+    def has_text(self, name: str) -> bool:
+        """Whether message ``name`` has a text field ('n': ``decode`` judges it over the records asked for)."""
+        return "n" in self.format_of(name).format
+
+
 # What the scan made of each FMT record it met
 USED, UNUSABLE, IGNORED, BAD_HEADER = 0, 1, 2, 3  # IGNORED: its type defined before; BAD_HEADER: not a record
 
@@ -455,13 +464,13 @@ def _gather_words(words, offsets, start, out):
                 low = high
 
 
-def decode(data: np.ndarray, scan: Scan, name: str) -> Mapping[str, np.ndarray]:
-    """Every record of message ``name``: column -> array (len = records), values as pymavlink
-    gives them, each column converted when first asked for (an hour of IMU has 15 columns; a
-    reader uses 8). ValueError when the format's Length disagrees with its Format (pymavlink
-    cannot decode those records either)."""
-    offsets = scan.offsets[name]
-    fmt = next(f for f in scan.formats.values() if f.name == name)
+def decode(data: np.ndarray, scan: Scan, name: str, rows: slice = slice(None)) -> Mapping[str, np.ndarray]:
+    """Every record of message ``name`` (or the ``rows`` of them): column -> array (len =
+    records), values as pymavlink gives them, each column converted when first asked for (an
+    hour of IMU has 15 columns; a reader uses 8). ValueError when the format's Length
+    disagrees with its Format (pymavlink cannot decode those records either)."""
+    offsets = scan.offsets[name][rows]
+    fmt = scan.format_of(name)
     dtype = fmt.dtype()
     if len(fmt.columns) != len(fmt.format):  # a column name split or two joined: the names after it are off
         raise ValueError(f"its {len(fmt.columns)} column names do not fit its {len(fmt.format)} fields")
