@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 LAYERS = [
-    ("foundation", ["_version", "quaternion", "flight", "earth", "trim", "diagcolumns", "errors", "events", "growing", "kernel_cache", "signals",
+    ("foundation", ["_version", "quaternion", "flight", "earth", "trim", "diagcolumns", "scoredrows", "errors", "events", "growing", "kernel_cache", "signals",
                     "progress", "outputs", "declination", "phase", "aiding", "paramspec", "readers", "estimators",
                     "sim", "live.link", "live.loss", "live.recorder"]),
     ("core", ["runner", "warmup", "params", "live.estimation", "metrics", "running_metrics", "refcheck",

@@ -329,16 +329,18 @@ def log_tracks(rec: rr.RecordingStream, result: ReplayResult, colors: dict[str, 
         rec.log(f"{series_root(name)}/track", rr.LineStrips3D([_thin(ned, GPS_TRACK_MAX_POINTS)], colors=[color],
                                                          radii=rr.Radius.ui_points(1.5), labels=[name]),
                 static=True)
-        lat, lon, _ = ned_to_geodetic(aiding.origin, ned)
+        # latitude and longitude of the rows drawn only (all of an hour's took 100 MB)
+        line, idx = _thin(np.arange(len(ned))[:, None], GPS_TRACK_MAX_POINTS)[:, 0], _bin_first(t, GPS_MARKER_MAX_HZ)
+        rows = np.union1d(line, idx)
+        lat, lon, _ = ned_to_geodetic(aiding.origin, ned[rows])
         ll = np.column_stack([lat, lon])
         path = f"{series_root(name)}/map"
-        rec.log(path, rr.GeoLineStrings(lat_lon=[_thin(ll, GPS_TRACK_MAX_POINTS)],
+        rec.log(path, rr.GeoLineStrings(lat_lon=[ll[np.searchsorted(rows, line)]],
                                         radii=rr.Radius.ui_points(2.5), colors=[color]), static=True)
         rec.log(f"{path}/position", rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(5.0), colors=[color]),
                 static=True)
-        idx = _bin_first(t, GPS_MARKER_MAX_HZ)
         rec.send_columns(f"{path}/position", indexes=[_time(t[idx])],
-                         columns=rr.GeoPoints.columns(positions=ll[idx]))
+                         columns=rr.GeoPoints.columns(positions=ll[np.searchsorted(rows, idx)]))
     return True
 
 
