@@ -170,7 +170,7 @@ def _binned_attitudes(t, q, max_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """The first quaternion of each 1/``max_hz`` bin (``_bin_first``) and its time."""
     t = np.asarray(t, dtype=np.float64)
     idx = _bin_first(t, max_hz)
-    return t[idx], np.asarray(q, dtype=np.float64)[idx]
+    return t[idx], np.asarray(np.asarray(q)[idx], dtype=np.float64)  # picked, then widened: not a whole float32 estimate
 
 
 def log_euler_columns(rec: rr.RecordingStream, name: str, t, q, *,
@@ -245,8 +245,9 @@ def log_diagnostic_columns(rec: rr.RecordingStream, name: str, t, diagnostics: d
     for key, y in diagnostics.items():
         y = np.asarray(y, dtype=np.float64)
         ok = np.isfinite(y)
-        idx = _bin_minmax(t[ok], y[ok], max_hz)
-        tk, yk = _break_lines(t[ok][idx], y[ok][idx], angle=False)
+        tf, yf = (t, y) if ok.all() else (t[ok], y[ok])  # (no copies of an hour when all are finite)
+        idx = _bin_minmax(tf, yf, max_hz)
+        tk, yk = _break_lines(tf[idx], yf[idx], angle=False)
         rec.send_columns(diagnostic_path(key, name), indexes=[_time(tk)], columns=rr.Scalars.columns(scalars=yk))
 
 
