@@ -7,7 +7,8 @@ A refactor that claims "bit-identical" runs evaluate before and after into two f
 Every value of every per-log record (logs/*.json) must be equal to the letter, floats included
 (JSON keeps a float's shortest round-trip form, so equal text is equal bits). Left out: the
 record's wall time (`seconds`) and `settings`, the key that says which options and which source
-made it (evaluate.settings_key hashes the package's source, so any change to the code changes it). Prints the count of records and values compared and every difference;
+made it (evaluate.settings_key hashes the package's source, so any change to the code changes it; records
+are paired by log name, the key in their file names left out). Prints the count of records and values compared and every difference;
 exit status 1 when there is one.
 """
 
@@ -39,14 +40,16 @@ def main(argv: list[str]) -> int:
         print("usage: compare_records.py BEFORE_DIR AFTER_DIR", file=sys.stderr)
         return 2
     before, after = (Path(a) / "logs" for a in argv)
-    names_b = {p.name for p in before.glob("*.json")}
-    names_a = {p.name for p in after.glob("*.json")}
+    # a record is named LOG-KEY.json, KEY the settings key (which hashes the source): paired by LOG
+    files_b = {p.name.rsplit("-", 1)[0]: p for p in before.glob("*.json")}
+    files_a = {p.name.rsplit("-", 1)[0]: p for p in after.glob("*.json")}
+    names_b, names_a = set(files_b), set(files_a)
     differences = [f"only in {argv[0]}: {n}" for n in sorted(names_b - names_a)]
     differences += [f"only in {argv[1]}: {n}" for n in sorted(names_a - names_b)]
     values = 0
     for name in sorted(names_b & names_a):
-        old = dict(_leaves(json.loads((before / name).read_text())))
-        new = dict(_leaves(json.loads((after / name).read_text())))
+        old = dict(_leaves(json.loads(files_b[name].read_text())))
+        new = dict(_leaves(json.loads(files_a[name].read_text())))
         values += len(old)
         for key in sorted(set(old) | set(new), key=str):
             # repr: a float's shortest round-trip text, so equal text is equal bits (NaN included)

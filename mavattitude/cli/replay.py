@@ -60,7 +60,8 @@ def run(args) -> int:
         with ProgressBar(f"estimating with {len(names)} estimator{'s' if len(names) > 1 else ''}",
                          len(flight.imu[choose_imu(flight, options.imu, options.imu_family)].t),
                          "samples", args.quiet) as progress:
-            result, notes = replay_flight(flight, options, progress)
+            # the whole estimates only for the view, unless --export writes them
+            result, notes = replay_flight(flight, options, progress, compact=not export)
         for note in notes:
             print(f"note: {note}")
         # one line per kind, before the table: they say how to read it, and on stderr they stay

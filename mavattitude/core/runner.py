@@ -43,6 +43,7 @@ from ..flight import AttitudeSeries
 from ..growing import Growing
 from ..scoring.imucheck import rate_warning
 from ..phase import STALE_S, PhaseTracker, pressure_height
+from .scoredrows import ScoredRows
 
 # An IMU gap longer than this restarts the estimators from a fresh alignment: after it the
 # vehicle may be anywhere (logging paused while disarmed, a crash and a pick-up).
@@ -107,7 +108,7 @@ class Runner:
 
     def __init__(self, names: list[str], params: dict | None = None, declination: float = 0.0,
                  use_mag: bool = True, imu_source: str = "IMU", mag_source: str | None = None,
-                 keep_history: bool = True):
+                 keep_history: bool = True, scored_rows: np.ndarray | None = None):
         self.names = list(names)
         self.estimators = [est.create(n, (params or {}).get(n), declination) for n in self.names]
         self.uses_aiding = any(e.uses_aiding for e in self.estimators)
@@ -123,7 +124,12 @@ class Runner:
         self.runs: list[Run] = []
         self.running = False
         self.events: list[Event] = []
-        self.estimates = {n: Growing(4) for n in self.names}  # (N, 4) at the IMU rows estimated
+        # (N, 4) at the IMU rows estimated; with ``scored_rows`` (a replay's ``scoredrows.bracket_rows``)
+        # in float32, for the view, and in float64 only where scoring reads them (``scoring_estimate``)
+        self.estimates = {n: Growing(4, dtype=np.float64 if scored_rows is None else np.float32)
+                          for n in self.names}
+        self.scored = None if scored_rows is None else {n: ScoredRows(scored_rows) for n in self.names}
+        self._last_q: dict[str, np.ndarray] = {}  # each estimator's last attitude, as estimated
         self.diagnostics: dict[str, dict[str, Column]] = {n: {} for n in self.names}  # key -> every row's
         self.has_heading = {e.name: e.has_heading_reference(False) for e in self.estimators}
         self._phase: PhaseTracker | None = None
@@ -234,7 +240,7 @@ class Runner:
             if self.runs and not alignment.heading_from_mag and previous.n:
                 # no heading reference: carry the yaw over the gap rather than restart it at 0
                 roll, pitch, _ = quat.to_euler(q0)
-                q0 = quat.from_euler(roll, pitch, quat.to_euler(previous.last)[2])
+                q0 = quat.from_euler(roll, pitch, quat.to_euler(self._last_q[e.name])[2])
             e.rate_over_step = self.rate_over_step
             if _takes_accel_g(e):
                 e.initialize(q0, alignment.gyro_bias, alignment.accel_g)
@@ -276,6 +282,10 @@ class Runner:
         for e in self.estimators:
             q = e.update(t, gyro, accel, mag, in_air, aiding=aiding)
             self.estimates[e.name].extend(q)
+            if len(q):
+                self._last_q[e.name] = np.array(q[-1], dtype=np.float64)
+            if self.scored is not None:
+                self.scored[e.name].add(a, q)
             out[e.name] = self.estimates[e.name].view()[-len(t):]  # one copy of the result, not two
             # Diagnostics are kept in float32 (for plots and events; half the memory of an hour at 400 Hz)
             new = {key: _compact(value) for key, value in e.diagnostics.items()}
@@ -432,6 +442,13 @@ class Runner:
         """An estimator's attitude at every IMU row estimated so far."""
         t = self.store[IMU].column(0)[:self.done] if self._imu_t is None else self._imu_t
         return AttitudeSeries(name, t, self.estimates[name].view())
+
+    def scoring_estimate(self, name: str) -> AttitudeSeries:
+        """What scoring reads of an estimator's attitude, as estimated: the whole estimate, or
+        with ``scored_rows`` the rows kept for it (``scoredrows``)."""
+        if self.scored is None:
+            return self.estimate(name)
+        return self.scored[name].series(name, self.estimate(name).t)
 
     def release_inputs(self) -> None:
         """Drop the samples added (IMU, compass, GPS, baro) but the IMU's times, once a whole

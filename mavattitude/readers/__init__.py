@@ -115,7 +115,7 @@ def _in_decoder(filename: str) -> bool:
 def reader_needs_compile(path: str) -> bool:
     """Whether reading this log compiles its reader's kernels first (numba's cache has not
     got them yet): a first run's reading is slow. False for a file that is no log."""
-    from . import collect, dfrecords, tlogrecords
+    from . import collect, dfrecords, tlogrecords, ulogrecords
 
     try:
         fmt = sniff_format(path)
@@ -123,8 +123,8 @@ def reader_needs_compile(path: str) -> bool:
         return False  # read_log says what is wrong with it
     if fmt == "broad":
         return False  # h5py reads it, nothing to compile
-    kernels = {"bin": (dfrecords._scan, dfrecords._gather), "tlog": (tlogrecords._scan, tlogrecords._gather),
-               "ulg": ()}[fmt]  # those every read of the format runs
+    kernels = {"bin": (dfrecords._scan, dfrecords._gather_words), "tlog": (tlogrecords._scan, tlogrecords._gather),
+               "ulg": (ulogrecords._pass, dfrecords._gather_words)}[fmt]  # those every read of the format runs
     return not all(cached(kernel) for kernel in (collect._track, *kernels))
 
 

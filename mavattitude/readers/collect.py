@@ -203,6 +203,19 @@ class Collector:
         self._events.setdefault((kind, key), []).append(
             (order, np.asarray(t, np.float64), np.asarray(values, np.float64), labels))
 
+    @property
+    def series_count(self) -> int:
+        """How many series were given columns so far."""
+        return len(self._chunks)
+
+    def sort_new_series(self, known: int) -> None:
+        """Put the series added after the first ``known`` in the order of their keys (a type
+        collected in parts adds its instances in the order its parts meet them; whole, in
+        the order of their numbers)."""
+        new = sorted(list(self._chunks)[known:])
+        for k in new:
+            self._chunks[k] = self._chunks.pop(k)
+
     def finish(self) -> None:
         """Call after the last sample: follows the clock and assigns segments."""
         series, self._chunks = self._chunks, {}  # the chunks go as they are merged

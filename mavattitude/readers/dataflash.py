@@ -50,6 +50,7 @@ DEG = math.pi / 180.0
 TEXT_TYPES = ("PARM", "MSG", "VER")  # parameters and who wrote the log, not samples
 EVENT_TYPES = ("MODE", "EV", "ARM", "ERR", "MSG")  # what the log says happened (``logevents``)
 MAX_INSTANCE = 9  # sensor instances ArduPilot numbers (0-based); beyond: a corrupt record
+PART_ROWS = 1 << 18  # a sensor's records decoded this many at a time
 
 # The sensor messages kept per instance: the collector's kind and the columns of their values
 # (IMT: delta angles and velocities, made rates in ``_sensor_values``).
@@ -81,25 +82,38 @@ def read_dataflash(path: str, progress=None) -> Decoded:
         progress(0.5)
     warnings = damage_notes(scan, len(data))
 
-    def records():  # one message type at a time: an hour of IMU records is let go once collected
+    def records():
+        # one message type at a time, a sensor's in parts (its columns went up to 650 MB for an
+        # hour of two IMUs at 400 Hz); each part let go once collected
         for name in scan.offsets:
-            try:
-                yield name, decode(data, scan, name)
-            except ValueError as exc:  # a format the firmware or damage got wrong
-                warnings.append(f"{name}: {exc} (a corrupt FMT record?): {len(scan.offsets[name])} records skipped")
+            offsets = scan.offsets[name]
+            step = PART_ROWS if name.rstrip("23") in SENSORS and not scan.has_text(name) else len(offsets)
+            for a in range(0, len(offsets), max(step, 1)):
+                try:
+                    yield name, decode(data, scan, name, slice(a, a + step)), slice(a, a + step)
+                except ValueError as exc:  # a format the firmware or damage got wrong (then in the first part)
+                    warnings.append(f"{name}: {exc} (a corrupt FMT record?): {len(offsets)} records skipped")
+                    break
     return _decoded(records(), scan.offsets, dict(scan.counts), warnings=warnings)
 
 
 def _decoded(records, order: dict, counts: dict, **notes) -> Decoded:
-    """Each message type's columns (``records``: (name, columns) pairs) and their places in
-    the file (``order``) into the collector, parameters and texts."""
+    """Each message type's columns into the collector, parameters and texts. ``records``:
+    (name, columns, rows) triples, a type's parts one after the other (``rows``: the part's
+    slice of ``order[name]``, the places of the type's records in the file)."""
     col = Collector()
     texts = {}
     utc_s = None
-    for name, r in records:
+    failed = set()
+    current, known = None, 0
+    for name, r, rows in records:
+        if name in failed:
+            continue
+        if name != current:  # a type's first part: the series it adds are new from here
+            current, known = name, col.series_count
         if name in EVENT_TYPES:
             try:
-                _collect_events(col, name, r, order[name])
+                _collect_events(col, name, r, order[name][rows])
             except (KeyError, TypeError, ValueError) as exc:  # damage, as below: said, the rest read
                 notes.setdefault("warnings", []).append(f"{name}: its columns do not fit ({exc}): "
                                                         f"{len(order[name])} records skipped")
@@ -111,11 +125,13 @@ def _decoded(records, order: dict, counts: dict, **notes) -> Decoded:
         if name == "GPS" and utc_s is None:
             utc_s = _gps_utc(r)
         try:
-            _collect(col, name, r, order[name])
+            _collect(col, name, r, order[name][rows])
         except (KeyError, TypeError, ValueError) as exc:  # a column missing or of another type: damage
             what = f"its format has no column {exc}" if isinstance(exc, KeyError) else f"its columns do not fit ({exc})"
             notes.setdefault("warnings", []).append(f"{name}: {what} (a corrupt FMT record?): "
                                                     f"{len(order[name])} records skipped")
+            failed.add(name)
+        col.sort_new_series(known)  # a type's instances in their order, whichever part met them first
     parm, msg, ver = (texts.get(name, {}) for name in TEXT_TYPES)
     params = {name: float(value) for name, value in zip(parm.get("Name", []), parm.get("Value", []))}
     texts = list(msg.get("Message", [])) + list(ver.get("FWS", []))
@@ -285,4 +301,5 @@ def _read_with_pymavlink(path: str, progress, why: str) -> Decoded:
         records[name] = {k: np.array(v, dtype=object if isinstance(v[0], str) else None) for k, v in columns.items()}
     counts = {log.formats[i].name: c for i, c in enumerate(log.counts)
               if c and i in log.formats and log.formats[i].name != "FMT"}
-    return _decoded(records.items(), {k: np.array(v) for k, v in order.items()}, counts, notes=[why])
+    return _decoded(((name, r, slice(None)) for name, r in records.items()),
+                    {k: np.array(v) for k, v in order.items()}, counts, notes=[why])

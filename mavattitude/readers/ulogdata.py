@@ -30,6 +30,7 @@ NUMPY_TYPES = {"int8_t": "i1", "uint8_t": "u1", "int16_t": "<i2", "uint16_t": "<
 STRUCT_TYPES = {"int8_t": "b", "uint8_t": "B", "int16_t": "h", "uint16_t": "H", "int32_t": "i",
                 "uint32_t": "I", "int64_t": "q", "uint64_t": "Q", "float": "f", "double": "d", "bool": "?",
                 "char": "c"}
+UNPACK = {kind: struct.Struct("<" + code).unpack for kind, code in STRUCT_TYPES.items()}
 DEFINITIONS_END = frozenset(b"ALC")  # pyulog: the first of these starts the data section
 
 
@@ -78,8 +79,10 @@ def read_topics(data: bytes, framing: Framing, wanted: list[str]) -> Topics:
     subscribed: dict[int, tuple[str, int]] = {}  # id -> (topic, multi_id), wanted topics only
     seen_ids: set[int] = set()
     definitions = True
-    for pos in framing.other_at:
-        size, kind = struct.unpack_from("<HB", data, pos)
+    buffer = np.frombuffer(data, np.uint8)
+    at = np.asarray(framing.other_at, np.int64)
+    sizes, kinds = buffer[at] | (buffer[at + 1].astype(np.int64) << 8), buffer[at + 2]
+    for pos, size, kind in zip(at.tolist(), sizes.tolist(), kinds.tolist()):
         payload = data[pos + 3:pos + 3 + size]
         definitions = definitions and kind not in DEFINITIONS_END
         if kind == ord("B"):
@@ -109,9 +112,9 @@ def read_topics(data: bytes, framing: Framing, wanted: list[str]) -> Topics:
             raise Unsupported("data of a wanted topic whose format is missing or damaged")
     if not subscribed:
         return out
-    buffer = np.frombuffer(data, np.uint8)
+    offsets_of = framing.data_offsets(list(subscribed))
     for msg_id, (name, multi_id) in subscribed.items():
-        offsets = framing.data_at[framing.data_ids == msg_id]
+        offsets = offsets_of[msg_id]
         if not len(offsets):
             continue  # pyulog lists only topics with data
         dtype = topic_dtype(framing.formats, name)
@@ -153,7 +156,7 @@ def _info(payload: bytes) -> tuple[str, object]:
     if kind.startswith("char["):
         return key, raw.decode("utf-8", "ignore")
     if kind in STRUCT_TYPES and len(raw) == FIELD_SIZES[kind]:
-        return key, struct.unpack("<" + STRUCT_TYPES[kind], raw)[0]
+        return key, UNPACK[kind](raw)[0]
     if kind in STRUCT_TYPES:
         raise Unsupported(f"info {key!r} is {len(raw)} bytes for a {kind}")
     return key, raw

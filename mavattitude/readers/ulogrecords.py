@@ -11,7 +11,7 @@ accepts. Past damage, reading resumes where ``RESYNC_CHAIN`` valid messages foll
 ``repaired`` is the file without its damage (the header mended), for pyulog to read.
 The walk keeps where each valid message starts (``data_at`` with ``data_ids``, ``other_at``)
 for ``ulogdata`` to decode; the data messages of a known size, nearly all of a log, are passed
-by one compiled loop (``_pass_data``).
+by one compiled loop (``_pass``), with the messages that need no learning.
 """
 from __future__ import annotations
 
@@ -74,6 +74,18 @@ class Framing:
     def skipped(self) -> int:
         return sum(end - start for start, end in self.damage)
 
+    def data_offsets(self, ids: list[int]) -> dict[int, np.ndarray]:
+        """Where the data messages of each topic id in ``ids`` start, in file order (one pass
+        over them all: a comparison and a mask per id took 3 ms each on an hour at 400 Hz)."""
+        counts = np.bincount(self.data_ids, minlength=max(ids, default=0) + 1)  # (ids are few and small)
+        wanted = np.zeros(len(counts), np.bool_)
+        wanted[list(ids)] = True
+        counts *= wanted
+        starts = np.concatenate([[0], np.cumsum(counts)])
+        out = np.empty(starts[-1], np.int64)
+        _split_by_id(self.data_ids, self.data_at, wanted, starts[:-1].copy(), out)
+        return {i: out[starts[i]:starts[i + 1]] for i in ids}
+
     def notes(self) -> list[str]:
         """The damage, said plainly (nothing for a sound file)."""
         notes = []
@@ -125,22 +137,27 @@ def frame(data: bytes) -> Framing:
     pos = run_start = HEADER_SIZE
     buffer = np.frombuffer(data, np.uint8)
     # subscribed id -> its data payload size, -1 where not known: the compiled pass takes the
-    # data messages of a known size (nearly all), ``message`` the rest
+    # data messages of a known size (nearly all) and the messages that teach nothing (PASSED),
+    # ``message`` the rest
     sizes = np.full(1 << 16, -1, np.int64)
     data_at = np.empty(len(data) // 32 + 16, np.int64)  # doubled when full (IMU samples take ~50 bytes)
     data_ids = np.empty(len(data_at), np.uint16)
-    n_data = 0
+    other_at = np.empty(256, np.int64)  # likewise (a log has hundreds of parameters)
+    n_data = n_other = 0
     while pos < len(data):
-        if data[pos + 2:pos + 3] == b"D":  # (a compiled call costs microseconds: not for each definition)
-            pos, n_data = _pass_data(buffer, pos, sizes, data_at, data_ids, n_data)
-        if n_data == len(data_at):
-            data_at, data_ids = np.concatenate([data_at, data_at]), np.concatenate([data_ids, data_ids])
+        if data[pos + 2:pos + 3] not in (b"F", b"A"):  # (a compiled call costs microseconds: not for each definition)
+            pos, n_data, n_other = _pass(buffer, pos, sizes, data_at, data_ids, n_data, other_at, n_other)
+        if n_data == len(data_at) or n_other == len(other_at):
+            data_at, data_ids = (np.concatenate([data_at, data_at]), np.concatenate([data_ids, data_ids])) \
+                if n_data == len(data_at) else (data_at, data_ids)
+            other_at = np.concatenate([other_at, other_at]) if n_other == len(other_at) else other_at
             continue
         if pos >= len(data):
             break
         end = walk.message(pos, learn=True)
         if end > 0:
-            framing.other_at.append(pos)
+            other_at[n_other] = pos
+            n_other += 1
             if data[pos + 2] == ord("A") and end - pos > 6:
                 msg_id, = struct.unpack_from("<H", data, pos + 4)
                 known = walk.data_sizes.get(msg_id)
@@ -156,6 +173,7 @@ def frame(data: bytes) -> Framing:
         pos = run_start = resume
     framing.runs.append((run_start, min(pos, len(data))))
     framing.data_at, framing.data_ids = data_at[:n_data].copy(), data_ids[:n_data].copy()
+    framing.other_at = other_at[:n_other].tolist()
     framing.formats = walk.formats
     return framing
 
@@ -165,22 +183,47 @@ def _last_data(walk: "_Walk", data_at: np.ndarray, n_data: int) -> int:
     return max(walk.last_data, int(data_at[n_data - 1]) if n_data else -1)
 
 
+# the message types the compiled pass steps over (besides data of a known size): those that
+# teach the walk nothing (formats 'F' and subscriptions 'A' do)
+PASSED = np.array([k in TYPES and k not in b"FAD" for k in range(256)])
+
+
 @njit(cache=True)
-def _pass_data(data, pos, sizes, data_at, data_ids, n_data):
-    """Step over data messages of their topic's known size from ``pos``, keeping where each
-    starts and its topic id; returns where it stopped (a message of another kind or size, or
-    ``data_at`` full) and the count kept."""
+def _pass(data, pos, sizes, data_at, data_ids, n_data, other_at, n_other):
+    """Step over valid messages from ``pos``: data messages of their topic's known size (kept in
+    ``data_at`` with their topic id) and those of a PASSED type (kept in ``other_at``); returns
+    where it stopped (any other message, damage, the end, or an array full) and the counts kept."""
     n = len(data)
-    while pos + 5 <= n and n_data < len(data_at):
+    while pos + 3 <= n and n_data < len(data_at) and n_other < len(other_at):
         size = data[pos] | (data[pos + 1] << 8)
-        msg_id = data[pos + 3] | (data[pos + 4] << 8)
-        if data[pos + 2] != DATA or sizes[msg_id] != size - 2 or pos + 3 + size > n:
+        kind = data[pos + 2]
+        if pos + 3 + size > n:
             break
-        data_at[n_data] = pos
-        data_ids[n_data] = msg_id
-        n_data += 1
+        if kind == DATA:
+            if size < 2:
+                break
+            msg_id = data[pos + 3] | (data[pos + 4] << 8)
+            if sizes[msg_id] != size - 2:
+                break
+            data_at[n_data] = pos
+            data_ids[n_data] = msg_id
+            n_data += 1
+        elif PASSED[kind] and size > 0:
+            other_at[n_other] = pos
+            n_other += 1
+        else:
+            break
         pos += 3 + size
-    return pos, n_data
+    return pos, n_data, n_other
+
+
+@njit(cache=True)
+def _split_by_id(data_ids, data_at, wanted, next_at, out):
+    for i in range(len(data_ids)):
+        msg_id = data_ids[i]
+        if wanted[msg_id]:
+            out[next_at[msg_id]] = data_at[i]
+            next_at[msg_id] += 1
 
 
 _INVALID, _CUT = -1, -2
@@ -195,6 +238,7 @@ class _Walk:
         self.data_sizes: dict[int, int | None] = {}  # subscribed id -> its data payload size (None: unknown)
         self.time_offsets: dict[int, int | None] = {}  # subscribed id -> where its timestamp is in the data
         self.last_data = -1  # where the last valid data message seen starts
+        self._sizes: dict[tuple[str, int], int | None] = {}  # _format_size's answers, until a format is learned
 
     def message(self, pos: int, learn: bool) -> int:
         """The end of the valid message at ``pos``, _INVALID, or _CUT (it runs past the end)."""
@@ -279,9 +323,11 @@ class _Walk:
             count = 0
             if "[" in kind:
                 kind, _, n = kind.partition("[")
-                count = int(n[:-1]) if re.fullmatch(r"[0-9]+\]", n) else -1  # -1: damaged
+                digits = n[:-1]
+                count = int(digits) if n[-1:] == "]" and digits.isascii() and digits.isdigit() else -1  # -1: damaged
             fields.append((kind, count, field_name))
         self.formats[name] = fields
+        self._sizes.clear()
 
     def _timestamp_offset(self, name: str) -> int | None:
         """Where a topic's ``timestamp`` (uint64, µs) lies in its data, None if it has none."""
@@ -298,6 +344,11 @@ class _Walk:
     def _format_size(self, name: str, depth: int = 0) -> int | None:
         """Bytes of a topic's data as pyulog takes them (the trailing padding left out), None
         when a format is missing or damaged: its data messages are then taken at any size."""
+        if (name, depth) not in self._sizes:
+            self._sizes[(name, depth)] = self._count_size(name, depth)
+        return self._sizes[(name, depth)]
+
+    def _count_size(self, name: str, depth: int) -> int | None:
         fields = self.formats.get(name)
         if fields is None or depth > MAX_NESTING:
             return None

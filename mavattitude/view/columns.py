@@ -170,7 +170,7 @@ def _binned_attitudes(t, q, max_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """The first quaternion of each 1/``max_hz`` bin (``_bin_first``) and its time."""
     t = np.asarray(t, dtype=np.float64)
     idx = _bin_first(t, max_hz)
-    return t[idx], np.asarray(q, dtype=np.float64)[idx]
+    return t[idx], np.asarray(np.asarray(q)[idx], dtype=np.float64)  # picked, then widened: not a whole float32 estimate
 
 
 def log_euler_columns(rec: rr.RecordingStream, name: str, t, q, *,
@@ -245,8 +245,9 @@ def log_diagnostic_columns(rec: rr.RecordingStream, name: str, t, diagnostics: d
     for key, y in diagnostics.items():
         y = np.asarray(y, dtype=np.float64)
         ok = np.isfinite(y)
-        idx = _bin_minmax(t[ok], y[ok], max_hz)
-        tk, yk = _break_lines(t[ok][idx], y[ok][idx], angle=False)
+        tf, yf = (t, y) if ok.all() else (t[ok], y[ok])  # (no copies of an hour when all are finite)
+        idx = _bin_minmax(tf, yf, max_hz)
+        tk, yk = _break_lines(tf[idx], yf[idx], angle=False)
         rec.send_columns(diagnostic_path(key, name), indexes=[_time(tk)], columns=rr.Scalars.columns(scalars=yk))
 
 
@@ -371,16 +372,18 @@ def log_tracks(rec: rr.RecordingStream, result: ReplayResult, colors: dict[str, 
         rec.log(f"{series_root(name)}/track", rr.LineStrips3D([_thin(ned, GPS_TRACK_MAX_POINTS)], colors=[color],
                                                          radii=rr.Radius.ui_points(1.5), labels=[name]),
                 static=True)
-        lat, lon, _ = ned_to_geodetic(aiding.origin, ned)
+        # latitude and longitude of the rows drawn only (all of an hour's took 100 MB)
+        line, idx = _thin(np.arange(len(ned))[:, None], GPS_TRACK_MAX_POINTS)[:, 0], _bin_first(t, GPS_MARKER_MAX_HZ)
+        rows = np.union1d(line, idx)
+        lat, lon, _ = ned_to_geodetic(aiding.origin, ned[rows])
         ll = np.column_stack([lat, lon])
         path = f"{series_root(name)}/map"
-        rec.log(path, rr.GeoLineStrings(lat_lon=[_thin(ll, GPS_TRACK_MAX_POINTS)],
+        rec.log(path, rr.GeoLineStrings(lat_lon=[ll[np.searchsorted(rows, line)]],
                                         radii=rr.Radius.ui_points(2.5), colors=[color]), static=True)
         rec.log(f"{path}/position", rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(5.0), colors=[color]),
                 static=True)
-        idx = _bin_first(t, GPS_MARKER_MAX_HZ)
         rec.send_columns(f"{path}/position", indexes=[_time(t[idx])],
-                         columns=rr.GeoPoints.columns(positions=ll[idx]))
+                         columns=rr.GeoPoints.columns(positions=ll[np.searchsorted(rows, idx)]))
     return True
 
 

@@ -178,11 +178,15 @@ def _diagnostic_ranges(diagnostics: dict[str, dict[str, np.ndarray]], t: np.ndar
     out: dict[str, dict[str, tuple[float, float]]] = {}
     for name, diag in diagnostics.items():
         groups: dict[str, list] = {}
-        for key, y in diag.items():
-            y = np.asarray(y, dtype=np.float64)
-            groups.setdefault(diagnostic_group(key)[0], []).append(y[inside & np.isfinite(y)] if len(y) == len(t) else y)
-        for group, ys in groups.items():
+        for key in diag:
+            groups.setdefault(diagnostic_group(key)[0], []).append(key)
+        for group, keys in groups.items():  # a group's series at a time (cpf-ekf's all at once: 250 MB for an hour)
+            ys = []
+            for key in keys:
+                y = np.asarray(diag[key], dtype=np.float64)
+                ys.append(y[inside & np.isfinite(y)] if len(y) == len(t) else y)
             y = np.concatenate(ys)
+            del ys
             if len(y) < 2:
                 continue
             lo, hi = np.percentile(y, [1.0, 99.0])
