@@ -16,19 +16,20 @@ from .flightlog import BAND, BAND_RANGE
 # ---------------------------------------------------------------- blueprint
 
 
-def _text_log_columns():
-    """Time, level and text: the entity path column says nothing here (always /events)."""
+def text_log_columns(timeline: str = TIMELINE):
+    """Time (or ``timeline``), level and text: the entity path column says nothing here (the
+    line says what it is about)."""
     enc = rrb.encodings
     try:
         return rrb.TextLogColumns(
-            timeline_columns=[enc.TimelineColumn(TIMELINE)],
+            timeline_columns=[enc.TimelineColumn(timeline)],
             text_log_columns=[enc.TextLogColumn("LogLevel"), enc.TextLogColumn("Body"),
                               enc.TextLogColumn("EntityPath", visible=False)])
     except Exception:  # noqa: BLE001 - unstable blueprint type; the default is fine
         return None
 
 
-_TEXT_LOG_COLUMNS = _text_log_columns()
+_TEXT_LOG_COLUMNS = text_log_columns()
 
 
 def _contents(names: Sequence[str], sub, extra: Sequence[str] = ()) -> list[str]:

@@ -20,6 +20,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from .blueprint import text_log_columns
 from .style import _part, assign_colors, series_root
 
 TIMELINE = "log"
@@ -35,18 +36,6 @@ class LogRow:
     scores: dict[str, float] = field(default_factory=dict)  # estimator -> tilt error, deg
     note: str = ""  # why it failed, was skipped or is not meaningful
     command: str = ""  # the replay that writes its own recording
-
-
-def _log_columns():
-    """The log's number, level and line (the line names the log: its entity path would repeat it)."""
-    enc = rrb.encodings
-    try:
-        return rrb.TextLogColumns(
-            timeline_columns=[enc.TimelineColumn(TIMELINE)],
-            text_log_columns=[enc.TextLogColumn("LogLevel"), enc.TextLogColumn("Body"),
-                              enc.TextLogColumn("EntityPath", visible=False)])
-    except Exception:  # noqa: BLE001 - unstable blueprint type; the default is fine
-        return None
 
 
 def log_line(k: int, row: LogRow) -> str:
@@ -74,7 +63,7 @@ def log_evaluation(rec: rr.RecordingStream, rows: Sequence[LogRow], names: Seque
                                        end=rrb.TimeRangeBoundary.absolute(seq=len(rows)))),
                                    plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True)),
                 rrb.TextLogView(origin="logs", name="logs: number, scores, the command for its own recording",
-                                columns=_log_columns()),
+                                columns=text_log_columns(TIMELINE)),
                 row_shares=[3, 2]),
             rrb.TextDocumentView(origin="report", name="report"),
             column_shares=[3, 2]),
