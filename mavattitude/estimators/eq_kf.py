@@ -219,12 +219,13 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..paramspec import param
-from ..quaternion import dcm_into, qmul_into
 from .base import MAX_STEP_S, Estimator
-from .inertial_accel import lowpass_in_inertial_frame
-from .timestep import step_rate
-from .consistency import attitude_error, carried, step_rotation_into, track_stillness
+from .consistency import track_stillness
+from .eq_kf_model import (accel_jacobian, accel_tangent, accel_update, error_transition, inject, mag_jacobian,
+                          mag_update, picard_step, predict, ramp, track_accel)
 from .gravity import learn_gravity, scale_effect
+from .inertial_accel import lowpass_in_inertial_frame
+from .timestep import integrates, step_dt, step_rate
 
 
 @dataclass
@@ -279,161 +280,6 @@ _A_CONS = 13  # s the residual has been inconsistent with ‖f̃‖
 _N_AUX = 14
 
 
-# ---------------------------------------------------------------- model functions (njit)
-# Written with output arguments so the kernel calls them without allocating; the tests call
-# the same functions to check them against finite differences and the exact rotation.
-
-
-@njit(cache=True)
-def picard_step(q, dtheta, out):
-    """Eq 5 to 3rd order: out = [(1 - Δθ₀²/8) I + (½ - Δθ₀²/48) Ω(Δθ)] q (not normalised)."""
-    dx, dy, dz = dtheta[0], dtheta[1], dtheta[2]
-    th2 = dx * dx + dy * dy + dz * dz
-    c0 = 1.0 - th2 / 8.0
-    c1 = 0.5 - th2 / 48.0
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    # Ω(Δθ) q, rows of Ω as in ALGORITHMS.md "Conventions"
-    o0 = -dx * x - dy * y - dz * z
-    o1 = dx * w + dz * y - dy * z
-    o2 = dy * w - dz * x + dx * z
-    o3 = dz * w + dy * x - dx * y
-    out[0] = c0 * w + c1 * o0
-    out[1] = c0 * x + c1 * o1
-    out[2] = c0 * y + c1 * o2
-    out[3] = c0 * z + c1 * o3
-
-
-@njit(cache=True)
-def error_transition(dtheta, dt, a, b):
-    """Φ's blocks for one step: a = C(p̂)ᵀ (∂e'/∂e), b = -½Δt (I - ½[Δθ]×) (∂e'/∂β)."""
-    dx, dy, dz = dtheta[0], dtheta[1], dtheta[2]
-    step_rotation_into(dx, dy, dz, a)  # a = C(p̂)ᵀ, p the Picard step's rotation
-    h = -0.5 * dt
-    k = 0.25 * dt  # b = -½Δt I + ¼Δt [Δθ]×
-    b[0, 0], b[0, 1], b[0, 2] = h, -k * dz, k * dy
-    b[1, 0], b[1, 1], b[1, 2] = k * dz, h, -k * dx
-    b[2, 0], b[2, 1], b[2, 2] = -k * dy, k * dx, h
-
-
-@njit(cache=True)
-def _error_quaternion(e):
-    """Q_e = [√(1 - |e|²), e] from its vector part (allocates: tests and setup only)."""
-    s = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
-    return np.array([np.sqrt(max(1.0 - s, 0.0)), e[0], e[1], e[2]])
-
-
-@njit(cache=True)
-def error_propagate(e, beta, rate, dt, out):
-    """The nonlinear error step the Jacobians linearise: out = vec(p̂(Δθ)⁻¹ ⊗ Q_e ⊗ p̂(Δθ - βΔt)),
-    Δθ = rate·Δt, p̂ the normalised Picard increment (tests only; allocates)."""
-    one = np.array([1.0, 0.0, 0.0, 0.0])
-    p1 = np.empty(4)
-    picard_step(one, rate * dt, p1)
-    p1 /= np.sqrt(np.sum(p1 * p1))
-    p2 = np.empty(4)
-    picard_step(one, (rate - beta) * dt, p2)
-    p2 /= np.sqrt(np.sum(p2 * p2))
-    p1inv = np.array([p1[0], -p1[1], -p1[2], -p1[3]])
-    tmp = np.empty(4)
-    res = np.empty(4)
-    qmul_into(p1inv, _error_quaternion(e), tmp)
-    qmul_into(tmp, p2, res)
-    if res[0] < 0.0:
-        res = -res
-    out[0], out[1], out[2] = res[1], res[2], res[3]
-
-
-@njit(cache=True)
-def accel_predict(qbar, e, out):
-    """h(e) = C(Q̄ ⊗ Q_e)ᵀ [0, 0, -1]: the accelerometer direction the attitude predicts."""
-    q = np.empty(4)
-    qmul_into(qbar, _error_quaternion(e), q)
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    out[0] = -2.0 * (x * z - w * y)
-    out[1] = -2.0 * (y * z + w * x)
-    out[2] = -(1.0 - 2.0 * (x * x + y * y))
-
-
-@njit(cache=True)
-def accel_tangent(h, t):
-    """Rows of t (2×3): an orthonormal basis of the plane ⟂ the unit vector h."""
-    ax, ay, az = abs(h[0]), abs(h[1]), abs(h[2])
-    # t₁ = normalise(e_k × h) with e_k the axis least aligned with h
-    if ax <= ay and ax <= az:
-        t0, t1, t2 = 0.0, -h[2], h[1]
-    elif ay <= az:
-        t0, t1, t2 = h[2], 0.0, -h[0]
-    else:
-        t0, t1, t2 = -h[1], h[0], 0.0
-    inv = 1.0 / np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-    t0, t1, t2 = t0 * inv, t1 * inv, t2 * inv
-    t[0, 0], t[0, 1], t[0, 2] = t0, t1, t2
-    # t₂ = h × t₁
-    t[1, 0] = h[1] * t2 - h[2] * t1
-    t[1, 1] = h[2] * t0 - h[0] * t2
-    t[1, 2] = h[0] * t1 - h[1] * t0
-
-
-@njit(cache=True)
-def accel_jacobian(h, t, hm):
-    """hm (2×3) = ∂(Tᵀ h(e))/∂e at e = 0 = Tᵀ 2[h̄]×, rows 2 (tᵢ × h̄)."""
-    for r in range(2):
-        hm[r, 0] = 2.0 * (t[r, 1] * h[2] - t[r, 2] * h[1])
-        hm[r, 1] = 2.0 * (t[r, 2] * h[0] - t[r, 0] * h[2])
-        hm[r, 2] = 2.0 * (t[r, 0] * h[1] - t[r, 1] * h[0])
-
-
-@njit(cache=True)
-def mag_predict(qbar, e, u):
-    """h(e) = azimuth (rad) of C(Q̄ ⊗ Q_e) u, u the body-frame image of the field's
-    horizontal part (see the module docstring)."""
-    q = np.empty(4)
-    qmul_into(qbar, _error_quaternion(e), q)
-    c = np.empty((3, 3))
-    dcm_into(q[0], q[1], q[2], q[3], c)
-    vx = c[0, 0] * u[0] + c[0, 1] * u[1] + c[0, 2] * u[2]
-    vy = c[1, 0] * u[0] + c[1, 1] * u[1] + c[1, 2] * u[2]
-    return np.arctan2(vy, vx)
-
-
-@njit(cache=True)
-def mag_jacobian(qbar, hm):
-    """hm (3,) = ∂(azimuth)/∂e at e = 0 = 2 × third row of C(Q̄)."""
-    w, x, y, z = qbar[0], qbar[1], qbar[2], qbar[3]
-    hm[0] = 2.0 * 2.0 * (x * z - w * y)
-    hm[1] = 2.0 * 2.0 * (y * z + w * x)
-    hm[2] = 2.0 * (1.0 - 2.0 * (x * x + y * y))
-
-
-@njit(cache=True)
-def _ramp(x, lo, hi):
-    if x <= lo:
-        return 1.0
-    if x >= hi:
-        return 0.0
-    return (hi - x) / (hi - lo)
-
-
-@njit(cache=True)
-def _inject(q, bias, x, qtmp):
-    """Q̄ ← Q̄ ⊗ [√(1-|e|²), e] (normalised), b̂ ← b̂ + β."""
-    s = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
-    if s < 1.0:
-        ew, ex, ey, ez = np.sqrt(1.0 - s), x[0], x[1], x[2]
-    else:
-        r = 1.0 / np.sqrt(s)
-        ew, ex, ey, ez = 0.0, x[0] * r, x[1] * r, x[2] * r
-    w, a, b, c = q[0], q[1], q[2], q[3]
-    qtmp[0] = w * ew - a * ex - b * ey - c * ez
-    qtmp[1] = w * ex + a * ew + b * ez - c * ey
-    qtmp[2] = w * ey - a * ez + b * ew + c * ex
-    qtmp[3] = w * ez + a * ey - b * ex + c * ew
-    inv = 1.0 / np.sqrt(qtmp[0] * qtmp[0] + qtmp[1] * qtmp[1] + qtmp[2] * qtmp[2] + qtmp[3] * qtmp[3])
-    for k in range(4):
-        q[k] = qtmp[k] * inv
-    for k in range(3):
-        bias[k] += x[3 + k]
-
 
 class EqKfState(NamedTuple):
     """What the filter carries between chunks (arrays, updated in place)."""
@@ -484,71 +330,33 @@ class EqKfDiagnostics(NamedTuple):
     accel_state: np.ndarray  # int8
 
 
-@njit(cache=True, inline="always")
-def _tangent_update(p, ph, s00, s01, s11, r0, r1, rr, x):
-    """The 2-D tangent-plane update with measurement variance rr per axis: K = P Hᵀ S⁻¹ (6×2);
-    x = K r; P ← P - K (P Hᵀ)ᵀ, upper triangle mirrored."""
-    sa, sb = s00 + rr, s11 + rr
-    idet = 1.0 / (sa * sb - s01 * s01)
-    i00, i01, i11 = sb * idet, -s01 * idet, sa * idet
-    for r in range(6):
-        k0 = ph[r, 0] * i00 + ph[r, 1] * i01
-        k1 = ph[r, 0] * i01 + ph[r, 1] * i11
-        x[r] = k0 * r0 + k1 * r1
-        for c in range(r, 6):
-            s = p[r, c] - (k0 * ph[c, 0] + k1 * ph[c, 1])
-            p[r, c] = s
-            p[c, r] = s
-
-
 @njit(cache=True)
 def eqkf_run(s, state, cfg, out_q, diag):
     """Run the filter over a chunk of samples ``s`` (``base.Samples``; ``in_air`` gates the
     turn compensation only); ``state`` (``EqKfState``) is updated in place. Writes the
     attitude to ``out_q`` and trace(P), the trust w and the accel state code of each sample to
-    ``diag``."""
+    ``diag``. Each sample: the turn compensation, the prediction, the accelerometer's
+    bookkeeping and stillness, the accelerometer update with its trust, the magnetometer's."""
     # the trust tests read the reading as it is; where they refuse it, the low-passed one (s.accel) may stand in
     t, gyro, accel, accel_low, mag, in_air = s.t, s.gyro, s.accel_read, s.accel, s.mag, s.in_air
     over_step = s.rate_over_step  # each gyro sample the mean over its step (timestep.step_rate)
     q, bias, p, t_prev, gyro_prev, aux = state.q, state.bias, state.p, state.t_prev, state.gyro_prev, state.aux
-    use_mag, max_step = cfg.use_mag, cfg.max_step
+    use_mag, max_step, airspeed, learn_g = cfg.use_mag, cfg.max_step, cfg.airspeed, cfg.learn_g
     out_trace, out_w, out_state = diag.cov_trace, diag.accel_weight, diag.accel_state
     # scratch, once per chunk
-    a = np.empty((3, 3))
-    b = np.empty((3, 3))
-    tp = np.empty((3, 6))
-    dth = np.empty(3)
-    qn = np.empty(4)
-    hv = np.empty(3)
-    tb = np.empty((2, 3))
-    hm = np.empty((2, 3))
-    ph = np.empty((6, 2))
-    hm3 = np.empty(3)
-    v6 = np.empty(6)
-    x = np.empty(6)
-    qe_var = 0.25 * cfg.gyro_noise * cfg.gyro_noise
-    qb_var = cfg.bias_walk * cfg.bias_walk
-    acc_var = cfg.accel_noise * cfg.accel_noise
-    mag_var = cfg.mag_noise * cfg.mag_noise
-    gate_var = cfg.gate_noise * cfg.gate_noise
-    kint2 = cfg.int_noise * cfg.int_noise
-    norm_lo, norm_hi, rate_lo, rate_hi = cfg.norm_lo, cfg.norm_hi, cfg.rate_lo, cfg.rate_hi
-    gate_lo, gate_hi = cfg.gate_lo, cfg.gate_hi
-    tau, vib_tau, rise = cfg.trust_lpf, cfg.vib_time, cfg.trust_rise
+    a, b, tp, dth, qn = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 6)), np.empty(3), np.empty(4)
+    hv, tb, hm, ph = np.empty(3), np.empty((2, 3)), np.empty((2, 3)), np.empty((6, 2))
+    hm3, v6, x = np.empty(3), np.empty(6), np.empty(6)
     still_rate2 = cfg.still_rate * cfg.still_rate
     still_acc2 = cfg.still_accel * cfg.still_accel
-    still_time = cfg.still_time
-    cons_tol, cons_norm, cons_time = cfg.cons_tol, cfg.cons_norm, cfg.cons_time
-    cos_tol, sin_tol = np.cos(cons_tol), np.sin(cons_tol)
+    cos_tol, sin_tol = np.cos(cfg.cons_tol), np.sin(cfg.cons_tol)
     cdec, sdec = np.cos(cfg.declination), np.sin(cfg.declination)
-    airspeed = cfg.airspeed
     # the auxiliary state, in locals for the loop
     lp0, lp1, lp2 = aux[_A_LP], aux[_A_LP + 1], aux[_A_LP + 2]
     dir0, dir1, dir2 = aux[_A_DIR], aux[_A_DIR + 1], aux[_A_DIR + 2]
     vib, still_t, w_prev = aux[_A_VIB], aux[_A_STILL], aux[_A_W]
     ref0, ref1, ref2 = aux[_A_REF], aux[_A_REF + 1], aux[_A_REF + 2]
     g_a, cons_t = aux[_A_G], aux[_A_CONS]
-    learn_g = cfg.learn_g
     for i in range(len(t)):
         gx, gy, gz = gyro[i, 0], gyro[i, 1], gyro[i, 2]
         ax, ay, az = accel[i, 0], accel[i, 1], accel[i, 2]
@@ -558,10 +366,10 @@ def eqkf_run(s, state, cfg, out_q, diag):
             # ω is ω × V x̂ = V (0, ω_z, -ω_y); gravity's share is f - V (0, ω_z, -ω_y)
             ay -= airspeed * (gz - bias[2])
             az += airspeed * (gy - bias[1])
-        dt = t[i] - t_prev[0] if t_prev[0] == t_prev[0] else 0.0  # NaN before the first sample
-        if t[i] == t[i]:
+        dt = step_dt(t[i], t_prev[0])
+        if t[i] == t[i]:  # a sample without a time leaves the last one's
             t_prev[0] = t[i]
-        step = 0.0 < dt <= max_step and gyro_ok
+        step = integrates(dt, max_step) and gyro_ok
         rx, ry, rz = step_rate(gx, gy, gz, gyro_prev[0], gyro_prev[1], gyro_prev[2], dt if step else 0.0, over_step)
         rx, ry, rz = rx - bias[0], ry - bias[1], rz - bias[2]
         # the rate change across the step, for the integration noise
@@ -571,132 +379,27 @@ def eqkf_run(s, state, cfg, out_q, diag):
         an = np.sqrt(ax * ax + ay * ay + az * az)
         accel_ok = an > 0.0 and an == an
 
-        # ---- prediction: Picard attitude step (eq 5), P ← Φ P Φᵀ + Q
-        if step:
-            dth[0], dth[1], dth[2] = rx * dt, ry * dt, rz * dt
-            picard_step(q, dth, qn)
-            inv = 1.0 / np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
-            for k in range(4):
-                q[k] = qn[k] * inv
-            error_transition(dth, dt, a, b)
-            q_e = qe_var * dt + 0.25 * kint2 * (dwx * dwx + dwy * dwy + dwz * dwz) * dt * dt
-            # tp = rows 0-2 of Φ P
-            for r in range(3):
-                for c in range(6):
-                    tp[r, c] = (a[r, 0] * p[0, c] + a[r, 1] * p[1, c] + a[r, 2] * p[2, c]
-                                + b[r, 0] * p[3, c] + b[r, 1] * p[4, c] + b[r, 2] * p[5, c])
-            # P_ee = tp Φ[0:3]ᵀ (upper triangle, mirrored); P_eb = tp[:, 3:6]; P_bb += Q_b
-            for r in range(3):
-                for c in range(r, 3):
-                    s = (tp[r, 0] * a[c, 0] + tp[r, 1] * a[c, 1] + tp[r, 2] * a[c, 2]
-                         + tp[r, 3] * b[c, 0] + tp[r, 4] * b[c, 1] + tp[r, 5] * b[c, 2])
-                    if r == c:
-                        s += q_e
-                    p[r, c] = s
-                    p[c, r] = s
-                for c in range(3, 6):
-                    p[r, c] = tp[r, c]
-                    p[c, r] = tp[r, c]
-            for r in range(3, 6):
-                p[r, r] += qb_var * dt
-
-        # ---- accelerometer bookkeeping, every vector carried along with the body rotation
-        # (v ← C(p̂)ᵀ v): the low-pass f̃, the direction noise, the stillness test
-        if step and accel_ok and lp0 == lp0:
-            f0, f1, f2 = carried(a, lp0, lp1, lp2)
-            alpha = dt / (tau + dt)
-            lp0 = f0 + alpha * (ax - f0)
-            lp1 = f1 + alpha * (ay - f1)
-            lp2 = f2 + alpha * (az - f2)
-            if dir0 == dir0:
-                # |Δu|² = 2 axes × 2 samples × σ², so σ² per axis = |Δu|²/4
-                d0 = ax / an - (a[0, 0] * dir0 + a[0, 1] * dir1 + a[0, 2] * dir2)
-                d1 = ay / an - (a[1, 0] * dir0 + a[1, 1] * dir1 + a[1, 2] * dir2)
-                d2 = az / an - (a[2, 0] * dir0 + a[2, 1] * dir1 + a[2, 2] * dir2)
-                vib += dt / (vib_tau + dt) * (0.25 * (d0 * d0 + d1 * d1 + d2 * d2) - vib)
-        elif accel_ok:  # start, after a gap or a bad sample: restart the low-pass here
-            lp0, lp1, lp2 = ax, ay, az
-        if accel_ok:
-            dir0, dir1, dir2 = ax / an, ay / an, az / an
-        else:
-            dir0 = np.nan
+        if step:  # eq 5, P ← Φ P Φᵀ + Q
+            predict(q, p, a, b, tp, dth, qn, rx, ry, rz, dwx, dwy, dwz, dt, cfg)
+        lp0, lp1, lp2, dir0, dir1, dir2, vib = track_accel(a, lp0, lp1, lp2, dir0, dir1, dir2, vib, ax, ay, az, an,
+                                                            accel_ok, step and accel_ok, dt, cfg)
         # stillness: little rotation and a specific force that stays put in the navigation
         # frame, for still_time
+        rate2 = rx * rx + ry * ry + rz * rz
         ref0, ref1, ref2, still_t = track_stillness(ref0, ref1, ref2, still_t, ax, ay, az, a, step and accel_ok,
-                                                    rx * rx + ry * ry + rz * rz, still_rate2, still_acc2, dt)
-        still = still_t >= still_time
+                                                    rate2, still_rate2, still_acc2, dt)
+        still = still_t >= cfg.still_time
         if still and learn_g:  # learn the accelerometer's own reading of g (its scale error)
             g_a = learn_gravity(g_a, an, dt)
 
-        # ---- accelerometer update with trust w
         w_acc = 0.0
         low_used = False
         fn = np.sqrt(lp0 ** 2 + lp1 ** 2 + lp2 ** 2)
         if step and accel_ok and fn > 0.0 and fn == fn:
-            w_, x_, y_, z_ = q[0], q[1], q[2], q[3]
-            hv[0] = -2.0 * (x_ * z_ - w_ * y_)  # C(Q̄)ᵀ [0, 0, -1]
-            hv[1] = -2.0 * (y_ * z_ + w_ * x_)
-            hv[2] = -(1.0 - 2.0 * (x_ * x_ + y_ * y_))
-            accel_tangent(hv, tb)
-            accel_jacobian(hv, tb, hm)
-            eps = fn / g_a - 1.0
-            w_norm = _ramp(abs(eps), norm_lo, norm_hi)
-            rate2 = rx * rx + ry * ry + rz * rz
-            w_rate = 1.0 if rate2 <= rate_lo * rate_lo else _ramp(np.sqrt(rate2), rate_lo, rate_hi)
-            # consistency: the residual angle ρ (f̃ against predicted gravity) beyond the
-            # angle φ_m a horizontal acceleration would explain given ‖f̃‖, held for
-            # cons_time with ‖f̃‖ ≈ g and modest rotation: attitude error, not a manoeuvre.
-            # Raise the attitude covariance so that the residual sits at gate_lo σ.
-            cosr = (lp0 * hv[0] + lp1 * hv[1] + lp2 * hv[2]) / fn
-            inconsistent = False
-            if w_rate >= 1.0 and abs(eps) < cons_norm:
-                inconsistent = attitude_error(cosr, eps, cos_tol, sin_tol)
-            if inconsistent:
-                cons_t += dt
-            else:
-                cons_t = 0.0
-            if cons_t >= cons_time:
-                rho = np.arccos(min(max(cosr, -1.0), 1.0))
-                target = (0.5 * rho / gate_lo) ** 2
-                for k in range(3):
-                    if p[k, k] < target:
-                        p[k, k] = target
-            # P Hᵀ (6×2) and H P Hᵀ (2×2)
-            for r in range(6):
-                for j in range(2):
-                    ph[r, j] = p[r, 0] * hm[j, 0] + p[r, 1] * hm[j, 1] + p[r, 2] * hm[j, 2]
-            s00 = hm[0, 0] * ph[0, 0] + hm[0, 1] * ph[1, 0] + hm[0, 2] * ph[2, 0]
-            s01 = hm[0, 0] * ph[0, 1] + hm[0, 1] * ph[1, 1] + hm[0, 2] * ph[2, 1]
-            s11 = hm[1, 0] * ph[0, 1] + hm[1, 1] * ph[1, 1] + hm[1, 2] * ph[2, 1]
-            # residual in the tangent plane, r = Tᵀ (a/‖a‖ - h̄)
-            e0, e1, e2 = ax / an - hv[0], ay / an - hv[1], az / an - hv[2]
-            r0 = tb[0, 0] * e0 + tb[0, 1] * e1 + tb[0, 2] * e2
-            r1 = tb[1, 0] * e0 + tb[1, 1] * e1 + tb[1, 2] * e2
-            # normalised residual d² = rᵀ S_g⁻¹ r, S_g = H P Hᵀ + (σ_gate² + σ_vib²) I
-            sa, sb = s00 + gate_var + vib, s11 + gate_var + vib
-            d2 = (sb * r0 * r0 - 2.0 * s01 * r0 * r1 + sa * r1 * r1) / (sa * sb - s01 * s01)
-            w_res = 1.0 if still or d2 <= gate_lo * gate_lo else _ramp(np.sqrt(d2), gate_lo, gate_hi)
-            # trust falls at once but rises at most 1/trust_rise per second
-            w_acc = min(w_norm * w_rate * w_res, w_prev + dt / rise)
+            w_acc, cons_t, low_used = accel_update(q, bias, p, x, qn, hv, tb, hm, ph, ax, ay, az, an, lp0, lp1, lp2,
+                                                    fn, rate2, dt, still, g_a, vib, cons_t, w_prev, accel_low[i],
+                                                    cos_tol, sin_tol, cfg)
             w_prev = w_acc
-            if w_acc > 0.0:
-                _tangent_update(p, ph, s00, s01, s11, r0, r1, acc_var / (dt * w_acc), x)  # R = R₀ / w, R₀ = σ_a²/Δt
-                _inject(q, bias, x, qn)
-            elif cfg.fallback:  # the reading refused: the low-passed one through the norm and residual tests
-                l0, l1, l2 = accel_low[i, 0], accel_low[i, 1], accel_low[i, 2]
-                ln = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
-                if ln > 0.0:
-                    e0, e1, e2 = l0 / ln - hv[0], l1 / ln - hv[1], l2 / ln - hv[2]
-                    r0 = tb[0, 0] * e0 + tb[0, 1] * e1 + tb[0, 2] * e2
-                    r1 = tb[1, 0] * e0 + tb[1, 1] * e1 + tb[1, 2] * e2
-                    d2 = (sb * r0 * r0 - 2.0 * s01 * r0 * r1 + sa * r1 * r1) / (sa * sb - s01 * s01)
-                    w_low = _ramp(abs(ln / g_a - 1.0), norm_lo, norm_hi)
-                    if d2 > gate_lo * gate_lo:
-                        w_low *= _ramp(np.sqrt(d2), gate_lo, gate_hi)
-                    if w_low > 0.0:
-                        _tangent_update(p, ph, s00, s01, s11, r0, r1, acc_var / (dt * w_low), x)
-                        _inject(q, bias, x, qn)
-                        low_used = True
         if low_used:
             out_state[i] = 3
         elif w_acc >= 1.0:
@@ -707,28 +410,8 @@ def eqkf_run(s, state, cfg, out_q, diag):
             out_state[i] = 2
         out_w[i] = w_acc
 
-        # ---- magnetometer heading update
         if use_mag and step and mag[i, 0] == mag[i, 0] and mag[i, 1] == mag[i, 1] and mag[i, 2] == mag[i, 2]:
-            w_, x_, y_, z_ = q[0], q[1], q[2], q[3]
-            mx = ((1.0 - 2.0 * (y_ * y_ + z_ * z_)) * mag[i, 0] + 2.0 * (x_ * y_ - w_ * z_) * mag[i, 1]
-                  + 2.0 * (x_ * z_ + w_ * y_) * mag[i, 2])
-            my = (2.0 * (x_ * y_ + w_ * z_) * mag[i, 0] + (1.0 - 2.0 * (x_ * x_ + z_ * z_)) * mag[i, 1]
-                  + 2.0 * (y_ * z_ - w_ * x_) * mag[i, 2])
-            if mx * mx + my * my > 0.0:
-                # innovation γ = declination - azimuth(m_h): signed angle from m_h to magnetic north
-                gamma = np.arctan2(mx * sdec - my * cdec, mx * cdec + my * sdec)
-                mag_jacobian(q, hm3)
-                for r in range(6):
-                    v6[r] = p[r, 0] * hm3[0] + p[r, 1] * hm3[1] + p[r, 2] * hm3[2]
-                s = hm3[0] * v6[0] + hm3[1] * v6[1] + hm3[2] * v6[2] + mag_var / dt
-                for r in range(6):
-                    kr = v6[r] / s
-                    x[r] = kr * gamma
-                    for c in range(r, 6):
-                        pv = p[r, c] - kr * v6[c]
-                        p[r, c] = pv
-                        p[c, r] = pv
-                _inject(q, bias, x, qn)
+            mag_update(q, bias, p, x, qn, hm3, v6, mag[i, 0], mag[i, 1], mag[i, 2], cdec, sdec, dt, cfg)
 
         out_q[i, 0], out_q[i, 1], out_q[i, 2], out_q[i, 3] = q[0], q[1], q[2], q[3]
         out_trace[i] = p[0, 0] + p[1, 1] + p[2, 2] + p[3, 3] + p[4, 4] + p[5, 5]
@@ -746,7 +429,7 @@ class EqKf(Estimator):
     Params = EqKfParams
     uses_mag = True
     kernels = (lowpass_in_inertial_frame, eqkf_run, picard_step, error_transition, accel_tangent, accel_jacobian,
-               mag_jacobian, _ramp, _inject)
+               mag_jacobian, ramp, inject)
     PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads (the rest of strict is in initialize)
     ACCEL_STATES = ACCEL_STATES
     DIAGNOSTICS = {
@@ -785,24 +468,26 @@ class EqKf(Estimator):
                                 np.diag([0.25 * p.init_att_sigma ** 2] * 3 + [bias_sigma ** 2] * 3),
                                 np.array([np.nan]), np.zeros(3), aux)
         tiny = 1e-12
+        settings = EqKfSettings(
+            gyro_noise=float(p.gyro_noise), bias_walk=float(p.bias_walk), int_noise=float(p.int_noise),
+            accel_noise=max(p.accel_noise, tiny), mag_noise=max(p.mag_noise, tiny),
+            norm_lo=float(p.norm_lo), norm_hi=float(p.norm_hi), rate_lo=float(p.rate_lo), rate_hi=float(p.rate_hi),
+            gate_noise=max(p.gate_noise, tiny), gate_lo=float(p.gate_lo), gate_hi=float(p.gate_hi),
+            trust_rise=max(p.trust_rise, tiny), trust_lpf=max(p.trust_lpf, 0.0), vib_time=max(p.vib_time, 0.0),
+            still_rate=float(p.still_rate), still_accel=float(p.still_accel), still_time=float(p.still_time),
+            cons_tol=float(p.cons_tol), cons_norm=float(p.cons_norm), cons_time=float(p.cons_time), learn_g=True,
+            declination=self.declination, airspeed=max(p.airspeed, 0.0), use_mag=bool(p.use_mag),
+            max_step=MAX_STEP_S, fallback=p.accel_tau > 0.0)
         if strict:
             # w = w_norm · w_rate on the raw accelerometer (no low-pass), STRICT thresholds; no
             # residual test (gate at infinity), no rise limit, no stillness, no learned g, no
             # consistency test, no integration noise, no turn compensation
             inf = np.inf
-            self._settings = EqKfSettings(
-                float(p.gyro_noise), 0.0, 0.0, max(p.accel_noise, tiny), max(p.mag_noise, tiny),
-                STRICT["norm_lo"], STRICT["norm_hi"], STRICT["rate_lo"], STRICT["rate_hi"],
-                tiny, inf, inf, tiny, 0.0, 0.0, 0.0, 0.0, inf, 0.0, 0.0, inf, False, self.declination,
-                0.0, bool(p.use_mag), MAX_STEP_S, False)
-        else:
-            self._settings = EqKfSettings(
-                float(p.gyro_noise), float(p.bias_walk), float(p.int_noise), max(p.accel_noise, tiny),
-                max(p.mag_noise, tiny), float(p.norm_lo), float(p.norm_hi), float(p.rate_lo), float(p.rate_hi),
-                max(p.gate_noise, tiny), float(p.gate_lo), float(p.gate_hi), max(p.trust_rise, tiny),
-                max(p.trust_lpf, 0.0), max(p.vib_time, 0.0), float(p.still_rate), float(p.still_accel),
-                float(p.still_time), float(p.cons_tol), float(p.cons_norm), float(p.cons_time), True,
-                self.declination, max(p.airspeed, 0.0), bool(p.use_mag), MAX_STEP_S, p.accel_tau > 0.0)
+            settings = settings._replace(
+                bias_walk=0.0, int_noise=0.0, **STRICT, gate_noise=tiny, gate_lo=inf, gate_hi=inf, trust_rise=tiny,
+                trust_lpf=0.0, vib_time=0.0, still_rate=0.0, still_accel=0.0, still_time=inf, cons_tol=0.0,
+                cons_norm=0.0, cons_time=inf, learn_g=False, airspeed=0.0, fallback=False)
+        self._settings = settings
         self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
