@@ -87,7 +87,7 @@ from .cpf_ekf_updates import fuse_baro, fuse_compass, fuse_gps, fuse_zero_veloci
 from .cpf_ekf_watchdog import watchdog_cycle
 from .inertial_accel import lowpass_in_inertial_frame
 from .mahony import mahony_step
-from .timestep import step_rate
+from .timestep import integrates, step_dt, step_rate
 
 
 @dataclass
@@ -178,7 +178,7 @@ def cpf_ekf_run(s, aid, state, cfg, out, diag):
     tp = aux[A_TPREV]
     for i in range(len(t)):
         ti = t[i]
-        dt = ti - tp if tp == tp else 0.0
+        dt = step_dt(ti, tp)
         tp = ti
         g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
         a0, a1, a2 = accel[i, 0], accel[i, 1], accel[i, 2]
@@ -195,7 +195,7 @@ def cpf_ekf_run(s, aid, state, cfg, out, diag):
         drow[D_RESET] = 0.0
 
         m0, m1, m2 = mag[i, 0], mag[i, 1], mag[i, 2]
-        step_ok = 0.0 < dt <= cfg.max_step
+        step_ok = integrates(dt, cfg.max_step)
         c0, c1, c2 = accel_cpf[i, 0], accel_cpf[i, 1], accel_cpf[i, 2]
         if not (c0 == c0 and c1 == c1 and c2 == c2):  # a missing reading: the held one, as the EKF's
             c0, c1, c2 = a0, a1, a2
@@ -340,8 +340,7 @@ class CpfEkf(Estimator):
         self._start_accel_lowpass(q0, gyro_bias, p.accel_tau)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        s = self._chunk(t, gyro, accel, mag)
+    def _run(self, s, out, aiding) -> dict:
         n = len(s.t)
         if aiding is None:
             from ..aiding import Aiding
@@ -352,14 +351,13 @@ class CpfEkf(Estimator):
         def arr(a, shape):
             return np.ascontiguousarray(a, dtype=np.float64).reshape(shape)
 
-        aid = AidingRows(arr(aiding.gps_pos, (n, 3)), arr(aiding.gps_vel, (n, 3)), arr(aiding.gps_h_acc, n),
-                         arr(aiding.gps_v_acc, n), arr(aiding.baro_height, n), bool(self.params.use_gps),
-                         bool(self.params.use_baro))
-        out = np.empty((n, 4))
+        aid = AidingRows(gps_pos=arr(aiding.gps_pos, (n, 3)), gps_vel=arr(aiding.gps_vel, (n, 3)),
+                         gps_hacc=arr(aiding.gps_h_acc, n), gps_vacc=arr(aiding.gps_v_acc, n),
+                         baro=arr(aiding.baro_height, n), use_gps=bool(self.params.use_gps),
+                         use_baro=bool(self.params.use_baro))
         diag = np.empty((n, NDIAG))
         cpf_ekf_run(s, aid, self._state, self._settings, out, diag)
-        self.diagnostics = {key: diag[:, k] for k, key in enumerate(DIAG_KEYS)}
-        return out
+        return {key: diag[:, k] for k, key in enumerate(DIAG_KEYS)}
 
     @property
     def covariance(self) -> np.ndarray:

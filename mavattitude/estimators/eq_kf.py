@@ -491,14 +491,11 @@ class EqKf(Estimator):
         self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        s = self._chunk(t, gyro, accel, mag, in_air)
+    def _run(self, s, out, aiding) -> dict:
         n = len(s.t)
-        out = np.empty((n, 4))
         diag = EqKfDiagnostics(np.empty(n), np.empty(n), np.empty(n, dtype=np.int8))
         eqkf_run(s, self._state, self._settings, out, diag)
-        self.diagnostics = diag._asdict()
-        return out
+        return diag._asdict()
 
     @property
     def covariance(self) -> np.ndarray:
