@@ -335,8 +335,8 @@ class CpfEkf(Estimator):
         aux[A_GPOS:A_GPOS + 3] = np.nan
         aux[A_LASTMAG:A_LASTMAG + 3] = np.nan
         # the complementary filter starts as mahony does
-        self._state = CpfEkfState(x, P, np.array(q0, dtype=np.float64), -np.asarray(gyro_bias, dtype=np.float64).copy(),
-                                  aux, np.zeros((RING, 7)))
+        self._state = CpfEkfState(x=x, P=P, qc=np.array(q0, dtype=np.float64),
+                                  bc=-np.asarray(gyro_bias, dtype=np.float64).copy(), aux=aux, ring=np.zeros((RING, 7)))
         self._start_accel_lowpass(q0, gyro_bias, p.accel_tau)
         self.initialized = True
 

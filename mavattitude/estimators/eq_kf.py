@@ -464,9 +464,9 @@ class EqKf(Estimator):
         aux[_A_CONS] = 0.0
         # strict: no bias states (P = 0 on β and no walk: b̂ stays the still-period bias)
         bias_sigma = 0.0 if strict else p.init_bias_sigma
-        self._state = EqKfState(q0 / np.linalg.norm(q0), np.array(gyro_bias, dtype=np.float64).reshape(3),
-                                np.diag([0.25 * p.init_att_sigma ** 2] * 3 + [bias_sigma ** 2] * 3),
-                                np.array([np.nan]), np.zeros(3), aux)
+        self._state = EqKfState(q=q0 / np.linalg.norm(q0), bias=np.array(gyro_bias, dtype=np.float64).reshape(3),
+                                p=np.diag([0.25 * p.init_att_sigma ** 2] * 3 + [bias_sigma ** 2] * 3),
+                                t_prev=np.array([np.nan]), gyro_prev=np.zeros(3), aux=aux)
         tiny = 1e-12
         settings = EqKfSettings(
             gyro_noise=float(p.gyro_noise), bias_walk=float(p.bias_walk), int_noise=float(p.int_noise),

@@ -12,6 +12,7 @@ from numba import njit
 from ..quaternion import dcm_into, qmul_into
 from .consistency import attitude_error, carried, step_rotation_into
 
+
 # ---------------------------------------------------------------- model functions (njit)
 # Written with output arguments so the kernel calls them without allocating; the tests call
 # the same functions to check them against finite differences and the exact rotation.
