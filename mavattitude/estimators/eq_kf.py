@@ -397,7 +397,7 @@ def eqkf_run(s, state, cfg, out_q, diag):
         fn = np.sqrt(lp0 ** 2 + lp1 ** 2 + lp2 ** 2)
         if step and accel_ok and fn > 0.0 and fn == fn:
             w_acc, cons_t, low_used = accel_update(q, bias, p, x, qn, hv, tb, hm, ph, ax, ay, az, an, lp0, lp1, lp2,
-                                                    fn, rate2, dt, still, g_a, vib, cons_t, w_prev, accel_low[i],
+                                                    fn, rate2, dt, still, g_a, vib, cons_t, w_prev, accel_low, i,
                                                     cos_tol, sin_tol, cfg)
             w_prev = w_acc
         if low_used:

@@ -286,9 +286,9 @@ def _residual(tb, hv, u0, u1, u2, sa, sb, s01):
 
 @njit(cache=True, inline="always")
 def accel_update(q, bias, p, x, qn, hv, tb, hm, ph, ax, ay, az, an, lp0, lp1, lp2, fn, rate2, dt, still, g_a,
-                  vib, cons_t, w_prev, low, cos_tol, sin_tol, cfg):
+                  vib, cons_t, w_prev, low, i, cos_tol, sin_tol, cfg):
     """The accelerometer update with trust w (see ``eq_kf``'s docstring); where w = 0 and
-    ``cfg.fallback``, the low-passed reading ``low`` (3,) through the norm and residual tests.
+    ``cfg.fallback``, the low-passed reading ``low[i]`` through the norm and residual tests.
     Returns w, the seconds inconsistent so far and whether the low-passed reading was used."""
     w_, x_, y_, z_ = q[0], q[1], q[2], q[3]
     hv[0] = -2.0 * (x_ * z_ - w_ * y_)  # C(Q̄)ᵀ [0, 0, -1]
@@ -322,7 +322,7 @@ def accel_update(q, bias, p, x, qn, hv, tb, hm, ph, ax, ay, az, an, lp0, lp1, lp
         inject(q, bias, x, qn)
         return w_acc, cons_t, False
     if cfg.fallback:  # the reading refused: the low-passed one through the norm and residual tests
-        l0, l1, l2 = low[0], low[1], low[2]
+        l0, l1, l2 = low[i, 0], low[i, 1], low[i, 2]
         ln = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
         if ln > 0.0:
             r0, r1, d2 = _residual(tb, hv, l0 / ln, l1 / ln, l2 / ln, sa, sb, s01)
