@@ -14,13 +14,10 @@ Choices the paper leaves open, made here:
 """
 from __future__ import annotations
 
-import math
-
 from numba import njit
 
 from ..quaternion import euler_s, wrap_pi_s
-from .cpf_ekf_model import (A_COUNT, A_GPOS, A_GVEL, A_LASTMAG, A_RESETS, A_WDBIN, D_RESET, D_WD, IB, IMB, IA, IS,
-                            IV, TESLA_TO_GAUSS, init_covariance)
+from .cpf_ekf_model import A_GPOS, A_GVEL, A_LASTMAG, IA, IB, IMB, IS, IV, TESLA_TO_GAUSS, init_covariance
 from .cpf_ekf_updates import start_earth_field
 
 
@@ -69,24 +66,3 @@ def reset_from_cpf(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk):
     if heading and aux[A_LASTMAG] == aux[A_LASTMAG]:
         start_earth_field(x, aux[A_LASTMAG] * TESLA_TO_GAUSS, aux[A_LASTMAG + 1] * TESLA_TO_GAUSS,
                           aux[A_LASTMAG + 2] * TESLA_TO_GAUSS, cfg, wk)
-
-
-@njit(cache=True, inline="always")
-def watchdog_cycle(x, P, qc, aux, ti, heading, gps_active, baro_fresh, cfg, wk, drow):
-    """The watchdog (eq 21), once per watchdog period: the distance into ``drow``, and after
-    ``reset_cycles`` checks over N in a row the reset, counted in aux and marked in ``drow``."""
-    check = True
-    if cfg.watchdog_period > 0.0:
-        wd_bin = math.floor(ti / cfg.watchdog_period)
-        check = wd_bin != aux[A_WDBIN]
-        aux[A_WDBIN] = wd_bin
-    if check:
-        dist = watchdog_distance(x, qc, heading)
-        drow[D_WD] = dist
-        if cfg.watchdog > 0.5:
-            aux[A_COUNT] = aux[A_COUNT] + 1.0 if dist > cfg.reset_threshold else 0.0
-            if aux[A_COUNT] >= cfg.reset_cycles:
-                aux[A_COUNT] = 0.0
-                aux[A_RESETS] += 1.0
-                drow[D_RESET] = 1.0
-                reset_from_cpf(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk)
