@@ -12,9 +12,9 @@ import simtruth as st
 
 from mavattitude import quaternion as quat
 from mavattitude.estimators import ESTIMATORS
-from mavattitude.estimators.cpf_ekf import (IA, IB, IM, IMB, IS, IV, NX, CpfEkf, CpfEkfParams,
-                                            _reset_yaw_covariance, mag_jacobian, mag_model,
-                                            predict_state, transition_matrix, yaw_model)
+from mavattitude.estimators.cpf_ekf import CpfEkf, CpfEkfParams
+from mavattitude.estimators.cpf_ekf_model import IA, IB, IM, IMB, IS, IV, NX, predict_state, transition_matrix
+from mavattitude.estimators.cpf_ekf_updates import _reset_yaw_covariance, mag_jacobian, mag_model, yaw_model
 from mavattitude.flight import GRAVITY
 from mavattitude.estimators.mahony import MahonyParams
 from mavattitude.sim import SensorParams, simulate

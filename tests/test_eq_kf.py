@@ -9,10 +9,9 @@ from test_contract import hostile
 
 from mavattitude import quaternion as quat
 from mavattitude.estimators import ESTIMATORS, create
-from mavattitude.estimators.eq_kf import (ACCEL_STATES, EqKf, EqKfParams, accel_jacobian,
-                                          accel_predict, accel_tangent, error_propagate,
-                                          error_transition, mag_jacobian, mag_predict,
-                                          picard_step)
+from mavattitude.estimators.eq_kf import ACCEL_STATES, EqKf, EqKfParams
+from mavattitude.estimators.eq_kf_model import (accel_jacobian, accel_predict, accel_tangent, error_propagate,
+                                                error_transition, mag_jacobian, mag_predict, picard_step)
 from mavattitude.flight import GRAVITY
 
 # Every trust mechanism off: the filter then takes the accelerometer as gravity at all times.

@@ -94,7 +94,16 @@ class Estimator:
     def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
         """Process a chunk of samples; returns the attitude after each one, (N, 4).
         ``aiding``: the chunk's ``aiding.Aiding`` rows, or None; an estimator without
-        ``uses_aiding`` ignores it."""
+        ``uses_aiding`` ignores it. Here: the inputs as the kernels take them (``_chunk``; no
+        compass for a filter without ``uses_mag``), then ``_run``."""
+        s = self._chunk(t, gyro, accel, mag if self.uses_mag else None, in_air)
+        out = np.empty((len(s.t), 4))
+        self.diagnostics = self._run(s, out, aiding)
+        return out
+
+    def _run(self, s: Samples, out: np.ndarray, aiding) -> dict[str, np.ndarray]:
+        """Run the filter over chunk ``s`` (``Samples``), the attitudes into ``out`` (N, 4);
+        returns the chunk's diagnostics. What an estimator that keeps ``update`` as it is defines."""
         raise NotImplementedError
 
     def _chunk(self, t, gyro, accel, mag, in_air=None) -> Samples:

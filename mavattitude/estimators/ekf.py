@@ -74,7 +74,7 @@ from ..paramspec import param
 from ..quaternion import wrap_pi_s
 from .base import MAX_STEP_S, Estimator, filter_state
 from .inertial_accel import lowpass_in_inertial_frame
-from .timestep import step_rate
+from .timestep import integrates, step_dt, step_rate
 
 
 @dataclass
@@ -435,10 +435,10 @@ def ekf_run(s, state, cfg, out, cov_trace):
     q_gyro, r_accel, r_mag, declination, use_mag, max_step = (cfg.q_gyro, cfg.r_accel, cfg.r_mag,
                                                               cfg.declination, cfg.use_mag, cfg.max_step)
     for i in range(len(t)):
-        dt = t[i] - t_prev[0] if t_prev[0] == t_prev[0] else 0.0  # NaN before the first sample
+        dt = step_dt(t[i], t_prev[0])
         t_prev[0] = t[i]
         g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
-        if 0.0 < dt <= max_step:
+        if integrates(dt, max_step):
             # the step's rate, minus the still-period bias
             w0, w1, w2 = step_rate(g0, g1, g2, gyro_prev[0], gyro_prev[1], gyro_prev[2], dt, over_step)
             predict(x, P, w0 - bias[0], w1 - bias[1], w2 - bias[2], dt, q_gyro)
@@ -473,17 +473,16 @@ class Ekf(Estimator):
     def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         self._state = filter_state(q0, np.eye(4), gyro_bias)  # paper 000: P₀ = I₄
         p = self.params
-        self._settings = EkfSettings(float(p.q_gyro), float(p.r_accel), float(p.r_mag), self.declination,
-                                     bool(p.use_mag), MAX_STEP_S)
+        self._settings = EkfSettings(
+            q_gyro=float(p.q_gyro), r_accel=float(p.r_accel), r_mag=float(p.r_mag), declination=self.declination,
+            use_mag=bool(p.use_mag), max_step=MAX_STEP_S)
         self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        s = self._chunk(t, gyro, accel, mag)
-        out, cov_trace = np.empty((len(s.t), 4)), np.empty(len(s.t))
+    def _run(self, s, out, aiding) -> dict:
+        cov_trace = np.empty(len(s.t))
         ekf_run(s, self._state, self._settings, out, cov_trace)
-        self.diagnostics = {"cov_trace": cov_trace}
-        return out
+        return {"cov_trace": cov_trace}
 
     @property
     def covariance(self) -> np.ndarray:

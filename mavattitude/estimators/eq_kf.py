@@ -219,12 +219,13 @@ from numba import njit
 
 from ..flight import GRAVITY
 from ..paramspec import param
-from ..quaternion import dcm_into, qmul_into
 from .base import MAX_STEP_S, Estimator
-from .inertial_accel import lowpass_in_inertial_frame
-from .timestep import step_rate
-from .consistency import attitude_error, carried, step_rotation_into, track_stillness
+from .consistency import attitude_error, carried, track_stillness
+from .eq_kf_model import (accel_jacobian, accel_tangent, error_transition, inject, mag_jacobian,
+                          picard_step, ramp)
 from .gravity import learn_gravity, scale_effect
+from .inertial_accel import lowpass_in_inertial_frame
+from .timestep import integrates, step_dt, step_rate
 
 
 @dataclass
@@ -278,161 +279,6 @@ _A_G = 12  # the accelerometer's reading of g, m/s²
 _A_CONS = 13  # s the residual has been inconsistent with ‖f̃‖
 _N_AUX = 14
 
-
-# ---------------------------------------------------------------- model functions (njit)
-# Written with output arguments so the kernel calls them without allocating; the tests call
-# the same functions to check them against finite differences and the exact rotation.
-
-
-@njit(cache=True)
-def picard_step(q, dtheta, out):
-    """Eq 5 to 3rd order: out = [(1 - Δθ₀²/8) I + (½ - Δθ₀²/48) Ω(Δθ)] q (not normalised)."""
-    dx, dy, dz = dtheta[0], dtheta[1], dtheta[2]
-    th2 = dx * dx + dy * dy + dz * dz
-    c0 = 1.0 - th2 / 8.0
-    c1 = 0.5 - th2 / 48.0
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    # Ω(Δθ) q, rows of Ω as in ALGORITHMS.md "Conventions"
-    o0 = -dx * x - dy * y - dz * z
-    o1 = dx * w + dz * y - dy * z
-    o2 = dy * w - dz * x + dx * z
-    o3 = dz * w + dy * x - dx * y
-    out[0] = c0 * w + c1 * o0
-    out[1] = c0 * x + c1 * o1
-    out[2] = c0 * y + c1 * o2
-    out[3] = c0 * z + c1 * o3
-
-
-@njit(cache=True)
-def error_transition(dtheta, dt, a, b):
-    """Φ's blocks for one step: a = C(p̂)ᵀ (∂e'/∂e), b = -½Δt (I - ½[Δθ]×) (∂e'/∂β)."""
-    dx, dy, dz = dtheta[0], dtheta[1], dtheta[2]
-    step_rotation_into(dx, dy, dz, a)  # a = C(p̂)ᵀ, p the Picard step's rotation
-    h = -0.5 * dt
-    k = 0.25 * dt  # b = -½Δt I + ¼Δt [Δθ]×
-    b[0, 0], b[0, 1], b[0, 2] = h, -k * dz, k * dy
-    b[1, 0], b[1, 1], b[1, 2] = k * dz, h, -k * dx
-    b[2, 0], b[2, 1], b[2, 2] = -k * dy, k * dx, h
-
-
-@njit(cache=True)
-def _error_quaternion(e):
-    """Q_e = [√(1 - |e|²), e] from its vector part (allocates: tests and setup only)."""
-    s = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
-    return np.array([np.sqrt(max(1.0 - s, 0.0)), e[0], e[1], e[2]])
-
-
-@njit(cache=True)
-def error_propagate(e, beta, rate, dt, out):
-    """The nonlinear error step the Jacobians linearise: out = vec(p̂(Δθ)⁻¹ ⊗ Q_e ⊗ p̂(Δθ - βΔt)),
-    Δθ = rate·Δt, p̂ the normalised Picard increment (tests only; allocates)."""
-    one = np.array([1.0, 0.0, 0.0, 0.0])
-    p1 = np.empty(4)
-    picard_step(one, rate * dt, p1)
-    p1 /= np.sqrt(np.sum(p1 * p1))
-    p2 = np.empty(4)
-    picard_step(one, (rate - beta) * dt, p2)
-    p2 /= np.sqrt(np.sum(p2 * p2))
-    p1inv = np.array([p1[0], -p1[1], -p1[2], -p1[3]])
-    tmp = np.empty(4)
-    res = np.empty(4)
-    qmul_into(p1inv, _error_quaternion(e), tmp)
-    qmul_into(tmp, p2, res)
-    if res[0] < 0.0:
-        res = -res
-    out[0], out[1], out[2] = res[1], res[2], res[3]
-
-
-@njit(cache=True)
-def accel_predict(qbar, e, out):
-    """h(e) = C(Q̄ ⊗ Q_e)ᵀ [0, 0, -1]: the accelerometer direction the attitude predicts."""
-    q = np.empty(4)
-    qmul_into(qbar, _error_quaternion(e), q)
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    out[0] = -2.0 * (x * z - w * y)
-    out[1] = -2.0 * (y * z + w * x)
-    out[2] = -(1.0 - 2.0 * (x * x + y * y))
-
-
-@njit(cache=True)
-def accel_tangent(h, t):
-    """Rows of t (2×3): an orthonormal basis of the plane ⟂ the unit vector h."""
-    ax, ay, az = abs(h[0]), abs(h[1]), abs(h[2])
-    # t₁ = normalise(e_k × h) with e_k the axis least aligned with h
-    if ax <= ay and ax <= az:
-        t0, t1, t2 = 0.0, -h[2], h[1]
-    elif ay <= az:
-        t0, t1, t2 = h[2], 0.0, -h[0]
-    else:
-        t0, t1, t2 = -h[1], h[0], 0.0
-    inv = 1.0 / np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-    t0, t1, t2 = t0 * inv, t1 * inv, t2 * inv
-    t[0, 0], t[0, 1], t[0, 2] = t0, t1, t2
-    # t₂ = h × t₁
-    t[1, 0] = h[1] * t2 - h[2] * t1
-    t[1, 1] = h[2] * t0 - h[0] * t2
-    t[1, 2] = h[0] * t1 - h[1] * t0
-
-
-@njit(cache=True)
-def accel_jacobian(h, t, hm):
-    """hm (2×3) = ∂(Tᵀ h(e))/∂e at e = 0 = Tᵀ 2[h̄]×, rows 2 (tᵢ × h̄)."""
-    for r in range(2):
-        hm[r, 0] = 2.0 * (t[r, 1] * h[2] - t[r, 2] * h[1])
-        hm[r, 1] = 2.0 * (t[r, 2] * h[0] - t[r, 0] * h[2])
-        hm[r, 2] = 2.0 * (t[r, 0] * h[1] - t[r, 1] * h[0])
-
-
-@njit(cache=True)
-def mag_predict(qbar, e, u):
-    """h(e) = azimuth (rad) of C(Q̄ ⊗ Q_e) u, u the body-frame image of the field's
-    horizontal part (see the module docstring)."""
-    q = np.empty(4)
-    qmul_into(qbar, _error_quaternion(e), q)
-    c = np.empty((3, 3))
-    dcm_into(q[0], q[1], q[2], q[3], c)
-    vx = c[0, 0] * u[0] + c[0, 1] * u[1] + c[0, 2] * u[2]
-    vy = c[1, 0] * u[0] + c[1, 1] * u[1] + c[1, 2] * u[2]
-    return np.arctan2(vy, vx)
-
-
-@njit(cache=True)
-def mag_jacobian(qbar, hm):
-    """hm (3,) = ∂(azimuth)/∂e at e = 0 = 2 × third row of C(Q̄)."""
-    w, x, y, z = qbar[0], qbar[1], qbar[2], qbar[3]
-    hm[0] = 2.0 * 2.0 * (x * z - w * y)
-    hm[1] = 2.0 * 2.0 * (y * z + w * x)
-    hm[2] = 2.0 * (1.0 - 2.0 * (x * x + y * y))
-
-
-@njit(cache=True)
-def _ramp(x, lo, hi):
-    if x <= lo:
-        return 1.0
-    if x >= hi:
-        return 0.0
-    return (hi - x) / (hi - lo)
-
-
-@njit(cache=True)
-def _inject(q, bias, x, qtmp):
-    """Q̄ ← Q̄ ⊗ [√(1-|e|²), e] (normalised), b̂ ← b̂ + β."""
-    s = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
-    if s < 1.0:
-        ew, ex, ey, ez = np.sqrt(1.0 - s), x[0], x[1], x[2]
-    else:
-        r = 1.0 / np.sqrt(s)
-        ew, ex, ey, ez = 0.0, x[0] * r, x[1] * r, x[2] * r
-    w, a, b, c = q[0], q[1], q[2], q[3]
-    qtmp[0] = w * ew - a * ex - b * ey - c * ez
-    qtmp[1] = w * ex + a * ew + b * ez - c * ey
-    qtmp[2] = w * ey - a * ez + b * ew + c * ex
-    qtmp[3] = w * ez + a * ey - b * ex + c * ew
-    inv = 1.0 / np.sqrt(qtmp[0] * qtmp[0] + qtmp[1] * qtmp[1] + qtmp[2] * qtmp[2] + qtmp[3] * qtmp[3])
-    for k in range(4):
-        q[k] = qtmp[k] * inv
-    for k in range(3):
-        bias[k] += x[3 + k]
 
 
 class EqKfState(NamedTuple):
@@ -558,10 +404,10 @@ def eqkf_run(s, state, cfg, out_q, diag):
             # ω is ω × V x̂ = V (0, ω_z, -ω_y); gravity's share is f - V (0, ω_z, -ω_y)
             ay -= airspeed * (gz - bias[2])
             az += airspeed * (gy - bias[1])
-        dt = t[i] - t_prev[0] if t_prev[0] == t_prev[0] else 0.0  # NaN before the first sample
-        if t[i] == t[i]:
+        dt = step_dt(t[i], t_prev[0])
+        if t[i] == t[i]:  # a sample without a time leaves the last one's
             t_prev[0] = t[i]
-        step = 0.0 < dt <= max_step and gyro_ok
+        step = integrates(dt, max_step) and gyro_ok
         rx, ry, rz = step_rate(gx, gy, gz, gyro_prev[0], gyro_prev[1], gyro_prev[2], dt if step else 0.0, over_step)
         rx, ry, rz = rx - bias[0], ry - bias[1], rz - bias[2]
         # the rate change across the step, for the integration noise
@@ -640,9 +486,9 @@ def eqkf_run(s, state, cfg, out_q, diag):
             accel_tangent(hv, tb)
             accel_jacobian(hv, tb, hm)
             eps = fn / g_a - 1.0
-            w_norm = _ramp(abs(eps), norm_lo, norm_hi)
+            w_norm = ramp(abs(eps), norm_lo, norm_hi)
             rate2 = rx * rx + ry * ry + rz * rz
-            w_rate = 1.0 if rate2 <= rate_lo * rate_lo else _ramp(np.sqrt(rate2), rate_lo, rate_hi)
+            w_rate = 1.0 if rate2 <= rate_lo * rate_lo else ramp(np.sqrt(rate2), rate_lo, rate_hi)
             # consistency: the residual angle ρ (f̃ against predicted gravity) beyond the
             # angle φ_m a horizontal acceleration would explain given ‖f̃‖, held for
             # cons_time with ‖f̃‖ ≈ g and modest rotation: attitude error, not a manoeuvre.
@@ -675,13 +521,13 @@ def eqkf_run(s, state, cfg, out_q, diag):
             # normalised residual d² = rᵀ S_g⁻¹ r, S_g = H P Hᵀ + (σ_gate² + σ_vib²) I
             sa, sb = s00 + gate_var + vib, s11 + gate_var + vib
             d2 = (sb * r0 * r0 - 2.0 * s01 * r0 * r1 + sa * r1 * r1) / (sa * sb - s01 * s01)
-            w_res = 1.0 if still or d2 <= gate_lo * gate_lo else _ramp(np.sqrt(d2), gate_lo, gate_hi)
+            w_res = 1.0 if still or d2 <= gate_lo * gate_lo else ramp(np.sqrt(d2), gate_lo, gate_hi)
             # trust falls at once but rises at most 1/trust_rise per second
             w_acc = min(w_norm * w_rate * w_res, w_prev + dt / rise)
             w_prev = w_acc
             if w_acc > 0.0:
                 _tangent_update(p, ph, s00, s01, s11, r0, r1, acc_var / (dt * w_acc), x)  # R = R₀ / w, R₀ = σ_a²/Δt
-                _inject(q, bias, x, qn)
+                inject(q, bias, x, qn)
             elif cfg.fallback:  # the reading refused: the low-passed one through the norm and residual tests
                 l0, l1, l2 = accel_low[i, 0], accel_low[i, 1], accel_low[i, 2]
                 ln = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
@@ -690,12 +536,12 @@ def eqkf_run(s, state, cfg, out_q, diag):
                     r0 = tb[0, 0] * e0 + tb[0, 1] * e1 + tb[0, 2] * e2
                     r1 = tb[1, 0] * e0 + tb[1, 1] * e1 + tb[1, 2] * e2
                     d2 = (sb * r0 * r0 - 2.0 * s01 * r0 * r1 + sa * r1 * r1) / (sa * sb - s01 * s01)
-                    w_low = _ramp(abs(ln / g_a - 1.0), norm_lo, norm_hi)
+                    w_low = ramp(abs(ln / g_a - 1.0), norm_lo, norm_hi)
                     if d2 > gate_lo * gate_lo:
-                        w_low *= _ramp(np.sqrt(d2), gate_lo, gate_hi)
+                        w_low *= ramp(np.sqrt(d2), gate_lo, gate_hi)
                     if w_low > 0.0:
                         _tangent_update(p, ph, s00, s01, s11, r0, r1, acc_var / (dt * w_low), x)
-                        _inject(q, bias, x, qn)
+                        inject(q, bias, x, qn)
                         low_used = True
         if low_used:
             out_state[i] = 3
@@ -728,7 +574,7 @@ def eqkf_run(s, state, cfg, out_q, diag):
                         pv = p[r, c] - kr * v6[c]
                         p[r, c] = pv
                         p[c, r] = pv
-                _inject(q, bias, x, qn)
+                inject(q, bias, x, qn)
 
         out_q[i, 0], out_q[i, 1], out_q[i, 2], out_q[i, 3] = q[0], q[1], q[2], q[3]
         out_trace[i] = p[0, 0] + p[1, 1] + p[2, 2] + p[3, 3] + p[4, 4] + p[5, 5]
@@ -746,7 +592,7 @@ class EqKf(Estimator):
     Params = EqKfParams
     uses_mag = True
     kernels = (lowpass_in_inertial_frame, eqkf_run, picard_step, error_transition, accel_tangent, accel_jacobian,
-               mag_jacobian, _ramp, _inject)
+               mag_jacobian, ramp, inject)
     color = (0, 195, 195)
     compile_seconds = 4.5  # measured with warmup.compile_kernels, one core
     PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads (the rest of strict is in initialize)
@@ -795,39 +641,38 @@ class EqKf(Estimator):
         aux[_A_CONS] = 0.0
         # strict: no bias states (P = 0 on β and no walk: b̂ stays the still-period bias)
         bias_sigma = 0.0 if strict else p.init_bias_sigma
-        self._state = EqKfState(q0 / np.linalg.norm(q0), np.array(gyro_bias, dtype=np.float64).reshape(3),
-                                np.diag([0.25 * p.init_att_sigma ** 2] * 3 + [bias_sigma ** 2] * 3),
-                                np.array([np.nan]), np.zeros(3), aux)
+        self._state = EqKfState(q=q0 / np.linalg.norm(q0), bias=np.array(gyro_bias, dtype=np.float64).reshape(3),
+                                p=np.diag([0.25 * p.init_att_sigma ** 2] * 3 + [bias_sigma ** 2] * 3),
+                                t_prev=np.array([np.nan]), gyro_prev=np.zeros(3), aux=aux)
         tiny = 1e-12
+        settings = EqKfSettings(
+            gyro_noise=float(p.gyro_noise), bias_walk=float(p.bias_walk), int_noise=float(p.int_noise),
+            accel_noise=max(p.accel_noise, tiny), mag_noise=max(p.mag_noise, tiny),
+            norm_lo=float(p.norm_lo), norm_hi=float(p.norm_hi), rate_lo=float(p.rate_lo), rate_hi=float(p.rate_hi),
+            gate_noise=max(p.gate_noise, tiny), gate_lo=float(p.gate_lo), gate_hi=float(p.gate_hi),
+            trust_rise=max(p.trust_rise, tiny), trust_lpf=max(p.trust_lpf, 0.0), vib_time=max(p.vib_time, 0.0),
+            still_rate=float(p.still_rate), still_accel=float(p.still_accel), still_time=float(p.still_time),
+            cons_tol=float(p.cons_tol), cons_norm=float(p.cons_norm), cons_time=float(p.cons_time), learn_g=True,
+            declination=self.declination, airspeed=max(p.airspeed, 0.0), use_mag=bool(p.use_mag),
+            max_step=MAX_STEP_S, fallback=p.accel_tau > 0.0)
         if strict:
             # w = w_norm · w_rate on the raw accelerometer (no low-pass), STRICT thresholds; no
             # residual test (gate at infinity), no rise limit, no stillness, no learned g, no
             # consistency test, no integration noise, no turn compensation
             inf = np.inf
-            self._settings = EqKfSettings(
-                float(p.gyro_noise), 0.0, 0.0, max(p.accel_noise, tiny), max(p.mag_noise, tiny),
-                STRICT["norm_lo"], STRICT["norm_hi"], STRICT["rate_lo"], STRICT["rate_hi"],
-                tiny, inf, inf, tiny, 0.0, 0.0, 0.0, 0.0, inf, 0.0, 0.0, inf, False, self.declination,
-                0.0, bool(p.use_mag), MAX_STEP_S, False)
-        else:
-            self._settings = EqKfSettings(
-                float(p.gyro_noise), float(p.bias_walk), float(p.int_noise), max(p.accel_noise, tiny),
-                max(p.mag_noise, tiny), float(p.norm_lo), float(p.norm_hi), float(p.rate_lo), float(p.rate_hi),
-                max(p.gate_noise, tiny), float(p.gate_lo), float(p.gate_hi), max(p.trust_rise, tiny),
-                max(p.trust_lpf, 0.0), max(p.vib_time, 0.0), float(p.still_rate), float(p.still_accel),
-                float(p.still_time), float(p.cons_tol), float(p.cons_norm), float(p.cons_time), True,
-                self.declination, max(p.airspeed, 0.0), bool(p.use_mag), MAX_STEP_S, p.accel_tau > 0.0)
+            settings = settings._replace(
+                bias_walk=0.0, int_noise=0.0, **STRICT, gate_noise=tiny, gate_lo=inf, gate_hi=inf, trust_rise=tiny,
+                trust_lpf=0.0, vib_time=0.0, still_rate=0.0, still_accel=0.0, still_time=inf, cons_tol=0.0,
+                cons_norm=0.0, cons_time=inf, learn_g=False, airspeed=0.0, fallback=False)
+        self._settings = settings
         self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        s = self._chunk(t, gyro, accel, mag, in_air)
+    def _run(self, s, out, aiding) -> dict:
         n = len(s.t)
-        out = np.empty((n, 4))
         diag = EqKfDiagnostics(np.empty(n), np.empty(n), np.empty(n, dtype=np.int8))
         eqkf_run(s, self._state, self._settings, out, diag)
-        self.diagnostics = diag._asdict()
-        return out
+        return diag._asdict()
 
     @property
     def covariance(self) -> np.ndarray:

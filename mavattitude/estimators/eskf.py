@@ -66,7 +66,7 @@ from ..quaternion import (
 )
 from .base import MAX_STEP_S, Estimator, filter_state
 from .inertial_accel import lowpass_in_inertial_frame
-from .timestep import step_rate
+from .timestep import integrates, step_dt, step_rate
 
 
 @dataclass
@@ -87,12 +87,6 @@ def set_q(q, w, x, y, z):
     """q[:] = [w, x, y, z], not normalised: the loops normalise once per sample, after the
     last product (the products of unit quaternions in between stay unit to rounding)."""
     q[0], q[1], q[2], q[3] = w, x, y, z
-
-
-@njit(cache=True, inline="always")
-def step_dt(t_i, t_prev):
-    """Seconds since the previous sample; 0 before the first (t_prev NaN)."""
-    return t_i - t_prev if t_prev == t_prev else 0.0
 
 
 @njit(cache=True)
@@ -212,7 +206,7 @@ def eskf_run(s, state, cfg, out, cov_trace):
         g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
         w0, w1, w2 = step_rate(g0, g1, g2, gyro_prev[0], gyro_prev[1], gyro_prev[2], dt, over_step)
         gyro_prev[0], gyro_prev[1], gyro_prev[2] = g0, g1, g2
-        if 0.0 < dt <= max_step:
+        if integrates(dt, max_step):
             w0, w1, w2 = w0 - bias[0], w1 - bias[1], w2 - bias[2]
             # predict: nominal q ⊗ Exp(ω dt); error F P Fᵀ + Q dt with F = Exp(ω dt)ᵀ
             d0, d1, d2, d3 = exp_s(w0 * dt, w1 * dt, w2 * dt)
@@ -262,16 +256,15 @@ class Eskf(Estimator):
     def initialize(self, q0, gyro_bias, accel_g: float = GRAVITY) -> None:
         p = self.params
         self._state = filter_state(q0, np.eye(3) * np.radians(p.p0_deg) ** 2, gyro_bias)
-        self._settings = EskfSettings(p.gyro_arw ** 2, p.accel_noise ** 2, GRAVITY, MAX_STEP_S)
+        self._settings = EskfSettings(
+            arw2=p.gyro_arw ** 2, acc2=p.accel_noise ** 2, gravity=GRAVITY, max_step=MAX_STEP_S)
         self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        s = self._chunk(t, gyro, accel, None)
-        out, cov_trace = np.empty((len(s.t), 4)), np.empty(len(s.t))
+    def _run(self, s, out, aiding) -> dict:
+        cov_trace = np.empty(len(s.t))
         eskf_run(s, self._state, self._settings, out, cov_trace)
-        self.diagnostics = {"cov_trace": cov_trace}
-        return out
+        return {"cov_trace": cov_trace}
 
     @property
     def covariance(self) -> np.ndarray:

@@ -38,7 +38,7 @@ import numpy as np
 from numba import njit
 
 from ..quaternion import integrate_gyro_scalar
-from .timestep import step_rate
+from .timestep import integrates, step_dt, step_rate
 
 
 class InertialAccelState(NamedTuple):
@@ -70,10 +70,10 @@ def lowpass_in_inertial_frame(s, state, tau, max_step, out):
     tp = state.t_prev[0]
     half_tau = 0.5 * tau
     for i in range(len(t)):
-        dt = t[i] - tp if tp == tp else math.inf
+        dt = step_dt(t[i], tp, math.inf)  # inf before the first sample: a start, as after a gap
         tp = t[i]
         g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
-        if 0.0 < dt <= max_step:
+        if integrates(dt, max_step):
             r0, r1, r2 = step_rate(g0, g1, g2, gp0, gp1, gp2, dt, over_step)
             q0, q1, q2, q3 = integrate_gyro_scalar(q0, q1, q2, q3, r0 - bias[0], r1 - bias[1], r2 - bias[2], dt)
         gp0, gp1, gp2 = g0, g1, g2

@@ -54,7 +54,7 @@ from ..quaternion import integrate_gyro_scalar
 from ..paramspec import param
 from .base import MAX_STEP_S, Estimator
 from .inertial_accel import lowpass_in_inertial_frame
-from .timestep import step_rate
+from .timestep import integrates, step_dt, step_rate
 
 
 @dataclass
@@ -141,7 +141,7 @@ def mahony_run(s, state, cfg, out):
     gp0, gp1, gp2 = state.gyro_prev[0], state.gyro_prev[1], state.gyro_prev[2]
     tp = state.t_prev[0]
     for i in range(len(t)):
-        dt = t[i] - tp if tp == tp else 0.0  # NaN before the first sample
+        dt = step_dt(t[i], tp)
         tp = t[i]
         g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
         r0, r1, r2 = step_rate(g0, g1, g2, gp0, gp1, gp2, dt, over_step)
@@ -149,7 +149,7 @@ def mahony_run(s, state, cfg, out):
         q0, q1, q2, q3, bc0, bc1, bc2 = mahony_step(
             q0, q1, q2, q3, bc0, bc1, bc2, r0, r1, r2, accel[i, 0], accel[i, 1], accel[i, 2],
             mag[i, 0], mag[i, 1], mag[i, 2], cfg.use_mag, cfg.north_x, cfg.north_y, cfg.kp, cfg.ki, dt,
-            0.0 < dt <= cfg.max_step)
+            integrates(dt, cfg.max_step))
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q0, q1, q2, q3
     q[0], q[1], q[2], q[3] = q0, q1, q2, q3
     bias_correction[0], bias_correction[1], bias_correction[2] = bc0, bc1, bc2
@@ -173,14 +173,15 @@ class Mahony(Estimator):
         p = self.params
         self._state = MahonyState(np.array(q0, dtype=np.float64), -np.array(gyro_bias, dtype=np.float64),
                                   np.array([np.nan]), np.zeros(3))
-        self._settings = MahonySettings(float(p.kp), float(p.ki), math.cos(self.declination),
-                                        math.sin(self.declination), bool(p.use_mag), MAX_STEP_S)
+        self._settings = MahonySettings(
+            kp=float(p.kp), ki=float(p.ki), north_x=math.cos(self.declination), north_y=math.sin(self.declination),
+            use_mag=bool(p.use_mag), max_step=MAX_STEP_S)
         self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        s = self._chunk(t, gyro, accel, mag)
-        return mahony_run(s, self._state, self._settings, np.empty((len(s.t), 4)))
+    def _run(self, s, out, aiding) -> dict:
+        mahony_run(s, self._state, self._settings, out)
+        return {}
 
     @property
     def gyro_bias(self) -> np.ndarray:

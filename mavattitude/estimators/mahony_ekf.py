@@ -132,7 +132,7 @@ from ..paramspec import param
 from .alignment import STILL_GYRO_RAD_S
 from .base import MAX_STEP_S, Estimator
 from .inertial_accel import lowpass_in_inertial_frame
-from .timestep import step_rate
+from .timestep import integrates, step_dt, step_rate
 from .gravity import scale_effect
 from .ekf import predict
 from .mahony import mahony_step
@@ -318,9 +318,9 @@ def mahony_ekf_run(s, state, cfg, out, diag, mahony_out):
     lp, ref, count, mean_dt = accel_filt[0], accel_filt[1], accel_filt[2], accel_filt[3]
     glp, debt, rest_lp = accel_filt[4], accel_filt[5], accel_filt[6]
     for i in range(len(t)):
-        dt = t[i] - tp if tp == tp else 0.0  # NaN before the first sample
+        dt = step_dt(t[i], tp)
         tp = t[i]
-        step = 0.0 < dt <= max_step
+        step = integrates(dt, max_step)
         g0, g1, g2 = gyro[i, 0], gyro[i, 1], gyro[i, 2]
         w0, w1, w2 = step_rate(g0, g1, g2, gp0, gp1, gp2, dt, over_step)
         gp0, gp1, gp2 = g0, g1, g2
@@ -428,24 +428,22 @@ class MahonyEkf(Estimator):
                                      np.array([np.nan, np.nan, np.nan, np.nan, np.nan, 0.0, np.nan]), bias)
         p = self.run_params()
         self._settings = MahonyEkfSettings(
-            float(p.kp), float(p.ki), bool(p.use_mag), float(p.q_gyro), float(p.r0), float(p.k_accel),
-            float(p.k_mahony), float(p.accel_lp_s), float(p.accel_ref_s),
-            float(p.weight_min_rate), float(p.rest_gyro), float(p.rest_accel), float(p.rest_ref_s), float(p.lock_s), float(p.ki_step),
-            GRAVITY if p.strict else float(accel_g),  # eq 17's g: the reading at rest (strict: the paper's)
-            float(np.cos(self.declination)), float(np.sin(self.declination)), MAX_STEP_S)
+            kp=float(p.kp), ki=float(p.ki), use_mag=bool(p.use_mag), q_gyro=float(p.q_gyro), r0=float(p.r0),
+            k_accel=float(p.k_accel), k_mahony=float(p.k_mahony), accel_lp_s=float(p.accel_lp_s),
+            accel_ref_s=float(p.accel_ref_s), weight_min_rate=float(p.weight_min_rate), rest_gyro=float(p.rest_gyro),
+            rest_accel=float(p.rest_accel), rest_ref_s=float(p.rest_ref_s), lock_s=float(p.lock_s),
+            ki_step=float(p.ki_step), gravity=GRAVITY if p.strict else float(accel_g),
+            cos_dec=float(np.cos(self.declination)), sin_dec=float(np.sin(self.declination)), max_step=MAX_STEP_S)
         self.mahony_q = np.empty((0, 4))  # the internal Mahony attitude over the last chunk
         self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        s = self._chunk(t, gyro, accel, mag)
+    def _run(self, s, out, aiding) -> dict:
         n = len(s.t)
-        out = np.empty((n, 4))
         self.mahony_q = np.empty((n if self.keep_mahony else 0, 4))
         diag = MahonyEkfDiagnostics(np.empty(n), np.empty(n), np.empty(n))
         mahony_ekf_run(s, self._state, self._settings, out, diag, self.mahony_q)
-        self.diagnostics = diag._asdict()
-        return out
+        return diag._asdict()
 
     @property
     def covariance(self) -> np.ndarray:

@@ -187,8 +187,8 @@ from .consistency import attitude_error, carried, step_rotation_into, track_stil
 from .gravity import learn_gravity, scale_effect
 from .base import MAX_STEP_S, Estimator
 from .inertial_accel import lowpass_in_inertial_frame
-from .timestep import step_rate
-from .eskf import set_q, step_dt
+from .timestep import integrates, step_dt, step_rate
+from .eskf import set_q
 
 
 @dataclass
@@ -365,7 +365,7 @@ def ncs_eskf_run(s, state, cfg, out, diag):
         w0, w1, w2 = step_rate(g0, g1, g2, gyro_prev[0], gyro_prev[1], gyro_prev[2], dt, over_step)
         dw2 = (g0 - gyro_prev[0]) ** 2 + (g1 - gyro_prev[1]) ** 2 + (g2 - gyro_prev[2]) ** 2 if dt > 0.0 else 0.0
         gyro_prev[0], gyro_prev[1], gyro_prev[2] = g0, g1, g2
-        stepped = 0.0 < dt <= max_step
+        stepped = integrates(dt, max_step)
         if stepped:
             ncs_predict(q, P, bias_est, w0 - bias[0], w1 - bias[1], w2 - bias[2], dt,
                         arw2 * dt + step_noise * step_noise * dw2 * dt * dt, walk2 * dt)
@@ -756,21 +756,19 @@ class NcsEskf(Estimator):
         self._state = NcsEskfState(q0 / np.linalg.norm(q0), P, np.zeros(3), np.array([np.nan]), np.zeros(3),
                                    np.full(3, np.nan), np.array(gyro_bias, dtype=np.float64), cons, noise)
         self._settings = NcsEskfSettings(
-            p.gyro_arw ** 2, p.accel_noise ** 2, p.bias_walk ** 2 if p.estimate_bias else 0.0, p.step_noise,
-            p.total_threshold, p.h_threshold_air, p.h_threshold_ground, bool(p.segmented),
-            p.accel_lpf_hz, p.gate_sigma, p.taper, MAX_STEP_S, p.cons_tol, p.cons_norm, p.cons_rate,
-            p.cons_time, p.noise_gate, p.accel_tau > 0.0)
+            arw2=p.gyro_arw ** 2, acc2=p.accel_noise ** 2, walk2=p.bias_walk ** 2 if p.estimate_bias else 0.0,
+            step_noise=p.step_noise, total_threshold=p.total_threshold, h_threshold_air=p.h_threshold_air,
+            h_threshold_ground=p.h_threshold_ground, segmented=bool(p.segmented), lpf_hz=p.accel_lpf_hz,
+            gate_sigma=p.gate_sigma, taper=p.taper, max_step=MAX_STEP_S, cons_tol=p.cons_tol, cons_norm=p.cons_norm,
+            cons_rate=p.cons_rate, cons_time=p.cons_time, noise_gate=p.noise_gate, fallback=p.accel_tau > 0.0)
         self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
         self.initialized = True
 
-    def update(self, t, gyro, accel, mag, in_air=None, aiding=None) -> np.ndarray:
-        s = self._chunk(t, gyro, accel, None, in_air)
+    def _run(self, s, out, aiding) -> dict:
         n = len(s.t)
-        out = np.empty((n, 4))
         diag = NcsEskfDiagnostics(np.empty(n), np.empty(n, dtype=np.int8), np.empty(n), np.empty(n))
         ncs_eskf_run(s, self._state, self._settings, out, diag)
-        self.diagnostics = diag._asdict()
-        return out
+        return diag._asdict()
 
     @property
     def gyro_bias(self) -> np.ndarray:

@@ -1,7 +1,23 @@
-"""The rate a filter integrates over one step between IMU samples: one rule for every kernel."""
+"""A filter's time step between IMU samples: its length, whether to integrate it, and the rate
+to integrate over it. One rule for every kernel."""
 from __future__ import annotations
 
 from numba import njit
+
+
+@njit(cache=True, inline="always")
+def step_dt(t_i, t_prev, before_first=0.0):
+    """Seconds from the previous sample's time ``t_prev`` to ``t_i``; ``before_first`` where
+    there is no previous sample (``t_prev`` NaN)."""
+    return t_i - t_prev if t_prev == t_prev else before_first
+
+
+@njit(cache=True, inline="always")
+def integrates(dt, max_step):
+    """Whether a step of ``dt`` is one to integrate: not the first sample (dt 0) and not a gap
+    in the data (longer than ``max_step``, ``base.MAX_STEP_S``: the vehicle may be anywhere
+    since)."""
+    return 0.0 < dt <= max_step
 
 
 @njit(cache=True, inline="always")
