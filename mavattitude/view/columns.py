@@ -60,8 +60,10 @@ def setup_series(rec: rr.RecordingStream, name: str, *, color: Color, label: str
             rr.Boxes3D(half_sizes=[BOX_HALF_SIZES], colors=[(*color, 255)], fill_mode="Solid"),
             rr.TransformAxes3D(AXIS_LENGTH),
             static=True)
-    # The name floats above the slot (NED: up is -z) and does not turn with the box.
-    rec.log(f"{base}/label", rr.Points3D(positions=[(0.0, 0.0, -1.25)], radii=[0.001],
+    # The name floats above the slot (NED: up is -z) and does not turn with the box; neighbours'
+    # names at two heights, so that long ones ("autopilot (ATT, DCM) = reference") do not overlap
+    height = 1.25 if slot % 2 == 0 else 1.85
+    rec.log(f"{base}/label", rr.Points3D(positions=[(0.0, 0.0, -height)], radii=[0.001],
                                          colors=[color], labels=[label], show_labels=True),
             static=True)
     if ghost:
