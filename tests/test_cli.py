@@ -168,7 +168,7 @@ def _bound(name: str) -> float:
     return PLANE_BIN_MAX_DEG if name.startswith("plane") else COPTER_BIN_MAX_DEG
 
 
-@pytest.mark.parametrize("path", shared_log_params(slow_above_mb=5))
+@pytest.mark.parametrize("path", shared_log_params(slow_above_mb=2))
 def test_every_shared_log_replays_with_every_estimator(path, tmp_path, capsys):
     from mavattitude.estimators import all_names
 

@@ -24,7 +24,7 @@ def _same(ours, theirs) -> bool:
     return ours.tolist() == theirs.tolist()
 
 
-@pytest.mark.parametrize("path", shared_log_params(corpus=True, suffix=".bin", slow_above_mb=1.0) + SAMPLE_BINS)
+@pytest.mark.parametrize("path", shared_log_params(corpus=True, suffix=".bin", slow_above_mb=0.5) + SAMPLE_BINS)
 def test_dataflash_records_equal_pymavlinks(path):
     """pymavlink stops at the first record of a type no FMT defines; up to there (on these
     logs: everywhere) every record of a wanted type is ours, bit for bit."""
@@ -65,7 +65,7 @@ def _pymavlink_tlog(path) -> Collector:
     return col
 
 
-@pytest.mark.parametrize("path", shared_log_params(corpus=True, suffix=".tlog", slow_above_mb=1.0) + SAMPLE_TLOGS)
+@pytest.mark.parametrize("path", shared_log_params(corpus=True, suffix=".tlog", slow_above_mb=0.5) + SAMPLE_TLOGS)
 def test_telemetry_samples_equal_pymavlinks(path):
     """Every sample, its time and its unit conversion as pymavlink's decoding gives them, one
     message at a time (as on a live link); parameters and texts too."""
