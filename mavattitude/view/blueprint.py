@@ -79,16 +79,50 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
     series = list(series)
     scored = series if scored is None else list(scored)
     n_slots = len(series) if n_slots is None else n_slots
+    link = _time_axis(time_span)
+    values, errors = _time_plots(series, scored, link, error_range_deg, attitude_range_deg)
+    # The legend has a plot of its own beside the others: the roll lines of every series on a
+    # y range no line reaches, so it names every colour and covers no data.
+    legend = _legend_plot("legend", link, _contents(series, lambda n: attitude_path(AXES[0], n)))
+    # The log's own modes, arming and lines: a band atop each column of time plots (so it lines
+    # up with both), and a legend of the modes' colours under the series' legend.
+    columns = [values, errors]
+    if log_band:
+        columns = [[rrb.TimeSeriesView(origin="/", name=name, axis_x=link, contents=[f"+ /{BAND}/**"],
+                                       plot_legend=rrb.PlotLegend(visible=False),
+                                       axis_y=rrb.ScalarAxis(range=BAND_RANGE, zoom_lock=True)), *views]
+                   for name, views in (("the log's modes (bars: hover, legend), armed, its lines (◆: hover)", values),
+                                       ("the log's own account (as left)", errors))]
+        legend = rrb.Vertical(legend, _legend_plot("flight modes", link, [f"+ /{BAND}/modes/**", f"+ /{BAND}/armed"]),
+                              row_shares=[3, 2])
+    tabs = _tabs(series, link, has_gps=has_gps, map_zoom=map_zoom, has_track=has_track, has_phase=has_phase,
+                 diagnostics=diagnostics, diagnostic_ranges=diagnostic_ranges, live_window=live_window)
+    # the tabs (summary table, events, diagnostics) as tall as the boxes: the table shows whole
+    right = rrb.Vertical(_attitude_3d(series, n_slots), rrb.Tabs(*tabs, active_tab=0), row_shares=[1, 1])
+    return rrb.Blueprint(
+        rrb.Horizontal(*[rrb.Vertical(*views, row_shares=[1] * (len(views) - 3) + [4] * 3) for views in columns],
+                       legend, right, column_shares=[42, 28, 15, 45]),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline=TIMELINE,
+                      play_state="Following" if live else "Paused"),
+    )
+
+
+def _time_axis(time_span: tuple[float, float] | None) -> rrb.TimeAxis:
     # With a known span, each plot opens on the flight. Rerun 0.41 reads a linked plot's range
     # from a global setting the SDK cannot set, and its fallback opened on a window near the
     # time cursor in our screenshots, so replay plots zoom independently (a double-click resets
     # one); without a span (live), the plots are linked and follow the data.
-    if time_span is not None:
-        whole = rr.TimeRange(start=rrb.TimeRangeBoundary.absolute(seconds=float(time_span[0])),
-                             end=rrb.TimeRangeBoundary.absolute(seconds=float(time_span[1])))
-        link = rrb.TimeAxis(link="Independent", view_range=whole)
-    else:
-        link = rrb.TimeAxis(link="LinkToGlobal")
+    if time_span is None:
+        return rrb.TimeAxis(link="LinkToGlobal")
+    whole = rr.TimeRange(start=rrb.TimeRangeBoundary.absolute(seconds=float(time_span[0])),
+                         end=rrb.TimeRangeBoundary.absolute(seconds=float(time_span[1])))
+    return rrb.TimeAxis(link="Independent", view_range=whole)
+
+
+def _time_plots(series: list[str], scored: list[str], link, error_range_deg, attitude_range_deg):
+    """Per axis, the value plot (every series) and the error plot (the scored ones)."""
     values, errors = [], []
     for axis in AXES:
         err_kwargs = {}
@@ -110,25 +144,17 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
                                + [f"+ /{error_path(axis, n, scored=False)}/**" for n in scored],
                                plot_legend=rrb.PlotLegend(visible=False),
                                **err_kwargs))
-    # The legend has a plot of its own beside the others: the roll lines of every series on a
-    # y range no line reaches, so it names every colour and covers no data.
-    legend = rrb.TimeSeriesView(origin="/", name="legend", axis_x=link,
-                                contents=_contents(series, lambda n: attitude_path(AXES[0], n)),
-                                axis_y=rrb.ScalarAxis(range=(LEGEND_Y, LEGEND_Y + 1.0), zoom_lock=True),
-                                plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True))
-    # The log's own modes, arming and lines: a band atop each column of time plots (so it lines
-    # up with both), and a legend of the modes' colours under the series' legend.
-    columns = [values, errors]
-    if log_band:
-        columns = [[rrb.TimeSeriesView(origin="/", name=name, axis_x=link, contents=[f"+ /{BAND}/**"],
-                                       plot_legend=rrb.PlotLegend(visible=False),
-                                       axis_y=rrb.ScalarAxis(range=BAND_RANGE, zoom_lock=True)), *views]
-                   for name, views in (("the log's modes (bars: hover, legend), armed, its lines (◆: hover)", values),
-                                       ("the log's own account (as left)", errors))]
-        legend = rrb.Vertical(legend, rrb.TimeSeriesView(
-            origin="/", name="flight modes", axis_x=link, contents=[f"+ /{BAND}/modes/**", f"+ /{BAND}/armed"],
-            axis_y=rrb.ScalarAxis(range=(LEGEND_Y, LEGEND_Y + 1.0), zoom_lock=True),
-            plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True)), row_shares=[3, 2])
+    return values, errors
+
+
+def _legend_plot(name: str, link, contents) -> rrb.TimeSeriesView:
+    """A plot that is only a legend: its lines on a y range none of them reaches."""
+    return rrb.TimeSeriesView(origin="/", name=name, axis_x=link, contents=contents,
+                              axis_y=rrb.ScalarAxis(range=(LEGEND_Y, LEGEND_Y + 1.0), zoom_lock=True),
+                              plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True))
+
+
+def _attitude_3d(series: list[str], n_slots: int) -> rrb.Spatial3DView:
     span = SLOT_SPACING * (min(n_slots, SLOTS_PER_ROW) - 1)
     depth = ROW_SPACING * ((max(n_slots, 1) - 1) // SLOTS_PER_ROW)
     # Look north from behind and above the rows of boxes (NED: up is -z), a little from
@@ -140,9 +166,14 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
         look_target=(depth / 2, span / 2, 0.0),
         eye_up=(0.0, 0.0, -1.0),
     )
-    view3d = rrb.Spatial3DView(origin="/", name="attitude, NED (boxes: FRD body)",
-                               contents=_contents(series, slot_path),
-                               eye_controls=eye, line_grid=rrb.LineGrid3D(visible=True, spacing=1.0))
+    return rrb.Spatial3DView(origin="/", name="attitude, NED (boxes: FRD body)",
+                             contents=_contents(series, slot_path),
+                             eye_controls=eye, line_grid=rrb.LineGrid3D(visible=True, spacing=1.0))
+
+
+def _tabs(series: list[str], link, *, has_gps, map_zoom, has_track, has_phase, diagnostics, diagnostic_ranges,
+          live_window) -> list:
+    """The tabs under the 3D view: (link,) (map, track,) summary, events (, diagnostics)."""
     tabs = [rrb.TextDocumentView(origin="summary", name="summary"),
             rrb.TextLogView(origin="events", name="events", columns=_TEXT_LOG_COLUMNS)]
     per_estimator = [_diagnostics_tab(name, keys, link, (diagnostic_ranges or {}).get(name, {}))
@@ -165,16 +196,7 @@ def make_blueprint(*, series: Sequence[str] = (), has_gps: bool = True, n_slots:
             rrb.TimeSeriesView(origin="link", name="link: arrivals (Hz), packets lost and corrupt",
                                axis_x=link),
             name="link"))
-    # the tabs (summary table, events, diagnostics) as tall as the boxes: the table shows whole
-    right = rrb.Vertical(view3d, rrb.Tabs(*tabs, active_tab=0), row_shares=[1, 1])
-    return rrb.Blueprint(
-        rrb.Horizontal(*[rrb.Vertical(*views, row_shares=[1] * (len(views) - 3) + [4] * 3) for views in columns],
-                       legend, right, column_shares=[42, 28, 15, 45]),
-        rrb.BlueprintPanel(state="collapsed"),
-        rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(state="collapsed", timeline=TIMELINE,
-                      play_state="Following" if live else "Paused"),
-    )
+    return tabs
 
 
 LEGEND_Y = 200.0  # above any angle (±180°): the legend plot shows no line, short tick labels
