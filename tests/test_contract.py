@@ -48,6 +48,26 @@ def noisy():
     return hostile()
 
 
+class _Reading(dict):
+    """Autopilot parameters that note which an estimator reads."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.keys_read = set()
+
+    def get(self, key, default=None):
+        self.keys_read.add(key)
+        return super().get(key, default)
+
+    def __getitem__(self, key):
+        self.keys_read.add(key)
+        return super().__getitem__(key)
+
+    def __contains__(self, key):
+        self.keys_read.add(key)
+        return super().__contains__(key)
+
+
 @pytest.mark.parametrize("name", NAMES)
 def test_registered_under_its_name_with_the_interface(name):
     """The registry's name is the class's; a heading reference exactly where the estimator takes
@@ -69,6 +89,10 @@ def test_registered_under_its_name_with_the_interface(name):
     assert set(cls.MARKS) <= set(cls.DIAGNOSTICS)
     assert cls.color is None or (len(cls.color) == 3 and all(0 <= c <= 255 for c in cls.color))
     assert cls.log_defaults({}, "") == {}
+    for vehicle in ("ArduPlane", "ArduCopter", "ArduSub", "PX4"):  # it reads only what it names (live asks for those)
+        read = _Reading({key: 10.0 for key in cls.LOG_PARAMS})
+        cls.log_defaults(read, vehicle)
+        assert read.keys_read <= set(cls.LOG_PARAMS), (vehicle, read.keys_read)
     est.initialize(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.01, -0.02, 0.003]))
     n = 50
     q = est.update(np.arange(n) * 0.01, np.zeros((n, 3)), np.tile([0.0, 0.0, -9.8], (n, 1)), None)

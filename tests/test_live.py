@@ -830,7 +830,7 @@ def test_live_asks_the_vehicle_for_the_policys_parameters_and_scores_as_replay_o
     vehicle's attitude), a declination set by hand in PX4's EKF2_MAG_DECL (no COMPASS_DEC) and a
     cruise airspeed (TRIM_ARSPD_CM, eq-kf's default on a plane). Live asks for them by
     PARAM_REQUEST_READ, decides the policy replay decides on the recording, and scores the same."""
-    from mavattitude.core.policy import WANTED_PARAMS, FlightFacts, decide
+    from mavattitude.core.policy import FlightFacts, decide, wanted_params
 
     trim = (math.radians(2.5), math.radians(-1.5))
     sim = simulate("figure8", 40.0, seed=5, imu_rate=100.0)
@@ -850,7 +850,7 @@ def test_live_asks_the_vehicle_for_the_policys_parameters_and_scores_as_replay_o
     result = listen(port, thread, holder, tmp_path, names=names)
     est = result.estimation
     asked = {line.split()[1] for line in served["stats"].requests if line.startswith("PARAM_REQUEST_READ")}
-    assert asked == set(WANTED_PARAMS)
+    assert asked == set(wanted_params(names)) and "TRIM_ARSPD_CM" in asked  # eq-kf's on a plane
     policy = est.policy
     assert policy.params["eq-kf"].airspeed == 15.0 and policy.notes == (
         "eq-kf airspeed 15 m/s from TRIM_ARSPD_CM (the plane's cruise airspeed)",)

@@ -95,8 +95,13 @@ def build(names: list[str], file_values: dict | None = None, assignments: list[s
     return {name: params[name] for name in names}
 
 
-# The autopilot parameters ``log_defaults`` reads (a live session asks its vehicle for them).
-LOG_DEFAULT_PARAMS = ("TRIM_ARSPD_CM", "AIRSPEED_CRUISE")
+def log_default_params(names: list[str]) -> tuple[str, ...]:
+    """The autopilot parameters ``log_defaults`` reads for these estimators (each class says
+    which: ``Estimator.LOG_PARAMS``); a live session asks its vehicle for them."""
+    from ..estimators import ESTIMATORS
+
+    found = [key for name in names if name in ESTIMATORS for key in ESTIMATORS[name].LOG_PARAMS]
+    return tuple(dict.fromkeys(found))
 
 
 def log_defaults(flight, names: list[str], file_values: dict | None = None,

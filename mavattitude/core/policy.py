@@ -9,7 +9,7 @@ cruise airspeed), the declination and where it came from (``declination.choose``
 trim (``trim.board_trim``). One function makes it, ``decide``, from the options and what a front
 end gathered about the flight (``FlightFacts``: its autopilot parameters, vehicle, first good GPS
 fix and date). Replay gathers those from a log (``FlightFacts.of``); a live session from the
-vehicle's answers to PARAM_REQUEST_READ (``WANTED_PARAMS``) and what it sent so far.
+vehicle's answers to PARAM_REQUEST_READ (``wanted_params``) and what it sent so far.
 """
 from __future__ import annotations
 
@@ -21,14 +21,18 @@ from dataclasses import dataclass, field
 from .. import declination as decl
 from ..errors import UsageError
 from ..trim import TRIM_PARAMS, board_trim
-from .params import LOG_DEFAULT_PARAMS, build, log_defaults
+from .params import build, log_default_params, log_defaults
 
-# The autopilot parameters a policy reads: what the log-derived defaults read, the declination
-# and the parameters that say whether the autopilot computes it, the board trim. A live session
-# asks the vehicle for these, in this order (a vehicle answers those it has, in order: the
-# session waits for the last two kinds only, ``live.estimation.PARAMS_WAIT_S``).
 DECLINATION_PARAM_NAMES = tuple(n for name, _, auto, _ in decl.DECLINATION_PARAMS for n in (name, auto))
-WANTED_PARAMS = (*LOG_DEFAULT_PARAMS, *DECLINATION_PARAM_NAMES, *TRIM_PARAMS)
+
+
+def wanted_params(names) -> tuple[str, ...]:
+    """The autopilot parameters a policy for these estimators reads: what their log-derived
+    defaults read, the declination and the parameters that say whether the autopilot computes
+    it, the board trim. A live session asks the vehicle for these, in this order (a vehicle
+    answers those it has, in order: the session waits for the last two kinds only,
+    ``live.estimation.PARAMS_WAIT_S``)."""
+    return (*log_default_params(list(names)), *DECLINATION_PARAM_NAMES, *TRIM_PARAMS)
 
 
 @dataclass(frozen=True)

@@ -63,6 +63,7 @@ class Estimator:
     # mode (None: bench.MIN_X_IMUFUSION), and at least ``bench_min_rate`` samples/s (None: none)
     bench_min_x_imufusion: float | None = None
     bench_min_rate: float | None = None
+    LOG_PARAMS: tuple[str, ...] = ()  # the autopilot parameters ``log_defaults`` reads (live asks its vehicle)
 
     @classmethod
     def log_defaults(cls, params: dict, vehicle: str) -> dict[str, tuple[object, str]]:

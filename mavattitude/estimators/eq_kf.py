@@ -586,6 +586,9 @@ def eqkf_run(s, state, cfg, out_q, diag):
     return out_q
 
 
+CRUISE_AIRSPEED_PARAMS = (("TRIM_ARSPD_CM", 0.01), ("AIRSPEED_CRUISE", 1.0))  # name, its unit in m/s (Plane 4.5+: the second)
+
+
 class EqKf(Estimator):
     """Error-quaternion KF with accelerometer trust (paper 002); see the module docstring."""
     name = "eq-kf"
@@ -605,13 +608,15 @@ class EqKf(Estimator):
                        "reading used instead (accel_tau)",
     }
 
+    LOG_PARAMS = tuple(key for key, _ in CRUISE_AIRSPEED_PARAMS)
+
     @classmethod
     def log_defaults(cls, params: dict, vehicle: str) -> dict[str, tuple[object, str]]:
         """``airspeed`` (turn compensation) on an ArduPlane: a plane flies at about its cruise
         airspeed, TRIM_ARSPD_CM (cm/s; AIRSPEED_CRUISE, m/s, from Plane 4.5 on)."""
         if vehicle != "ArduPlane":
             return {}
-        for key, scale in (("TRIM_ARSPD_CM", 0.01), ("AIRSPEED_CRUISE", 1.0)):
+        for key, scale in CRUISE_AIRSPEED_PARAMS:
             value = params.get(key)
             if value is not None and value == value and 0.0 < value * scale < 200.0:
                 return {"airspeed": (float(value) * scale, f"m/s from {key} (the plane's cruise airspeed)")}

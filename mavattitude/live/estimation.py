@@ -18,7 +18,7 @@ On the autopilot's clock, per clock segment:
   judged on its first ``MAG_SCALE_SAMPLES`` (a log: on the median of all);
 - the IMU and compass sources are chosen once ``ALIGN_S`` of IMU data is in (every source has
   shown up by then; ``imu`` chooses), and, when the session asked the vehicle for the
-  parameters a run's policy reads (``policy.WANTED_PARAMS``), once a declination parameter
+  parameters a run's policy reads (``policy.wanted_params``), once a declination parameter
   (with the one that says whether the autopilot computes it) and the board trim have arrived,
   or ``PARAMS_WAIT_S`` more have passed (a line says what did not come). A log chooses on all
   of its data: pass the same ``imu`` to compare the two;
@@ -61,7 +61,7 @@ from ..readers import identify_vehicle
 from .loss import SampleLoss
 
 ALIGN_S = 3.0  # s of IMU data before the sources are chosen
-PARAMS_WAIT_S = 2.0  # s more of IMU data to wait for the parameters asked for (policy.WANTED_PARAMS)
+PARAMS_WAIT_S = 2.0  # s more of IMU data to wait for the parameters asked for (policy.wanted_params)
 MAG_SCALE_SAMPLES = 5  # compass samples that decide its unit
 HISTORY_S = 60.0  # s of samples, estimates and references kept (at least the rolling window)
 SCORE_EVERY_S = 0.5  # s of estimates between scorings (each one computes errors for every estimator)
@@ -102,7 +102,7 @@ class LiveEstimation:
     (``policy.decide``, as replay decides it on a log).
 
     ``params_asked``: the session asked the vehicle for the parameters a policy reads
-    (``policy.WANTED_PARAMS``): wait a little for them. ``record_latency``: keep (time_usec,
+    (``policy.wanted_params``): wait a little for them. ``record_latency``: keep (time_usec,
     monotonic s when estimated) per IMU sample (a bench: it grows). ``history_s``: s of data
     kept. ``errors_for_view``: keep each estimator's errors as they are scored, for ``take_errors``."""
 

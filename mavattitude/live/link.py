@@ -448,7 +448,7 @@ class RateRequester:
 
 def request_identity(conn, target: tuple[int, int], params: tuple[str, ...] = ()) -> None:
     """Ask for AUTOPILOT_VERSION (firmware) and, by PARAM_REQUEST_READ, the parameters
-    ``params`` (a run's policy reads them: ``core.policy.WANTED_PARAMS``), in that order; a
+    ``params`` (a run's policy reads them: ``core.policy.wanted_params``), in that order; a
     vehicle answers those it has."""
     conn.mav.command_long_send(*target, mavlink2.MAV_CMD_REQUEST_MESSAGE, 0,
                                mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 0, 0, 0, 0, 0, 0)

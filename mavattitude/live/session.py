@@ -20,7 +20,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 
-from ..core.policy import WANTED_PARAMS, RunOptions
+from ..core.policy import RunOptions, wanted_params
 from ..errors import InputError
 from ..events import Event
 from ..scoring.imucheck import COARSE_RATE_HZ
@@ -305,7 +305,7 @@ class _Session:
         after a reboot: rates set by SET_MESSAGE_INTERVAL do not survive one)."""
         if not self.opts.request:
             return
-        request_identity(self.conn, self.vehicle, WANTED_PARAMS)
+        request_identity(self.conn, self.vehicle, wanted_params(self.opts.run.names))
         self.requester = RateRequester(self.conn, self.vehicle, _wanted_rates(self.opts))
         self.requester.start(now)
         self.requested_at = now
