@@ -149,6 +149,17 @@ def _time(t: np.ndarray) -> rr.TimeColumn:
     return rr.TimeColumn(TIMELINE, duration=np.asarray(t, dtype=np.float64))
 
 
+def log_bars(rec: rr.RecordingStream, path: str, starts, ends, y: float, color, width: float, name: str) -> None:
+    """A bar at ``y`` over each span from ``starts[k]`` to ``ends[k]``, named ``name`` (the legend
+    and the hover say it): one line, broken after each span (the viewer breaks a line at a NaN)."""
+    b = np.asarray(ends, dtype=np.float64)
+    t = np.column_stack([np.asarray(starts, dtype=np.float64), b, b + 1e-6]).ravel()
+    values = np.full(len(t), float(y))
+    values[2::3] = np.nan
+    rec.log(path, rr.SeriesLines(colors=[color], names=[name[:100]], widths=[width]), static=True)
+    rec.send_columns(path, indexes=[_time(t)], columns=rr.Scalars.columns(scalars=values))
+
+
 def _break_lines(t: np.ndarray, y: np.ndarray, angle: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """A NaN between consecutive samples more than REINIT_GAP_S apart (a gap in the data) or,
     for an ``angle``, more than 180° apart (wrapping at ±180°), so the plot breaks the line
@@ -286,13 +297,8 @@ def log_state_spans(rec: rr.RecordingStream, name: str, t, codes, states, *,
         a, b = t[starts[mine]], t[ends[mine]]
         keep = np.concatenate([[True], a[1:] - b[:-1] > join_s])  # a new bar where the gap is wide
         a, b = a[keep], np.concatenate([b[np.flatnonzero(keep)[1:] - 1], b[-1:]])
-        tk = np.column_stack([a, b, b + 1e-6]).ravel()
-        y = np.full(len(tk), float(code))
-        y[2::3] = np.nan
-        path = f"{series_root(name)}/diagnostics/{STATE_GROUP}/{code}"
-        rec.log(path, rr.SeriesLines(colors=[STATE_COLORS[(code - 1) % len(STATE_COLORS)]],
-                                     names=[state_label(code, states[code])], widths=[STATE_WIDTH]), static=True)
-        rec.send_columns(path, indexes=[_time(tk)], columns=rr.Scalars.columns(scalars=y))
+        log_bars(rec, f"{series_root(name)}/diagnostics/{STATE_GROUP}/{code}", a, b, float(code),
+                 STATE_COLORS[(code - 1) % len(STATE_COLORS)], STATE_WIDTH, state_label(code, states[code]))
 
 
 def log_phase_columns(rec: rr.RecordingStream, t, in_air, height_m) -> None:

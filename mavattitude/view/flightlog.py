@@ -16,7 +16,7 @@ import rerun as rr
 
 from ..events import Event
 from ..flight import Flight
-from .columns import _time
+from .columns import _time, log_bars
 
 BAND = "log"
 MODE_Y, ARMED_Y, LINE_Y = 2.0, 1.0, 0.0
@@ -52,15 +52,6 @@ def flight_events(flight: Flight) -> list[Event]:
     return out
 
 
-def _bars(rec: rr.RecordingStream, path: str, spans, y: float, color, width: float, name: str) -> None:
-    """A bar at ``y`` over each (start, end) span, broken between them."""
-    t = np.array([v for a, b in spans for v in (a, b, b + 1e-6)], dtype=np.float64)
-    values = np.full(len(t), y)
-    values[2::3] = np.nan
-    rec.log(path, rr.SeriesLines(colors=[color], names=[name[:100]], widths=[width]), static=True)
-    rec.send_columns(path, indexes=[_time(t)], columns=rr.Scalars.columns(scalars=values))
-
-
 def log_flight_band(rec: rr.RecordingStream, flight: Flight) -> None:
     """The band's entities (see the module docstring)."""
     end = flight.time_span[1]
@@ -69,11 +60,13 @@ def log_flight_band(rec: rr.RecordingStream, flight: Flight) -> None:
         for a, b, _, name in flight.modes.spans(end):
             by_mode.setdefault(name, []).append((a, b))
         for k, (name, spans) in enumerate(by_mode.items()):
-            _bars(rec, f"{BAND}/modes/{k:02d}", spans, MODE_Y, MODE_COLORS[k % len(MODE_COLORS)], MODE_WIDTH, name)
+            log_bars(rec, f"{BAND}/modes/{k:02d}", [a for a, _ in spans], [b for _, b in spans], MODE_Y,
+                     MODE_COLORS[k % len(MODE_COLORS)], MODE_WIDTH, name)
     if flight.arming is not None:
         armed = [(a, b) for a, b, v, _ in flight.arming.spans(end) if v]
         if armed:
-            _bars(rec, f"{BAND}/armed", armed, ARMED_Y, ARMED_COLOR, ARMED_WIDTH, "armed")
+            log_bars(rec, f"{BAND}/armed", [a for a, _ in armed], [b for _, b in armed], ARMED_Y, ARMED_COLOR,
+                     ARMED_WIDTH, "armed")
     if flight.messages is not None:
         rows = sorted(zip(flight.messages.t.tolist(), flight.messages.value.tolist(), flight.messages.label))
         groups = [([t], _level(v), text) for t, v, text in rows[:MAX_NAMED_LINES]]

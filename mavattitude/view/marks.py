@@ -11,7 +11,7 @@ import rerun as rr
 
 from ..events import Event
 from ..scoring.metrics import AXES
-from .columns import _time
+from .columns import _time, log_bars
 
 _LEVELS = {"info": rr.TextLogLevel.INFO, "warn": rr.TextLogLevel.WARN,
            "warning": rr.TextLogLevel.WARN, "error": rr.TextLogLevel.ERROR,
@@ -71,10 +71,6 @@ def log_spans(rec: rr.RecordingStream, spans: Sequence[tuple[float, float, str]]
         groups.append(spans[MAX_NAMED_SPANS:])
     for i, group in enumerate(groups):
         name = group[0][2] if len(group) == 1 else f"{len(group)} more spans (events tab)"
-        t = np.array([v for a, b, _ in group for v in (a, b, b + 1e-6)], dtype=np.float64)
         for axis in AXES:
-            path = f"{marks_path(plot, axis)}/spans/{i:02d}"
-            rec.log(path, rr.SeriesLines(colors=[SPAN_COLOR], names=[name[:100]], widths=[SPAN_WIDTH]), static=True)
-            y = np.full(len(t), top_deg.get(axis, 175.0))
-            y[2::3] = np.nan  # a break after each span
-            rec.send_columns(path, indexes=[_time(t)], columns=rr.Scalars.columns(scalars=y))
+            log_bars(rec, f"{marks_path(plot, axis)}/spans/{i:02d}", [a for a, _, _ in group], [b for _, b, _ in group],
+                     top_deg.get(axis, 175.0), SPAN_COLOR, SPAN_WIDTH, name)
