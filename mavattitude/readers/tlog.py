@@ -45,7 +45,6 @@ HPA_TO_PA = 100.0
 # A time_usec larger than this (~31 years) is a UNIX time, not time since boot.
 EPOCH_THRESHOLD_US = 1e15
 MAV_AUTOPILOT_INVALID = 8
-MAV_MODE_FLAG_SAFETY_ARMED = 128
 
 TLOG_SEARCH_BYTES = 1 << 16  # a ground station's header before the first record (1,359 bytes seen)
 TLOG_TIME_RANGE_US = (946684800e6, 4102444800e6)  # a record's UNIX time: 2000 to 2100
@@ -328,7 +327,7 @@ def _collect_events(col: Collector, notes: list) -> None:
     texts = [(at, m) for at, m in notes if m.get_type() == "STATUSTEXT"]
     for kind, rows, value, label in (
             ("mode", beats, lambda m: m.custom_mode, mavutil.mode_string_v10),
-            ("armed", beats, lambda m: bool(m.base_mode & MAV_MODE_FLAG_SAFETY_ARMED), None),
+            ("armed", beats, lambda m: bool(m.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED), None),
             ("text", texts, lambda m: m.severity, lambda m: m.text)):
         if rows:
             col.add_events(kind, "STATUSTEXT" if kind == "text" else "HEARTBEAT", [at for at, _ in rows],
