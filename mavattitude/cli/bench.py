@@ -88,6 +88,3 @@ def _bench_read(args, json_out) -> int:
             Path(path).write_text(json_text(result))
         print(f"results written to {json_out.path}")
     return 0  # a missed target is the benchmark's finding (its "targets:" line, "met" in the JSON), not a failure
-
-
-# ---------------------------------------------------------------- parser

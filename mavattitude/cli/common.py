@@ -39,8 +39,6 @@ def warn(text: str) -> None:
     print(f"warning: {text}", file=sys.stderr)
 
 
-# ---------------------------------------------------------------- info
-
 def estimator_names(text: str) -> list[str]:
     from ..estimators import ESTIMATORS, all_names, available
 
@@ -99,4 +97,3 @@ def logs_to_run(args) -> list[str]:
     if not logs:
         raise InputError(", ".join(args.paths), "holds no .bin, .tlog, .ulg log or BROAD trial (.hdf5)")
     return logs
-

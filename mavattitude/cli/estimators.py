@@ -47,6 +47,3 @@ def run(args) -> int:
           "[NAME] table per estimator; each value must lie in the interval shown after its default. "
           "'mavattitude tune' searches the parameters marked [tune: scale [low, high]].")
     return 0
-
-
-# ---------------------------------------------------------------- simulate

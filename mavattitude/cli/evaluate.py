@@ -105,6 +105,3 @@ def run(args) -> int:
         raise InputError(", ".join(args.paths), f"every one of the {len(records)} logs failed; "
                                                 f"the reasons are above and in {out / 'report.md'}")
     return 0
-
-
-# ---------------------------------------------------------------- tune

@@ -27,6 +27,3 @@ def run(args) -> int:
     else:
         print(render(info))
     return 0
-
-
-# ---------------------------------------------------------------- replay

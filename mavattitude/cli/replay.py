@@ -105,9 +105,6 @@ def run(args) -> int:
     return 0
 
 
-# ---------------------------------------------------------------- evaluate
-
-
 def _view(result, rec, sink) -> None:
     from .. import view
     from ..view.sink import close_sink
@@ -123,6 +120,3 @@ def _view(result, rec, sink) -> None:
     close_sink(rec, sink)
     if sink.kind == "rrd":  # put in place with the other outputs, when the command ends
         print(f"Rerun recording written to {sink.file.path}; open it with: rerun {sink.file.path}")
-
-
-# ---------------------------------------------------------------- estimators
