@@ -392,3 +392,13 @@ def test_sigterm_during_a_first_compile_leaves_no_compiling_process(tmp_path):
     while process_group(proc.pid) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert process_group(proc.pid) == []
+
+
+def test_a_command_without_a_viewer_does_not_import_rerun_to_end():
+    """The exit closes viewers only where the command opened one: importing the view there would
+    import Rerun, which a Ctrl-C may have left half imported (a traceback after 'interrupted')."""
+    code = ("import sys; from mavattitude.cli import main; code = main(['info', sys.argv[1]]); "
+            "print(code, 'mavattitude.view.sink' in sys.modules, 'rerun' in sys.modules)")
+    run = subprocess.run([sys.executable, "-c", code, str(SAMPLE_LOGS / "static.bin")], capture_output=True,
+                         text=True, timeout=120)
+    assert run.stdout.split()[-3:] == ["0", "False", "False"], run.stdout + run.stderr

@@ -106,9 +106,11 @@ def _main(argv) -> int:
     for problem in load_plugins():
         warn(problem)
     code = _run(args)
-    from ..view.sink import shutdown
+    # Only a command that opened a viewer has one to close: importing the view here would import
+    # Rerun, perhaps half imported when a Ctrl-C cut its import short (a traceback after "interrupted")
+    sink = sys.modules.get("mavattitude.view.sink")
     try:
-        closed = shutdown()
+        closed = sink is None or sink.shutdown()
     except KeyboardInterrupt:
         closed = False
     if not closed:
