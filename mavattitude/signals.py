@@ -27,6 +27,7 @@ import signal
 import sys
 import threading
 import time
+from contextlib import contextmanager
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 SIGNAL_NAMES = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated (SIGTERM)"}
@@ -103,6 +104,50 @@ def exit_code() -> int:
 def message() -> str:
     """The one line a stopped command prints: 'interrupted' or 'terminated (SIGTERM)'."""
     return SIGNAL_NAMES[received() or signal.SIGINT]
+
+
+@contextmanager
+def holding_interrupts():
+    """Ctrl-C within code that cannot take it, raised once that code is done: numba's compile,
+    where it can land in one of LLVM's callbacks (Python only reports it, "Exception ignored"
+    and a traceback, and the compile goes on), and Rerun's import, which turns an exception
+    raised while it builds its classes into a warning and goes on. The handler in place (the
+    command's) still sees it at once; yields the interrupts seen, so a body that goes on can
+    stop early. In the main thread only: the others get no signals."""
+    seen: list = []
+    if threading.current_thread() is not threading.main_thread():
+        yield seen
+        return
+
+    def handler(signum, frame):
+        seen.append(signum)
+        if callable(previous):
+            previous(signum, frame)
+        else:
+            raise KeyboardInterrupt
+
+    def unraisable(report):
+        if isinstance(report.exc_value, KeyboardInterrupt):
+            seen.append(report)
+        else:
+            previous_hook(report)
+    previous, previous_hook = signal.signal(signal.SIGINT, handler), sys.unraisablehook
+    sys.unraisablehook = unraisable
+    try:
+        yield seen
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        sys.unraisablehook = previous_hook
+    if seen:
+        raise_interrupt(previous)
+
+
+def raise_interrupt(handler) -> None:
+    """Raise KeyboardInterrupt through ``handler``, the program's SIGINT handler, if it is a
+    function: the command's counts it as its first stop signal."""
+    if callable(handler):
+        handler(signal.SIGINT, None)
+    raise KeyboardInterrupt
 
 
 def end_with_parent(parent: int) -> None:

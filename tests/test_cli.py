@@ -402,3 +402,32 @@ def test_a_command_without_a_viewer_does_not_import_rerun_to_end():
     run = subprocess.run([sys.executable, "-c", code, str(SAMPLE_LOGS / "static.bin")], capture_output=True,
                          text=True, timeout=120)
     assert run.stdout.split()[-3:] == ["0", "False", "False"], run.stdout + run.stderr
+
+
+def test_live_without_a_viewer_does_not_import_rerun():
+    """``live --no-record`` imports the view's sink module (to know where a view would go) but
+    not the view: Rerun's import swallows a Ctrl-C that lands in it (a RerunWarning, and the
+    session went on compiling)."""
+    code = ("import sys; import mavattitude.live.session; from mavattitude.cli.live import add_parser; "
+            "print('mavattitude.view.sink' in sys.modules, 'rerun' in sys.modules)")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.stdout.split()[-2:] == ["True", "False"], run.stdout + run.stderr
+
+
+def test_an_interrupt_swallowed_by_the_code_it_landed_in_is_raised_after_it():
+    """What Rerun's import does with a Ctrl-C (an exception while it builds its classes becomes a
+    warning): ``holding_interrupts`` raises it once the block is over, as the command's own."""
+    from mavattitude import signals
+
+    previous = signals.install()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with signals.holding_interrupts():
+                try:
+                    os.kill(os.getpid(), signal.SIGINT)
+                    time.sleep(1.0)  # the signal arrives here
+                except KeyboardInterrupt:
+                    pass  # swallowed
+        assert signals.received() == signal.SIGINT
+    finally:
+        signals.restore(previous)

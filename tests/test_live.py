@@ -784,11 +784,11 @@ def test_an_interrupt_numba_could_only_report_is_raised_after_the_compile():
     traceback on stderr, and the compile goes on): taken quietly, raised once it is over."""
     from types import SimpleNamespace
 
-    from mavattitude.core.warmup import _noticing_interrupts
+    from mavattitude.signals import holding_interrupts
 
     before = sys.unraisablehook
     with pytest.raises(KeyboardInterrupt):
-        with _noticing_interrupts():
+        with holding_interrupts():
             sys.unraisablehook(SimpleNamespace(exc_value=KeyboardInterrupt(), exc_type=KeyboardInterrupt))
     assert sys.unraisablehook is before
 

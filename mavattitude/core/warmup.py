@@ -10,10 +10,9 @@ from __future__ import annotations
 import os
 import signal
 import sys
-import threading
 import time
-from contextlib import contextmanager
 
+from .. import signals
 from ..estimators import ESTIMATORS, create, needs_compile, plugin_paths
 from ..estimators.base import DEFAULT_COMPILE_S
 
@@ -24,47 +23,6 @@ def compile_seconds(name: str) -> float:
     work out fairly between processes."""
     seconds = ESTIMATORS[name].compile_seconds
     return DEFAULT_COMPILE_S if seconds is None else float(seconds)
-
-
-@contextmanager
-def _noticing_interrupts():
-    """A Ctrl-C while numba compiles can land in one of LLVM's callbacks, where Python can only
-    report it ("Exception ignored", a traceback) and numba goes on compiling: take it quietly,
-    and raise it once the compile is over (in the main thread; others get no signals)."""
-    seen: list = []  # yielded: a body that goes on compiling can stop early
-    if threading.current_thread() is not threading.main_thread():
-        yield seen
-        return
-
-    def handler(signum, frame):
-        seen.append(signum)
-        if callable(previous):
-            previous(signum, frame)  # the program's own handling (the command's: see signals.py)
-        else:
-            raise KeyboardInterrupt
-
-    def unraisable(report):
-        if isinstance(report.exc_value, KeyboardInterrupt):
-            seen.append(report)
-        else:
-            previous_hook(report)
-    previous, previous_hook = signal.signal(signal.SIGINT, handler), sys.unraisablehook
-    sys.unraisablehook = unraisable
-    try:
-        yield seen
-    finally:
-        signal.signal(signal.SIGINT, previous)
-        sys.unraisablehook = previous_hook
-    if seen:
-        _raise_interrupt(previous)
-
-
-def _raise_interrupt(handler) -> None:
-    """Raise KeyboardInterrupt through ``handler``, the program's SIGINT handler, if it is a
-    function: the command's counts it as its first stop signal (see signals.py)."""
-    if callable(handler):
-        handler(signal.SIGINT, None)
-    raise KeyboardInterrupt
 
 
 CORE = "estimation core"  # the runner's own kernels: a step of every first compile
@@ -89,7 +47,7 @@ class Compiling:
         """Until every pending estimator is compiled: the processes' own, and here, one by one,
         what no process took (or one that failed left)."""
         try:
-            with _noticing_interrupts() as interrupted:
+            with signals.holding_interrupts() as interrupted:
                 if self.progress is not None or self.processes:
                     warm_up([])  # the estimation core's own kernels, here, meanwhile
                     self.done(CORE)
@@ -98,7 +56,7 @@ class Compiling:
                 for p in processes:
                     p.wait()
                 if any(p.returncode == -signal.SIGINT for p in processes):
-                    _raise_interrupt(signal.getsignal(signal.SIGINT))  # Ctrl-C at a terminal reaches the workers too
+                    signals.raise_interrupt(signal.getsignal(signal.SIGINT))  # Ctrl-C at a terminal reaches the workers too
                 for name in list(self.pending):
                     if interrupted:
                         break
@@ -219,7 +177,7 @@ def warm_up(names: list[str], params: dict | None = None) -> None:
     """Run the estimation core over a second of synthetic samples (compass, GPS and baro
     included), so every compiled kernel is loaded (or compiled) now rather than on the first
     samples of a live link."""
-    with _noticing_interrupts():
+    with signals.holding_interrupts():
         _warm_up(names, params)
 
 

@@ -60,14 +60,31 @@ bin only if one sample step earlier lies in another bin, so a regularly sampled 
 chunks keeps the same samples as sent whole (min/max bins straddling a chunk boundary may add
 a point or two).
 """
-from .blueprint import *  # noqa: F401,F403
-from .blueprint import _TEXT_LOG_COLUMNS, _diagnostics_tab  # noqa: F401
-from .columns import *  # noqa: F401,F403
-from .columns import (_bin_first, _bin_minmax, _break_lines, _gps_fix, _send_scalars, _thin,  # noqa: F401
-                      _time)
-from .replay import *  # noqa: F401,F403
-from .marks import *  # noqa: F401,F403
-from .ranges import *  # noqa: F401,F403
-from .replay import _plotted_diagnostics, _reference_key, _scored, _series, _summary_events  # noqa: F401
-from .style import *  # noqa: F401,F403
-from .style import _part  # noqa: F401
+import importlib
+
+from .. import signals
+
+# The view's names, from the module that defines them: loaded on first use (PEP 562), so that a
+# command without a viewer (``live --no-record``, which imports ``view.sink``) never imports Rerun.
+_MODULES = ("style", "ranges", "marks", "replay", "columns", "blueprint")  # the first that has a name gives it
+
+
+def import_rerun():
+    """Rerun, imported with Ctrl-C held until it is in (``signals.holding_interrupts``): Rerun
+    turns an exception raised while it builds its classes into a warning and goes on, so an
+    interrupt then would be lost."""
+    with signals.holding_interrupts():
+        import rerun
+        import rerun.blueprint  # noqa: F401
+    return rerun
+
+
+def __getattr__(name: str):
+    if name.startswith("__"):
+        raise AttributeError(name)
+    import_rerun()
+    for module in _MODULES:
+        module = importlib.import_module(f".{module}", __name__)
+        if hasattr(module, name):
+            return getattr(module, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

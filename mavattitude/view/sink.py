@@ -117,7 +117,8 @@ def _free_port(preferred: int, avoid: int | None = None) -> int:
 
 def open_sink(sink: Sink, app_id: str, recording_name: str):
     """A new recording stream writing to ``sink``."""
-    import rerun as rr
+    from . import import_rerun
+    rr = import_rerun()
 
     rec = rr.RecordingStream(app_id)
     try:
