@@ -44,6 +44,27 @@ def test_simulated_log_read_back(hover, suffix, tmp_path):
         np.testing.assert_allclose(t_text, want_texts, atol=1e-6)
 
 
+def test_info_lists_the_modes_the_armed_span_and_the_errors(tmp_path):
+    """``mavattitude info``: the simulated script's modes and armed span, its text lines counted,
+    and a log's errors listed one by one (copter 3.3's ERR records)."""
+    from mavattitude.commands.info import render, summarize
+
+    hover = simulate("hover", 30.0, seed=1, imu_rate=100.0)
+    flight = read_log(str(write_log(hover, tmp_path / "s.bin")))
+    info = summarize(flight)
+    events, end = info["events"], info["end_s"]
+    assert [m["name"] for m in events["modes"]] == [m[3] for m in hover.script.modes]
+    assert events["modes"][-1]["end_s"] == end
+    assert events["armed"] == [{"start_s": pytest.approx(hover.script.armed_at, abs=1e-3), "end_s": end}]
+    assert events["messages"]["by_severity"] == {"info": len(flight.messages.t)}  # the script's and the version's
+    assert events["messages"]["warnings"] == []
+    text = render(info)
+    assert f"  armed     {hover.script.armed_at:.1f}-{end:.1f} s" in text.splitlines()
+    if SHARED_LOGS.is_dir():
+        text = render(summarize(read_shared("copter-3.3-loiter-rtl.bin")))
+        assert "error     ERR: CRASH_CHECK 1" in text and "more (--json lists them all)" in text  # 9 modes
+
+
 def test_untimed_rows_take_the_clock_before_them():
     col = Collector()
     t = np.arange(10) * 0.1 + 5.0

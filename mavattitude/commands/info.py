@@ -19,6 +19,32 @@ def _rate(t: np.ndarray) -> float:
     return float(1.0 / np.median(np.diff(t))) if len(t) > 1 else 0.0
 
 
+SEVERITIES = ("emergency", "alert", "critical", "error", "warning", "notice", "info", "debug")  # MAV_SEVERITY
+WARNING = 4  # text lines at this severity or worse are listed one by one
+SHOWN = 8  # modes and lines listed on the terminal (--json has them all)
+WIDTH = 110
+
+
+def _events(flight: Flight, end: float) -> dict:
+    """The log's own account: its modes and armed spans, its text lines by severity and those
+    at warning or worse (``Flight.modes``, ``arming``, ``messages``; None where it has none)."""
+    modes = flight.modes.spans(end) if flight.modes is not None and len(flight.modes.t) else None
+    armed = None
+    if flight.arming is not None and len(flight.arming.t):
+        armed = [(a, b) for a, b, value, _ in flight.arming.spans(end) if value == 1]
+    texts = flight.messages if flight.messages is not None and len(flight.messages.t) else None
+    return {
+        "modes": None if modes is None else [{"start_s": round(a, 3), "end_s": round(b, 3), "number": v, "name": name}
+                                             for a, b, v, name in modes],
+        "armed": None if armed is None else [{"start_s": round(a, 3), "end_s": round(b, 3)} for a, b in armed],
+        "messages": None if texts is None else {
+            "by_severity": {SEVERITIES[v]: int(n) for v, n in zip(*np.unique(texts.value, return_counts=True))
+                            if 0 <= v < len(SEVERITIES)},
+            "warnings": [{"t_s": round(float(t), 3), "severity": SEVERITIES[v], "text": text}
+                         for t, v, text in zip(texts.t, texts.value.tolist(), texts.label) if 0 <= v <= WARNING]},
+    }
+
+
 def summarize(flight: Flight) -> dict:
     start, end = flight.time_span
     duration = end - start
@@ -91,6 +117,7 @@ def summarize(flight: Flight) -> dict:
                      if flight.utc_s is not None else None),
         "declination_deg": round(declination.deg, 3) if declination.known else None,
         "declination_source": declination.source,
+        "events": _events(flight, end),
         "notes": list(flight.notes),
         "warnings": warnings,
     }
@@ -126,8 +153,36 @@ def render(info: dict) -> str:
         why = a["named_by"] + ("; equals " + ", ".join(same) if same else "")
         lines.append(f"   {'*' if a['primary'] else ' '} {a['stream']:22s} {a['algorithm']:16s} {a['samples']:8d} "
                      f"samples  {a['rate_hz']:7.1f} Hz   ({why})")
+    lines += _render_events(info["events"])
     for note in info["notes"]:
         lines.append(f"  note: {note}")
     for warning in info["warnings"]:
         lines.append(f"  warning: {warning}")
     return "\n".join(lines)
+
+
+def _render_events(events: dict) -> list[str]:
+    def listed(head: str, items: list[str]) -> list[str]:
+        shown = items[:SHOWN] + ([f"... {len(items) - SHOWN} more (--json lists them all)"] if len(items) > SHOWN else [])
+        lines = [f"  {head:10s}{shown[0]}"]
+        for item in shown[1:]:  # wrapped between items, never inside one
+            if len(lines[-1]) + len(item) + 2 > WIDTH:
+                lines[-1] += ","
+                lines.append(" " * 12 + item)
+            else:
+                lines[-1] += ", " + item
+        return lines
+
+    lines = []
+    if (modes := events["modes"]) is not None:
+        lines += listed("modes", [f"{m['name'] or m['number']} {m['start_s']:.1f}-{m['end_s']:.1f} s" for m in modes])
+    if (armed := events["armed"]) is not None:
+        lines += listed("armed", [f"{a['start_s']:.1f}-{a['end_s']:.1f} s" for a in armed] or ["never"])
+    if (texts := events["messages"]) is not None:
+        counts = ", ".join(f"{n} {name}" for name, n in texts["by_severity"].items())
+        lines.append(f"  {'messages':10s}{sum(texts['by_severity'].values())} ({counts})")
+        warnings = texts["warnings"]
+        lines += [f"{'':12s}{w['t_s']:8.1f} s  {w['severity']:9s} {w['text']}" for w in warnings[:SHOWN]]
+        if len(warnings) > SHOWN:
+            lines.append(f"{'':12s}... {len(warnings) - SHOWN} more (--json lists them all)")
+    return lines
