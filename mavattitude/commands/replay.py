@@ -21,7 +21,8 @@ from ..scoring.imucheck import accel_at_rest, accel_scale_warning, rate_not_mean
 from ..scoring.metrics import Comparison, compare, non_finite_warning
 from ..core.policy import FlightFacts, RunOptions, RunPolicy, decide
 from ..phase import PhaseSeries
-from ..scoring.refcheck import autopilot_disagreement, check_reference, excluded_spans, whole_log_notes
+from ..scoring.refcheck import (autopilot_disagreement, check_reference, excluded_spans, suspect_event,
+                                whole_log_notes)
 from ..readers import best_imu_source, imu_rate, mag_for_imu
 from ..readers.attitudes import SECONDARY_KEYS, NamedAttitude, name_attitudes
 from ..core.runner import REINIT_GAP_S, STEP_ROWS, Runner
@@ -345,9 +346,7 @@ def replay_policy(flight: Flight, policy: RunPolicy, progress=None, compact: boo
                                    phase.on_clock if phase is not None else None, flight.gps)
         suspects = sorted(suspects + autopilot_disagreement(ref, flight, named), key=lambda s: s.start)
         notes = whole_log_notes(ref, flight.repeated.get(ref.source, 0))
-        events += [Event(s.start, "warn", f"reference not trusted {s.start:.1f}-{s.end:.1f} s: {s.detail} "
-                         "(not scored there)", kind=f"reference not trusted ({s.kind}), not scored there")
-                   for s in suspects]
+        events += [suspect_event(s) for s in suspects]
         events += [Event(float(ref.t[0]), "warn", note.detail) for note in notes]
     if ref is not None:
         for name, series in scored.items():

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import quaternion as quat
+from ..events import Event
 from ..flight import GRAVITY, AttitudeSeries, Flight, GpsSeries, ImuSeries
 from ..readers.attitudes import MOST as SAME_SHARE, name_attitudes
 
@@ -107,11 +108,23 @@ def autopilot_disagreement(ref: AttitudeSeries, flight: Flight, named=None) -> l
         key = other.key
         for start, end, seconds, values in disagreeing_spans(*tilt_apart_deg(ref, flight.attitudes[key])):
             if seconds >= DISAGREE_MIN_S:
-                out.append(Suspect("autopilot disagrees", start, end,
-                                   f"{ref.source} ({algorithm}) and {key} ({other.algorithm}) differ in tilt by "
-                                   f"more than {DISAGREE_DEG:g}° for {seconds:.0f} s (median "
-                                   f"{np.median(values):.0f}°, up to {np.max(values):.0f}°)"))
+                out.append(disagreement(ref.source, algorithm, key, other.algorithm, start, end, seconds, values))
     return sorted(out, key=lambda s: s.start)
+
+
+def disagreement(source: str, algorithm: str, key: str, other_algorithm: str, start: float, end: float,
+                 seconds: float, values: np.ndarray) -> Suspect:
+    """The Suspect of one span where ``source`` and the stream ``key`` disagree (``disagreeing_spans``)."""
+    return Suspect("autopilot disagrees", start, end,
+                   f"{source} ({algorithm}) and {key} ({other_algorithm}) differ in tilt by more than "
+                   f"{DISAGREE_DEG:g}° for {seconds:.0f} s (median {np.median(values):.0f}°, up to "
+                   f"{np.max(values):.0f}°)")
+
+
+def suspect_event(s: Suspect) -> Event:
+    """What replay and live say of a span they do not score."""
+    return Event(s.start, "warn", f"reference not trusted {s.start:.1f}-{s.end:.1f} s: {s.detail} (not scored there)",
+                 kind=f"reference not trusted ({s.kind}), not scored there")
 
 
 def compared_streams(ref: AttitudeSeries, named: list) -> list:
@@ -195,33 +208,51 @@ def _tilt_at_rest(ref: AttitudeSeries, imu: ImuSeries, trim, in_air_at, gps) -> 
     t0 = imu.t[0]
     bins = np.floor(imu.t - t0).astype(np.int64)
     n = int(bins[-1]) + 1
-    count = np.bincount(bins, minlength=n)
-    rate = np.bincount(bins, np.linalg.norm(imu.gyro, axis=1), n) / np.maximum(count, 1)
-    acc = np.stack([np.bincount(bins, imu.accel[:, k], n) for k in range(3)], axis=1) / np.maximum(count, 1)[:, None]
+    count, rate, acc = bin_means(bins, n, np.linalg.norm(imu.gyro, axis=1), imu.accel)
     centre = t0 + np.arange(n) + 0.5
-    with np.errstate(invalid="ignore"):
-        rest = ((count > 0) & (rate < REST_RATE) & (np.abs(np.linalg.norm(acc, axis=1) - GRAVITY) < REST_ACCEL * GRAVITY)
-                & (in_air_at(centre) == 0.0) & ~_moving(gps, centre) & (centre > ref.t[0]) & (centre < ref.t[-1]))
+    rest = resting(count, rate, acc, in_air_at(centre), _moving(gps, centre)) & (centre > ref.t[0]) & (centre < ref.t[-1])
     if not rest.any():
         return []
+    off = tilt_off_deg(acc, quat.interpolate(ref.t, ref.q, centre), trim)
+    bad = rest & (off > TILT_AT_REST_DEG)
+    return [rest_suspect(ref.source, centre[a], centre[b - 1], off[a:b]) for a, b in _runs(bad)
+            if b - a >= MIN_REST_SPAN_S]
+
+
+def bin_means(bins: np.ndarray, n: int, rate: np.ndarray, accel: np.ndarray) -> tuple:
+    """Per 1 s bin (``bins``: each IMU sample's, 0 to n - 1): samples, mean |gyro|, mean accelerometer."""
+    count = np.bincount(bins, minlength=n)
+    mean_rate = np.bincount(bins, rate, n) / np.maximum(count, 1)
+    acc = np.stack([np.bincount(bins, accel[:, k], n) for k in range(3)], axis=1) / np.maximum(count, 1)[:, None]
+    return count, mean_rate, acc
+
+
+def resting(count, rate, acc, in_air, moving) -> np.ndarray:
+    """The bins (``bin_means``) where the vehicle is still on the ground: the accelerometer measures gravity alone."""
+    with np.errstate(invalid="ignore"):
+        return ((count > 0) & (rate < REST_RATE) & (np.abs(np.linalg.norm(acc, axis=1) - GRAVITY) < REST_ACCEL * GRAVITY)
+                & (in_air == 0.0) & ~moving)
+
+
+def tilt_off_deg(acc: np.ndarray, q_ref: np.ndarray, trim) -> np.ndarray:
+    """The angle (°) between the accelerometer's gravity direction in the body (turned by the
+    board trim) and the reference's (``q_ref`` at the same times)."""
     roll = np.arctan2(-acc[:, 1], -acc[:, 2])
     pitch = np.arctan2(acc[:, 0], np.hypot(acc[:, 1], acc[:, 2]))
-    q_acc = quat.from_euler(roll, pitch, np.zeros(n))
+    q_acc = quat.from_euler(roll, pitch, np.zeros(len(acc)))
     if trim is not None:
         q_acc = quat.trimmed(q_acc, *trim)
     # the angle between the two gravity directions in the body
     down_acc = quat.rotate(quat.conjugate(q_acc), np.array([0.0, 0.0, 1.0]))
-    down_ref = quat.rotate(quat.conjugate(quat.interpolate(ref.t, ref.q, centre)), np.array([0.0, 0.0, 1.0]))
+    down_ref = quat.rotate(quat.conjugate(q_ref), np.array([0.0, 0.0, 1.0]))
     with np.errstate(invalid="ignore"):
-        off = np.degrees(np.arccos(np.clip((down_acc * down_ref).sum(axis=1), -1.0, 1.0)))
-    bad = rest & (off > TILT_AT_REST_DEG)
-    out = []
-    for a, b in _runs(bad):
-        if b - a >= MIN_REST_SPAN_S:
-            out.append(Suspect("tilt at rest", float(centre[a] - 0.5), float(centre[b - 1] + 0.5),
-                               f"still on the ground, {ref.source}'s tilt is up to {off[a:b].max():.1f}° from the "
-                               "accelerometer's"))
-    return out
+        return np.degrees(np.arccos(np.clip((down_acc * down_ref).sum(axis=1), -1.0, 1.0)))
+
+
+def rest_suspect(source: str, first_centre: float, last_centre: float, off: np.ndarray) -> Suspect:
+    """A run of bins at rest (centres ``first_centre`` to ``last_centre``) whose reference tilt is off by ``off``."""
+    return Suspect("tilt at rest", float(first_centre - 0.5), float(last_centre + 0.5),
+                   f"still on the ground, {source}'s tilt is up to {off.max():.1f}° from the accelerometer's")
 
 
 def _tilt_jumps(ref: AttitudeSeries, imu: ImuSeries) -> list[Suspect]:
@@ -242,8 +273,12 @@ def _tilt_jumps(ref: AttitudeSeries, imu: ImuSeries) -> list[Suspect]:
             spans[-1][2] = max(spans[-1][2], step[i])
         else:
             spans.append([a, b, step[i]])
-    return [Suspect("tilt jump", a, b, f"{ref.source}'s tilt jumped {big:.0f}° where the gyros turned at most "
-                    f"a few degrees") for a, b, big in spans]
+    return [jump_suspect(ref.source, a, b, big) for a, b, big in spans]
+
+
+def jump_suspect(source: str, start: float, end: float, big: float) -> Suspect:
+    return Suspect("tilt jump", start, end, f"{source}'s tilt jumped {big:.0f}° where the gyros turned at most "
+                   "a few degrees")
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
