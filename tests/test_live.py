@@ -126,12 +126,11 @@ def assert_live_equals_replay(est, segment, comparisons, recording, names, refer
     whole log), and so do its final metrics (the quantiles within the running sketch's 0.1 %)."""
     seg = est.segments[segment]
     flight = read_log(str(recording))
-    # A recording that carries the autopilot's other estimates (mavplayback forwards AHRS2/AHRS3)
-    # lets replay leave out the spans where they disagree with the reference; live does not
-    # check that yet, so replay here scores against the primary alone.
-    primary = flight.attitude.source if flight.attitude is not None else None
-    flight = replace(flight, attitudes={k: v for k, v in flight.attitudes.items() if k == primary})
+    # the recording's other attitude streams too (mavplayback forwards AHRS2/AHRS3): live
+    # decodes them and runs replay's reference checks with them
     replay = run_replay(flight, names, reference=reference, imu=seg.imu_key)
+    if seg.check is not None or replay.suspects:
+        assert seg.check.suspects == replay.suspects
     for name in names:
         live, again = est.estimate_series(name, seg), replay.estimates[name]
         start = int(np.searchsorted(again.t, live.t[0]))
@@ -146,6 +145,8 @@ def assert_live_equals_replay(est, segment, comparisons, recording, names, refer
             a, b = c.axes[axis], replay.comparisons[name].axes[axis]
             assert a.n == b.n > 100 and a.mae == pytest.approx(b.mae, abs=1e-9), (name, axis)
             assert a.max == pytest.approx(b.max, abs=1e-9) and a.sigma3 == pytest.approx(b.sigma3, rel=1e-3)
+        assert c.n_excluded == replay.comparisons[name].n_excluded, name
+    return replay
 
 
 def recorded_packets(path) -> list[bytes]:
@@ -821,6 +822,29 @@ def test_a_vehicle_with_a_board_trim_and_a_declination_scores_as_replay_of_its_r
     # without the trim every estimate is off by about it (the figure-eight's own error besides)
     off = untrimmed.final_comparisons()[0]["mahony"].axes["roll"].mae
     assert off > comparisons["mahony"].axes["roll"].mae + 1.5
+
+
+@pytest.mark.slow  # a session stepped packet by packet
+def test_a_vehicle_whose_attitude_has_faults_scores_as_replay_of_its_recording(tmp_path):
+    """replay's reference checks in live (``running_refcheck``): a simulated vehicle whose
+    attitude is tilted while still on the ground, jumps 60° and disagrees with its EKF (AHRS2)
+    for 15 s. Live decodes AHRS2, flags the spans replay flags on the recording, says them in
+    replay's words, and scores what replay scores (the spans left out, found looking back)."""
+    from mavattitude.live.estimation import LiveEstimation
+    from mavattitude.scoring.refcheck import suspect_event
+    from test_running_refcheck import faulty_log
+
+    path = faulty_log(tmp_path / "faulty.tlog")
+    names = ["mahony", "ekf"]
+    est = _feed(LiveEstimation(RunOptions(names)), path)
+    est.step(final=True)
+    comparisons, seg = est.final_comparisons()
+    replay = assert_live_equals_replay(est, seg.index, comparisons, path, names)
+    assert {s.kind for s in replay.suspects} == {"tilt at rest", "tilt jump", "autopilot disagrees"}
+    assert est.suspects == replay.suspects
+    said = sorted((e.t, e.text) for e in est.events if e.kind and e.kind.startswith("reference not trusted"))
+    assert said == [(s.start, suspect_event(s).text) for s in replay.suspects]
+    assert comparisons["mahony"].n_excluded > 100
 
 
 @pytest.mark.slow  # 10 s of a simulated plane streamed at 4x

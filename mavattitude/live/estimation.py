@@ -46,15 +46,18 @@ import numpy as np
 from .. import declination as decl
 from .. import quaternion as quat
 from ..events import Event
-from ..flight import AttitudeSeries
+from ..flight import AttitudeSeries, Flight
 from ..growing import Growing
 from ..scoring.metrics import AXES, Comparison, compare, non_finite_warning
 from ..readers import IMU_LIMITS, MAG_LIMITS, earth_field_power, pick_imu, pick_mag
-from ..readers.collect import CORRUPT, HELD, ClockTracker
+from ..readers.collect import CORRUPT, FOLLOWER_KINDS, HELD, JUMP_S, ClockTracker
 from ..readers.tlog import MessageDecoder
 from ..scoring.imucheck import rate_not_meaningful
 from ..core.runner import IMU, Chunk, Runner
 from ..scoring.running_metrics import RunningComparison, joined
+from ..scoring.refcheck import compared_streams, suspect_event
+from ..scoring.running_refcheck import RunningReferenceCheck
+from ..readers.attitudes import name_attitudes
 from ..trim import TRIM_PARAMS, describe, trimmed
 from ..core.policy import FlightFacts, RunOptions, RunPolicy, decide
 from ..readers import identify_vehicle
@@ -90,6 +93,9 @@ class _Segment:
         self.fed: dict[str, int] = {}  # rows of each store handed to the runner
         self.events_taken = 0  # of the runner's events
         self.scores: dict[str, RunningComparison] = {}  # estimator (or "autopilot" against truth) -> its score
+        self.check: RunningReferenceCheck | None = None  # replay's checks of the reference (against the autopilot)
+        self.checked: dict[str, int] = {}  # rows of each store handed to the check (``Growing.appended``)
+        self.phase_checked = -math.inf  # s, the latest phase row handed to the check
         self.scored_at = -math.inf  # s, the latest estimate when last scored
         self.forgot_at = -math.inf  # s, the latest estimate when last forgotten
 
@@ -168,6 +174,10 @@ class LiveEstimation:
             if loss is None:
                 loss = self.imu_loss[key] = SampleLoss()
             loss.add(t)
+        if kind in FOLLOWER_KINDS:  # no time of its own (AHRS2, AHRS3): on the clock the others found, as a log's
+            if abs(t - self.seg.clock_max) <= JUMP_S:
+                self._deliver((kind, key, t, row, None, self._now), self.seg.index)
+            return
         arrival = self.clock.seen
         labels, decided = self.clock.push([t])
         for g, label in decided:
@@ -208,10 +218,10 @@ class LiveEstimation:
                 self._fix_came(t, decl.Fix(row[0], row[1], row[2]))
         elif kind == "baro":
             self._append_one(seg.baro, t, (*row, arrival))
-        elif kind in REFERENCE_KINDS:
+        elif kind in REFERENCE_KINDS or kind == "stream_euler":  # a stream: its message's name (AHRS2, AHRS3)
             q = _attitude(kind, row)
             if q is not None:
-                self._append(seg.att, REFERENCE_KINDS[kind], 5, t, tuple(q))
+                self._append(seg.att, REFERENCE_KINDS.get(kind, key), 5, t, tuple(q))
 
     def _add_mag(self, seg: _Segment, key: str, t: float, row: tuple, arrival: int) -> None:
         if not any(row) or not all(math.isfinite(v) for v in row):
@@ -267,7 +277,7 @@ class LiveEstimation:
         seg.events_taken = len(seg.runner.events)
         for old in self.segments[:-1]:  # a reboot: score what the last segment estimated
             if old.scored_at != math.inf:
-                self._score(old)
+                self._score(old, final=True)
                 old.scored_at = math.inf
         if chunk is not None:
             self.samples += len(chunk.t)
@@ -288,7 +298,7 @@ class LiveEstimation:
                 seg.forgot_at = latest
                 self._forget(seg, latest)
         if final:
-            self._score(seg)
+            self._score(seg, final=True)
             self.events += [Event(self._first_t, "warn", non_finite_warning(name, bad))
                             for name, bad in self.non_finite.items()]  # as replay says it, once
             self.non_finite = {}
@@ -384,12 +394,14 @@ class LiveEstimation:
                                             f"keeps its {math.degrees(self.declination):.2f}° (--home or "
                                             "--declination give it from the start)"))
 
-    def _score(self, seg: _Segment) -> None:
+    def _score(self, seg: _Segment, final: bool = False) -> None:
         """Score the estimates (against truth, the autopilot too) at the reference samples they
-        now cover (``running_metrics``)."""
+        now cover (``running_metrics``), and that replay's reference checks have settled
+        (``_check``; ``final``: the segment's data is complete)."""
         runner, ref = seg.runner, self.reference_series(seg)
         if runner is None or not runner.done or ref is None:
             return
+        exclude, settled = self._check(seg, ref, final)
         restarts = [t for t, _ in runner.restarts]
         pairs = [(name, self._trimmed(runner.estimate(name)), restarts, [not r.has_heading[name] for r in runner.runs])
                  for name in self.names]
@@ -400,9 +412,69 @@ class LiveEstimation:
             score = seg.scores.get(name)
             if score is None:
                 score = seg.scores[name] = RunningComparison(name, ref.source, self.warmup_s)
-            got = score.update(ref, estimate, restarts, align)
+            got = score.update(ref, estimate, restarts, align, exclude, settled)
             if got is not None and self._errors is not None and name in self._errors:
                 self._errors[name].append(got)
+
+    def _check(self, seg: _Segment, ref: AttitudeSeries, final: bool) -> tuple[list, float]:
+        """Hand replay's reference checks (``running_refcheck``) what arrived since the last
+        call, as replay hands its checks the log: the estimated IMU's rows, the reference (raw:
+        the check turns the accelerometer by the trim), GPS, the runner's phase and the
+        autopilot's other streams, named as replay names them (``name_attitudes`` and
+        ``compared_streams`` on what the session keeps). Returns the spans not to score and the
+        time before which they are final. Against truth there is nothing to check, as in replay."""
+        if self.reference != "autopilot":
+            return [], math.inf
+        check = seg.check
+        if check is None:
+            check = seg.check = RunningReferenceCheck(ref.source, self.trim)
+        if not check.final:
+            def new(name: str, store: Growing) -> np.ndarray:
+                start, seg.checked[name] = seg.checked.get(name, 0), store.appended
+                return store.view()[max(store.n - (store.appended - start), 0):]
+
+            rows = new("imu", seg.runner.store[IMU])
+            check.add_imu(rows[:, 0], rows[:, 1:4], rows[:, 4:7])
+            for key, store in seg.att.items():
+                if key == "truth":
+                    continue
+                rows, name = new(key, store), REFERENCE_SOURCES.get(key, key)
+                if name == ref.source:
+                    check.add_reference(rows[:, 0], rows[:, 1:5])
+                else:
+                    check.add_stream(name, rows[:, 0], rows[:, 1:5])
+            rows = new("gps", seg.gps)
+            check.add_gps(rows[:, 0], rows[:, 4:6])
+            phase = seg.runner.phase_series()
+            if phase is not None:
+                taken = phase.t > seg.phase_checked
+                check.add_phase(phase.t[taken], phase.in_air[taken])
+                seg.phase_checked = float(phase.t[-1])
+            self._name_streams(seg, ref, check)
+            found = check.finish() if final else check.advance()
+            self.events += [suspect_event(s) for s in found]
+        return check.excluded(), check.settled
+
+    def _name_streams(self, seg: _Segment, ref: AttitudeSeries, check: RunningReferenceCheck) -> None:
+        """The reference's algorithm and the streams that give a second opinion, as replay names
+        them on a log (``readers.attitudes``), on the samples the session keeps."""
+        streams = {REFERENCE_SOURCES.get(k, k): self._attitude_series(seg, (k,)) for k in seg.att if k != "truth"}
+        streams = {k: v for k, v in streams.items() if v is not None}
+        if ref.source not in streams:
+            return
+        vehicle, firmware = identify_vehicle(self.decoder.texts)
+        flight = Flight("live", "tlog", attitude=streams[ref.source], attitudes=streams,
+                        truth=self._attitude_series(seg, ("truth",)), params=dict(self.decoder.params),
+                        vehicle=vehicle, firmware=firmware)
+        named = name_attitudes(flight)
+        check.algorithm = next(n.algorithm for n in named if n.key == ref.source)
+        check.compared = {n.key: n.algorithm for n in compared_streams(ref, named)} if len(streams) > 1 else {}
+
+    @property
+    def suspects(self) -> list:
+        """The spans of the scored segment's reference not scored (``refcheck.Suspect``), as replay lists them."""
+        seg = self._scored_segment()
+        return seg.check.suspects if seg is not None and seg.check is not None else []
 
     def yaw_offset_deg(self, name: str) -> float | None:
         """The yaw offset the final metrics remove from the estimator's current span (no
@@ -476,7 +548,7 @@ class LiveEstimation:
             store = seg.att.get(key)
             if store is not None and store.n:
                 rows = store.view()
-                return AttitudeSeries(REFERENCE_SOURCES[key], rows[:, 0], rows[:, 1:5])
+                return AttitudeSeries(REFERENCE_SOURCES.get(key, key), rows[:, 0], rows[:, 1:5])
         return None
 
     def estimate_series(self, name: str, seg: _Segment | None = None) -> AttitudeSeries | None:
@@ -507,13 +579,16 @@ class LiveEstimation:
             out[name] = tuple(c.axes[a].mae if c.axes[a] is not None else math.nan for a in AXES)
         return out
 
+    def _scored_segment(self) -> _Segment | None:
+        candidates = [s for s in self.segments if s.runner is not None and s.runner.done]
+        return max(candidates, key=lambda s: s.runner.estimated) if candidates else None
+
     def final_comparisons(self) -> tuple[dict[str, Comparison], _Segment | None]:
         """Each estimator (and, against truth, the autopilot) scored over the clock segment
         with most estimates, as replay scores a log: (comparisons, that segment)."""
-        candidates = [s for s in self.segments if s.runner is not None and s.runner.done]
-        if not candidates:
+        seg = self._scored_segment()
+        if seg is None:
             return {}, None
-        seg = max(candidates, key=lambda s: s.runner.estimated)
         self._score(seg)
         comparisons = {name: score.result() for name, score in seg.scores.items()}
         t = seg.runner.store[IMU].column(0)  # the rows kept: the rate of the last seconds

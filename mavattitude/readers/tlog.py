@@ -78,7 +78,8 @@ IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_
 SAMPLE_MESSAGES = IMU_MESSAGES + ("GPS_RAW_INT", "SCALED_PRESSURE", "ATTITUDE", "ATTITUDE_QUATERNION", "SIMSTATE")
 OTHER_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "AUTOPILOT_VERSION", "HEARTBEAT", "SYSTEM_TIME")
 # The autopilot's attitude streams beside ATTITUDE (``readers.attitudes`` names them): read from a
-# file, for comparison; a live link does not ask for them.
+# file for comparison; a live link does not ask for them, and decodes them when they come (its
+# reference checks compare them with ATTITUDE, as replay's do).
 STREAM_MESSAGES = ("AHRS2", "AHRS3")
 VEHICLE_MESSAGES = IMU_MESSAGES + ("ATTITUDE",)  # what only a vehicle sends (``is_vehicle``)
 
@@ -171,7 +172,7 @@ class MessageDecoder:
     (the live link; a .tlog is read in bulk by ``read_tlog`` with the same unit functions).
 
     ``decode(msg, add)`` calls ``add(kind, key, t, row)`` for each sample a message carries
-    (kinds: imu, mag, gps, baro, att_euler, att_quat, truth_euler; ``t`` seconds since boot),
+    (kinds: imu, mag, gps, baro, att_euler, att_quat, truth_euler, stream_euler; ``t`` seconds since boot),
     and keeps parameters (``params``), identity texts (``texts``: STATUSTEXT, version,
     heartbeat type) and the vehicle's first set UNIX time (``utc_s``, s: SYSTEM_TIME's). A
     message without a boot time (SIMSTATE, or a GPS_RAW_INT with a zero or UNIX-epoch time)
@@ -207,7 +208,7 @@ class MessageDecoder:
         if name in OTHER_MESSAGES:
             self.note(msg)
             return
-        if name not in SAMPLE_MESSAGES:
+        if name not in SAMPLE_MESSAGES and name not in STREAM_MESSAGES:
             return
         t = boot_time_of(msg)
         if t is None:

@@ -16,6 +16,12 @@ for hours, so ``RunningComparison`` takes them a part at a time, in time order (
 Yaw without a heading reference gets ``compare``'s offset per span between restarts, the
 circular mean of its first scored second: the span's errors from its first scored sample on
 wait (about a second of them) until that second is complete.
+
+Spans of reference not to be trusted (``compare``'s ``exclude``) can be known only later: a
+check finds them looking back (``running_refcheck``). ``update`` takes the spans known so far
+and a time, ``settled``, before which they are final, and scores only the reference samples
+before it: the later ones wait for the next update (the caller keeps them, and the estimate
+around them), and the end of the session settles everything.
 """
 from __future__ import annotations
 
@@ -114,7 +120,7 @@ class RunningComparison:
         self.first_t: float | None = None  # the estimate's first valid sample: the warm-up counts from it
         self.until = -math.inf  # reference time scored up to
         self.estimate_until = -math.inf  # estimate time seen up to (its NaN rows counted)
-        self.n_nan_estimate = self.n_in_gaps = 0
+        self.n_nan_estimate = self.n_in_gaps = self.n_excluded = 0
         self.t_first = self.t_last = math.nan  # reference times inside the estimate
         self.offsets: list[tuple[float, float]] = []  # (span start, yaw offset): compare's yaw_offsets_deg
         self.aligned = False
@@ -125,11 +131,13 @@ class RunningComparison:
         self._first_scored: float | None = None
         self._held: list[tuple] = []  # (t, error, reference, scored) of the current span, offset pending
 
-    def update(self, reference: AttitudeSeries, estimate: AttitudeSeries, restarts=(), align_yaw=(False,)):
-        """Score the reference samples after ``until`` that ``estimate`` now covers. Both series
-        need only hold their latest part: the reference from ``until``, the estimate from its
-        sample before the first of them. Restarts are times (s); span k (after k restarts) is
-        yaw-aligned if ``align_yaw[k]`` (the last entry stands for later spans). Returns what
+    def update(self, reference: AttitudeSeries, estimate: AttitudeSeries, restarts=(), align_yaw=(False,),
+               exclude=(), settled: float = math.inf):
+        """Score the reference samples after ``until`` that ``estimate`` now covers, and that are
+        earlier than ``settled``. Both series need only hold their latest part: the reference from
+        ``until``, the estimate from its sample before the first of them. Restarts are times (s);
+        span k (after k restarts) is yaw-aligned if ``align_yaw[k]`` (the last entry stands for
+        later spans). ``exclude``: (start, end) spans not scored, final before ``settled``. Returns what
         became final, of these samples and of those held before: (t, error, scored), the error
         with its yaw offset removed (yaw NaN before a span's first scored sample, whose offset
         is not known yet); None if nothing."""
@@ -144,13 +152,15 @@ class RunningComparison:
             return None
         r0 = int(np.searchsorted(reference.t, self.until, side="right"))
         r1 = int(np.searchsorted(reference.t, estimate.t[-1], side="right"))
+        r1 = min(r1, int(np.searchsorted(reference.t, settled, side="left")))
         if r1 <= r0:
             return None
         e0 = max(int(np.searchsorted(estimate.t, reference.t[r0])) - 1, 0)
         ref = AttitudeSeries(reference.source, reference.t[r0:r1], reference.q[r0:r1])
         part = compare(ref, AttitudeSeries(estimate.source, estimate.t[e0:], estimate.q[e0:]), warmup_s=0.0,
-                       restarts=restarts)
+                       restarts=restarts, exclude=exclude)
         self.until = float(ref.t[-1])
+        self.n_excluded += part.n_excluded
         t, error = part.t, part.error_deg.copy()
         if not len(t):
             return None
@@ -224,6 +234,7 @@ class RunningComparison:
             scored=np.empty(0, bool), axes={axis: a.metrics() for axis, a in self.axes.items()},
             yaw_aligned=self.aligned, yaw_offset_deg=offsets[0][1] if offsets else 0.0, yaw_offsets_deg=offsets,
             warmup_s=float(self.warmup_s), n_nan_estimate=self.n_nan_estimate, n_in_gaps=self.n_in_gaps,
+            n_excluded=self.n_excluded,
             overlap_s=None if math.isnan(self.t_first) else float(self.t_last - self.t_first))
 
 
