@@ -845,6 +845,9 @@ def test_a_vehicle_whose_attitude_has_faults_scores_as_replay_of_its_recording(t
     said = sorted((e.t, e.text) for e in est.events if e.kind and e.kind.startswith("reference not trusted"))
     assert said == [(s.start, suspect_event(s).text) for s in replay.suspects]
     assert comparisons["mahony"].n_excluded > 100
+    from mavattitude.cli.live import live_scoring
+    scoring = live_scoring(est)  # the JSON's, as replay's
+    assert scoring["reference_suspect"] == replay.metrics["scoring"]["reference_suspect"]
 
 
 @pytest.mark.slow  # 10 s of a simulated plane streamed at 4x

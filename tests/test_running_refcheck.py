@@ -98,12 +98,18 @@ def test_the_running_check_turns_the_accelerometer_by_the_trim(faulty):
     assert expected != whole_log(faulty, key) and running(faulty, key, 1.3, trim) == expected
 
 
-@pytest.mark.slow  # reads three shared logs, judged in parts
-@pytest.mark.parametrize("name", ["corpus/real-copter-3.3dev-erlepxf-dcm-long-erle-20140923-51.bin",
-                                  "sitl-copter-4.7-vibration.tlog", "copter-4.1-flight.tlog"])
-def test_the_running_check_finds_the_whole_logs_spans_on_shared_logs(name):
+@pytest.mark.slow  # reads shared logs, judged in parts
+@pytest.mark.parametrize("name, kinds", [
+    ("corpus/real-copter-3.3dev-erlepxf-dcm-gps-flight-erle-20141009-31.bin", {"autopilot disagrees", "tilt at rest"}),
+    ("corpus/real-copter-3.3dev-erlepxf-dcm-long-erle-20140923-51.bin", {"autopilot disagrees"}),
+    ("corpus/real-plane-4.3.1-kakutef7-crash-bixler-scottyob.bin", {"tilt jump", "autopilot disagrees"}),
+    ("sitl-copter-4.7-vibration.tlog", {"tilt jump", "tilt at rest"}),
+    ("sitl-quadplane-vtol.tlog", {"autopilot disagrees"}),
+    ("copter-4.1-flight.tlog", set())])
+def test_the_running_check_finds_the_whole_logs_spans_on_shared_logs(name, kinds):
     flight = read_shared(name)
     key = max(flight.imu, key=lambda k: len(flight.imu[k].t))
     expected = whole_log(flight, key)
+    assert {s.kind for s in expected} == kinds
     for chunk_s in (0.5, 7.0):
         assert running(flight, key, chunk_s, check_settled=False) == expected, chunk_s

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import textwrap
 
 from ..errors import UsageError
@@ -59,6 +60,8 @@ def run(args) -> int:
     from ..core.warmup import warm_up
     from ..live.session import check_ended_with_vehicle, loss_text
     from ..commands.report import format_table, nothing_scored, write_json
+    from ..events import grouped_lines
+    from ..scoring.refcheck import suspect_event
 
     names = estimator_names(args.estimators)
     options = run_options(args, names)  # the parameters checked now; the vehicle's defaults join them later
@@ -83,11 +86,14 @@ def run(args) -> int:
               + f"), {result.estimation.samples} IMU samples estimated"
               + (f"; {result.recorded} packets recorded to {record}" if record else ""))
         check_ended_with_vehicle(result, args.url)
+        suspects = result.estimation.suspects
         if result.comparisons:
             n_segments = len(result.estimation.segments)
             where = (f" (clock segment {result.segment} of {n_segments}: the vehicle rebooted)"
                      if n_segments > 1 else "")
             print(f"final metrics against {result.reference} after a {args.warmup:g} s warm-up{where}:")
+            for line in grouped_lines([suspect_event(s) for s in suspects]):  # as replay says them
+                warn(line)
             print(format_table(result.comparisons, result.reference, result.estimation.declination_choice))
             why = nothing_scored(result.comparisons, args.warmup)
             if why:
@@ -99,8 +105,16 @@ def run(args) -> int:
             with json_out.writing() as path:
                 write_json(path, args.url, {"stream": result.reference, "algorithm": None, "choice": args.reference},
                            result.comparisons, link=result.link(),
-                           declination=result.estimation.declination_choice)
+                           declination=result.estimation.declination_choice, scoring=live_scoring(result.estimation))
             print(f"metrics written to {json_out.path}")
         if sink is not None and sink.kind == "rrd":
             print(f"Rerun recording written to {sink.file.path}; open it with: rerun {sink.file.path}")
     return 0
+
+
+def live_scoring(est) -> dict:
+    """The JSON's "scoring" of a session, as replay's (``ReplayResult.scoring``) has it: the board
+    trim applied and the spans of reference not scored (``refcheck``)."""
+    trim = None if est.trim is None else {"roll_deg": round(math.degrees(est.trim[0]), 4),
+                                          "pitch_deg": round(math.degrees(est.trim[1]), 4)}
+    return {"board_trim": trim, "reference_suspect": [s.as_dict() for s in est.suspects], "reference_notes": []}
