@@ -850,6 +850,34 @@ def test_a_vehicle_whose_attitude_has_faults_scores_as_replay_of_its_recording(t
     assert scoring["reference_suspect"] == replay.metrics["scoring"]["reference_suspect"]
 
 
+@pytest.mark.slow  # a session stepped packet by packet
+def test_repeated_reference_times_are_noted_as_replay_notes_them(tmp_path):
+    """Every third ATTITUDE repeats the time of the one before: live drops them, as the reader
+    does, and says so at the end in replay's words (a note on the whole reference, no span)."""
+    from mavattitude.live.estimation import LiveEstimation
+
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    recorder, last, n = TlogRecorder(tmp_path / "repeats.tlog"), None, 0
+    log = mavutil.mavlink_connection(str(ROOT / "sample_logs" / "figure8.tlog"), robust_parsing=True)
+    while (msg := log.recv_msg()) is not None:
+        if msg.get_type() == "BAD_DATA" or msg.get_srcSystem() != 1:
+            continue
+        if msg.get_type() == "ATTITUDE":
+            n += 1
+            if n % 3 == 0:
+                msg.time_boot_ms = last
+            last = msg.time_boot_ms
+        mav.srcComponent = msg.get_srcComponent()
+        recorder.write(msg.pack(mav), msg._timestamp)
+    recorder.close()
+    est = _feed(LiveEstimation(RunOptions(["mahony"])), tmp_path / "repeats.tlog")
+    est.step(final=True)
+    comparisons, seg = est.final_comparisons()
+    replay = assert_live_equals_replay(est, seg.index, comparisons, tmp_path / "repeats.tlog", ["mahony"])
+    assert replay.reference_notes and est.reference_notes == replay.reference_notes
+    assert [e.text for e in est.events if "timestamps repeat" in e.text] == [replay.reference_notes[0].detail]
+
+
 @pytest.mark.slow  # 10 s of a simulated plane streamed at 4x
 def test_live_asks_the_vehicle_for_the_policys_parameters_and_scores_as_replay_of_its_recording(tmp_path):
     """One policy for live and replay (``core.policy``): a simulated ArduPlane that sends no

@@ -94,6 +94,8 @@ def run(args) -> int:
             print(f"final metrics against {result.reference} after a {args.warmup:g} s warm-up{where}:")
             for line in grouped_lines([suspect_event(s) for s in suspects]):  # as replay says them
                 warn(line)
+            for note in result.estimation.reference_notes:
+                warn(note.detail)
             print(format_table(result.comparisons, result.reference, result.estimation.declination_choice))
             why = nothing_scored(result.comparisons, args.warmup)
             if why:
@@ -117,4 +119,5 @@ def live_scoring(est) -> dict:
     trim applied and the spans of reference not scored (``refcheck``)."""
     trim = None if est.trim is None else {"roll_deg": round(math.degrees(est.trim[0]), 4),
                                           "pitch_deg": round(math.degrees(est.trim[1]), 4)}
-    return {"board_trim": trim, "reference_suspect": [s.as_dict() for s in est.suspects], "reference_notes": []}
+    return {"board_trim": trim, "reference_suspect": [s.as_dict() for s in est.suspects],
+            "reference_notes": [n.as_dict() for n in est.reference_notes]}

@@ -55,7 +55,7 @@ from ..readers.tlog import MessageDecoder
 from ..scoring.imucheck import rate_not_meaningful
 from ..core.runner import IMU, Chunk, Runner
 from ..scoring.running_metrics import RunningComparison, joined
-from ..scoring.refcheck import compared_streams, suspect_event
+from ..scoring.refcheck import compared_streams, repeat_notes, suspect_event
 from ..scoring.running_refcheck import RunningReferenceCheck
 from ..readers.attitudes import name_attitudes
 from ..trim import TRIM_PARAMS, describe, trimmed
@@ -96,6 +96,9 @@ class _Segment:
         self.check: RunningReferenceCheck | None = None  # replay's checks of the reference (against the autopilot)
         self.checked: dict[str, int] = {}  # rows of each store handed to the check (``Growing.appended``)
         self.phase_checked = -math.inf  # s, the latest phase row handed to the check
+        self.att_latest: dict[str, float] = {}  # attitude store -> its latest time received (plausible or not)
+        self.repeated: dict[str, int] = {}  # attitude store -> samples repeating the latest time (the reader's count)
+        self.notes: list = []  # refcheck.LogNote on the reference as a whole, at the segment's end
         self.scored_at = -math.inf  # s, the latest estimate when last scored
         self.forgot_at = -math.inf  # s, the latest estimate when last forgotten
 
@@ -219,6 +222,10 @@ class LiveEstimation:
         elif kind == "baro":
             self._append_one(seg.baro, t, (*row, arrival))
         elif kind in REFERENCE_KINDS or kind == "stream_euler":  # a stream: its message's name (AHRS2, AHRS3)
+            store = REFERENCE_KINDS.get(kind, key)
+            if t == seg.att_latest.get(store):
+                seg.repeated[store] = seg.repeated.get(store, 0) + 1
+            seg.att_latest[store] = max(t, seg.att_latest.get(store, -math.inf))
             q = _attitude(kind, row)
             if q is not None:
                 self._append(seg.att, REFERENCE_KINDS.get(kind, key), 5, t, tuple(q))
@@ -453,6 +460,10 @@ class LiveEstimation:
             self._name_streams(seg, ref, check)
             found = check.finish() if final else check.advance()
             self.events += [suspect_event(s) for s in found]
+            if final:  # as replay notes it on the whole log
+                key = next(k for k in seg.att if REFERENCE_SOURCES.get(k, k) == ref.source)
+                seg.notes = repeat_notes(ref.source, seg.att[key].appended, seg.repeated.get(key, 0))
+                self.events += [Event(check.ref_t0, "warn", note.detail) for note in seg.notes]
         return check.excluded(), check.settled
 
     def _name_streams(self, seg: _Segment, ref: AttitudeSeries, check: RunningReferenceCheck) -> None:
@@ -475,6 +486,12 @@ class LiveEstimation:
         """The spans of the scored segment's reference not scored (``refcheck.Suspect``), as replay lists them."""
         seg = self._scored_segment()
         return seg.check.suspects if seg is not None and seg.check is not None else []
+
+    @property
+    def reference_notes(self) -> list:
+        """The notes on the scored segment's reference as a whole (``refcheck.LogNote``), once it ended."""
+        seg = self._scored_segment()
+        return seg.notes if seg is not None else []
 
     def yaw_offset_deg(self, name: str) -> float | None:
         """The yaw offset the final metrics remove from the estimator's current span (no

@@ -179,10 +179,16 @@ def disagreeing_spans(t: np.ndarray, apart: np.ndarray, limit: float = DISAGREE_
 def whole_log_notes(ref: AttitudeSeries, repeated: int = 0) -> list[LogNote]:
     """The notes on ``ref`` as a whole. ``repeated``: reference samples the reader dropped for
     repeating the time of the one before."""
-    total = len(ref.t) + repeated
+    return repeat_notes(ref.source, len(ref.t), repeated)
+
+
+def repeat_notes(source: str, kept: int, repeated: int) -> list[LogNote]:
+    """``whole_log_notes`` of a reference ``source`` of which ``kept`` samples were kept and
+    ``repeated`` dropped (a live session keeps count, not the samples)."""
+    total = kept + repeated
     if not repeated or repeated <= REPEATED_SHARE * total:
         return []
-    return [LogNote("repeated times", f"{ref.source} timestamps repeat {repeated:,} times "
+    return [LogNote("repeated times", f"{source} timestamps repeat {repeated:,} times "
                                       f"({100.0 * repeated / total:.1f} % of its samples); the repeats were "
                                       "dropped, the first of each time kept; the rest is scored")]
 
