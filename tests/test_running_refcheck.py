@@ -83,7 +83,7 @@ def faulty(tmp_path_factory):
     return read_log(str(faulty_log(tmp_path_factory.mktemp("refwatch") / "faulty.tlog")))
 
 
-@pytest.mark.parametrize("chunk_s", [0.05, 0.37, 3.0, 1000.0])
+@pytest.mark.parametrize("chunk_s", [pytest.param(0.05, marks=pytest.mark.slow), 0.37, 3.0, 1000.0])
 def test_the_running_check_finds_the_whole_logs_spans_in_any_chunks(faulty, chunk_s):
     key = max(faulty.imu, key=lambda k: len(faulty.imu[k].t))
     expected = whole_log(faulty, key)
