@@ -28,7 +28,16 @@ On the autopilot's clock, per clock segment:
   the session: when the vehicle has no fix yet, the first good one later gets an event with the
   model's declination there. Scored against the autopilot's attitude, the estimates are turned
   by the board trim first, as replay turns them, and shown turned;
-- non-finite estimates (a filter fault) are left out of the scores and said at the end, as replay says them.
+- non-finite estimates (a filter fault) are left out of the scores and said at the end, as replay says them;
+- against the autopilot, replay's checks of the reference run as the data comes
+  (``scoring.running_refcheck``: tilt at rest, tilt jump, the autopilot's estimators apart), on
+  what replay's run on: the estimated IMU, the reference, GPS, the runner's phase and the
+  autopilot's other streams (AHRS2/AHRS3, decoded as the tlog reader decodes them, on the clock
+  the others found), named as replay names them on what the session keeps. Each span is said
+  when it becomes certain, in replay's words; reference times that repeat are counted as the
+  reader counts them and noted at the end. A span can begin in the past, so the scores take a
+  reference sample only once the checks have settled it (``RunningComparison.update``'s
+  ``settled``): the samples after wait, with the estimates around them.
 
 Memory stays flat however long a session runs: each estimate is scored as it comes
 (``running_metrics``: the final metrics are replay's of the same data, the quantiles within
@@ -85,7 +94,7 @@ class _Segment:
         self.mag: dict[str, Growing] = {}  # source -> rows t, field (3) T, arrival
         self.gps = Growing(12)  # t, lat, lon, alt, vn, ve, vd, fix, sats, h_acc, v_acc, arrival
         self.baro = Growing(4)  # t, pressure Pa, alt, arrival
-        self.att: dict[str, Growing] = {}  # "autopilot", "autopilot_q", "truth" -> rows t, q (4)
+        self.att: dict[str, Growing] = {}  # "autopilot", "autopilot_q", "truth", "AHRS2", ... -> rows t, q (4)
         self.wall: dict[str, list[float]] = {}  # IMU source -> arrival wall time of each row (record_latency)
         self.imu_key: str | None = None
         self.mag_key: str | None = None
