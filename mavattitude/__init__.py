@@ -15,7 +15,7 @@ group ``mavattitude.estimators``).
 """
 from __future__ import annotations
 
-from ._version import __version__
+from ._version import __version__  # noqa: F401 - mavattitude.__version__
 
 
 def load(path, segment: int | None = None):
