@@ -573,7 +573,9 @@ def test_a_session_keeps_only_its_last_seconds_and_scores_as_replay(monkeypatch,
     monkeypatch.setattr(estimation, "FORGET_EVERY_S", 0.7)
     monkeypatch.setattr(estimation, "SCORE_EVERY_S", 0.3)
     path = ROOT / "sample_logs" / "figure8.tlog"
-    est = _feed(estimation.LiveEstimation(RunOptions(ALL, reference=reference), history_s=2.0), path)
+    # a step every 21 messages (0.1 s of flight): some 1,000 steps, each forgetting or scoring
+    # every few (every 7: 3,000 steps, three times the time)
+    est = _feed(estimation.LiveEstimation(RunOptions(ALL, reference=reference), history_s=2.0), path, every=21)
     est.step(final=True)
     comparisons, seg = est.final_comparisons()
     runner = seg.runner
