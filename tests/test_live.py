@@ -820,14 +820,14 @@ def test_a_vehicle_with_a_board_trim_and_a_declination_scores_as_replay_of_its_r
                   extra_params={"AHRS_TRIM_X": trim[0], "AHRS_TRIM_Y": trim[1]})
     path = write_log(sim, tmp_path / "trimmed.tlog")
     names = ["mahony", "ekf"]
-    est = _feed(LiveEstimation(RunOptions(names), params_asked=True), path)
+    est = _feed(LiveEstimation(RunOptions(names), params_asked=True), path, every=21)
     est.step(final=True)
     comparisons, seg = est.final_comparisons()
     assert est.trim == pytest.approx(trim)
     assert any(e.text.startswith("board trim roll 2.50°, pitch -1.50°") for e in est.events)
     assert any(e.text.startswith("declination 5.00° (vehicle parameter COMPASS_DEC") for e in est.events)
     assert_live_equals_replay(est, seg.index, comparisons, path, names)
-    untrimmed = _feed(LiveEstimation(RunOptions(names, trim=False), params_asked=True), path)
+    untrimmed = _feed(LiveEstimation(RunOptions(names, trim=False), params_asked=True), path, every=21)
     untrimmed.step(final=True)
     # without the trim every estimate is off by about it (the figure-eight's own error besides)
     off = untrimmed.final_comparisons()[0]["mahony"].axes["roll"].mae
