@@ -344,14 +344,19 @@ def test_a_signal_mid_stream_ends_cleanly_with_a_complete_recording(tmp_path, fl
 
 
 @pytest.mark.slow
-def test_live_against_mavplayback_of_a_shared_sitl_log(tmp_path):
+def test_live_against_mavplayback_of_a_shared_sitl_log(tmp_path, monkeypatch):
+    """9 s at 8x (some 70 s of the log); mavplayback answers no request: each rate request given up
+    after two tries of 0.3 s (1 s in use), then the fallback."""
+    from mavattitude.live import link
+
     log = SHARED / "sitl-quadplane-vtol.tlog"
     if not log.exists():
         pytest.skip(f"real log {log.name} not found in {SHARED} (it lives beside the project, not in it)")
+    monkeypatch.setattr(link, "ACK_TIMEOUT_S", 0.3)
     port = free_udp_port()
     script = Path(mavutil.__file__).parent / "tools" / "mavplayback.py"
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "tests" / "tkstub"), "MAVPLAYBACK_SPEED": "4",
-           "MAVPLAYBACK_SECONDS": "14"}
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "tests" / "tkstub"), "MAVPLAYBACK_SPEED": "8",
+           "MAVPLAYBACK_SECONDS": "9"}
     holder = {"done": False}
 
     def play():
