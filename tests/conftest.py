@@ -123,7 +123,7 @@ def sim_logs(tmp_path_factory):
 def first_run(tmp_path_factory):
     """``replay`` of static.bin with mahony and eskf on an empty kernel cache (a NUMBA_CACHE_DIR
     of its own), run once for the tests of a first run and of the cache it leaves: (the
-    finished process, that cache folder). Tests must not write to the folder."""
+    finished process, that cache folder). A test that runs more in it works on a copy."""
     import os
     import subprocess
     import sys
