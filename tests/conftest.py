@@ -117,3 +117,19 @@ def sim_logs(tmp_path_factory):
         name = f"{scenario}{suffix}"
         logs[name] = (sim, write_log(sim, out / name))
     return logs
+
+
+@pytest.fixture(scope="session")
+def first_run(tmp_path_factory):
+    """``replay`` of static.bin with mahony and eskf on an empty kernel cache (a NUMBA_CACHE_DIR
+    of its own), run once for the tests of a first run and of the cache it leaves: (the
+    finished process, that cache folder). A test that runs more in it works on a copy."""
+    import os
+    import subprocess
+    import sys
+
+    cache = tmp_path_factory.mktemp("cold-cache")
+    done = subprocess.run([sys.executable, "-m", "mavattitude", "replay", str(SAMPLE_LOGS / "static.bin"),
+                           "--estimators", "mahony,eskf", "--no-view"], env=dict(os.environ, NUMBA_CACHE_DIR=str(cache)),
+                          cwd=cache.parent, capture_output=True, text=True, timeout=600)
+    return done, cache

@@ -255,19 +255,23 @@ def test_the_static_flight_is_aligned_from_its_still_start_with_a_heading():
 
 
 @pytest.mark.slow
-def test_a_second_process_loads_the_compiled_kernels_from_the_cache(tmp_path):
-    """``cache=True`` works: the first process compiles (and says so through needs_compile),
-    the next loads every kernel without compiling one."""
+def test_a_second_process_loads_the_compiled_kernels_from_the_cache(tmp_path, first_run):
+    """``cache=True`` works: on an empty cache needs_compile names what a first run compiles;
+    after one (conftest's ``first_run``: replay with mahony and eskf, which said it compiled
+    them), the next process loads every kernel without compiling one."""
+    import os
     import subprocess
     import sys
 
-    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    done, cache = first_run
+    assert done.returncode == 0 and "compiling log reader, mahony, eskf" in done.stderr, done.stderr
     probe = ("import sys; from mavattitude.estimators import ESTIMATORS, needs_compile; from mavattitude.core.warmup import compile_kernels; "
-             "names = ['mahony', 'eskf']; print(needs_compile(names)); compile_kernels(names); "
+             "names = ['mahony', 'eskf']; print(needs_compile(names)); sys.argv[1:] and compile_kernels(names); "
              "misses = sum(sum(k.stats.cache_misses.values()) for n in names for k in ESTIMATORS[n].kernels); "
              "print(misses)")
-    runs = [subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=300)
-            for _ in range(2)]
+    runs = [subprocess.run([sys.executable, "-c", probe, *args], env={**os.environ, "NUMBA_CACHE_DIR": str(where)},
+                           capture_output=True, text=True, timeout=300)
+            for where, args in ((tmp_path, []), (cache, ["compile"]))]
     first, second = (r.stdout.split("\n") for r in runs)
-    assert first[0] == "['mahony', 'eskf']" and int(first[1]) > 0, runs[0].stderr
+    assert first[0] == "['mahony', 'eskf']", runs[0].stderr
     assert second[0] == "[]" and int(second[1]) == 0, runs[1].stderr

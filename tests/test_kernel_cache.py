@@ -84,21 +84,13 @@ def test_a_first_compile_says_each_estimator_and_the_time_so_far(monkeypatch):
 
 
 @pytest.mark.slow
-def test_a_real_first_run_names_each_estimator_as_it_is_compiled(tmp_path):
+def test_a_real_first_run_names_each_estimator_as_it_is_compiled(first_run):
     """An empty cache (its own NUMBA_CACHE_DIR): replay says what it compiles, then the log
     reader, each estimator and the estimation core as they are done, with the time, and the
-    total."""
-    import os
+    total. (The run: conftest's ``first_run``, whose cache test_contract loads again.)"""
     import re
-    import subprocess
-    import sys
 
-    from conftest import SAMPLE_LOGS
-
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cold"))
-    done = subprocess.run([sys.executable, "-m", "mavattitude", "replay", str(SAMPLE_LOGS / "static.bin"),
-                           "--estimators", "mahony,eskf", "--no-view"], env=env, cwd=tmp_path,
-                          capture_output=True, text=True, timeout=600)
+    done, _ = first_run
     assert done.returncode == 0, done.stderr
     lines = done.stderr.splitlines()
     assert lines[0].startswith("compiling log reader, mahony, eskf (first run on this machine only")

@@ -96,6 +96,9 @@ def sender(port: int, plan, sim, garbage_every: int = 0, tap_class=None):
 
 
 RUN_FIELDS = {f.name for f in fields(RunOptions)}
+# times real time the simulated autopilot streams at: what is checked is on its clock (rates,
+# gaps, reboots), or packet for packet; wall time only for the link-lost watch (its own sleeps)
+SPEED = 8.0
 
 
 def listen(port: int, thread, holder, tmp_path, **options):
@@ -174,7 +177,7 @@ def flight():
 @pytest.mark.slow
 def test_live_against_the_simulator_matches_replay_of_the_same_data(tmp_path, flight):
     port = free_udp_port()
-    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=4.0), flight)
+    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=SPEED), flight)
     result = listen(port, thread, holder, tmp_path, names=ALL, reference="truth")
     est = result.estimation
     assert result.vehicle == (1, 1) and result.ended_by == "stop"
@@ -198,7 +201,7 @@ def test_live_against_the_simulator_matches_replay_of_the_same_data(tmp_path, fl
 @pytest.mark.slow
 def test_corrupt_data_between_packets_is_counted_and_never_recorded(tmp_path, flight):
     port = free_udp_port()
-    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=4.0, t_to=20.0), flight, garbage_every=25)
+    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=SPEED, t_to=20.0), flight, garbage_every=25)
     result = listen(port, thread, holder, tmp_path)
     assert tap.garbage_sent > 100
     assert result.monitor.bad >= tap.garbage_sent // 2  # every broken packet, the noise in runs
@@ -233,7 +236,7 @@ def test_a_frame_cut_short_in_a_datagram_costs_no_valid_packet(tmp_path, flight)
     """UDP delivers whole datagrams: a frame cut short at the end of one is dropped there and
     counted, and every valid packet after it is decoded and recorded, none counted as lost."""
     port = free_udp_port()
-    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=4.0, t_to=20.0), flight,
+    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=SPEED, t_to=20.0), flight,
                                  tap_class=CuttingTap)
     result = listen(port, thread, holder, tmp_path)
     assert tap.cut_sent > 50
@@ -266,9 +269,9 @@ def test_a_sender_that_stops_and_comes_back(tmp_path, flight):
     """The vehicle goes silent for 2 s of wall time, and 3 s of its clock pass meanwhile: the
     link is reported lost and back, and the estimators start again after the gap."""
     def plan(ap, tap):
-        ap.serve(speed=4.0, t_to=15.0)
+        ap.serve(speed=SPEED, t_to=15.0)
         time.sleep(2.0)
-        ap.serve(speed=4.0, t_from=18.0, t_to=30.0)
+        ap.serve(speed=SPEED, t_from=18.0, t_to=30.0)
     port = free_udp_port()
     thread, tap, holder = sender(port, plan, flight)
     result = listen(port, thread, holder, tmp_path)
@@ -286,8 +289,8 @@ def test_a_sender_that_stops_and_comes_back(tmp_path, flight):
 def test_a_vehicle_reboot_starts_a_new_clock_segment(tmp_path, flight):
     """The autopilot reboots: its clock starts again near zero and its sequence numbers too."""
     def plan(ap, tap):
-        ap.serve(speed=4.0, t_to=16.0)
-        SimAutopilot(flight, tap).serve(speed=4.0, t_to=12.0)  # the same vehicle, booted again
+        ap.serve(speed=SPEED, t_to=16.0)
+        SimAutopilot(flight, tap).serve(speed=SPEED, t_to=12.0)  # the same vehicle, booted again
     port = free_udp_port()
     thread, tap, holder = sender(port, plan, flight)
     result = listen(port, thread, holder, tmp_path)
@@ -324,7 +327,7 @@ def test_a_signal_mid_stream_ends_cleanly_with_a_complete_recording(tmp_path, fl
                     sent_at_signal["n"] = len(tap.sent)
                     proc.send_signal(signum)
                 return proc.poll() is not None
-            ap.serve(speed=4.0, stop=stop)
+            ap.serve(speed=SPEED, stop=stop)
         thread, tap, holder = sender(port, plan, flight)
         thread.start()
         out, err = proc.communicate(timeout=60)
@@ -344,14 +347,19 @@ def test_a_signal_mid_stream_ends_cleanly_with_a_complete_recording(tmp_path, fl
 
 
 @pytest.mark.slow
-def test_live_against_mavplayback_of_a_shared_sitl_log(tmp_path):
+def test_live_against_mavplayback_of_a_shared_sitl_log(tmp_path, monkeypatch):
+    """9 s at 8x (some 70 s of the log); mavplayback answers no request: each rate request given up
+    after two tries of 0.3 s (1 s in use), then the fallback."""
+    from mavattitude.live import link
+
     log = SHARED / "sitl-quadplane-vtol.tlog"
     if not log.exists():
         pytest.skip(f"real log {log.name} not found in {SHARED} (it lives beside the project, not in it)")
+    monkeypatch.setattr(link, "ACK_TIMEOUT_S", 0.3)
     port = free_udp_port()
     script = Path(mavutil.__file__).parent / "tools" / "mavplayback.py"
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "tests" / "tkstub"), "MAVPLAYBACK_SPEED": "4",
-           "MAVPLAYBACK_SECONDS": "14"}
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "tests" / "tkstub"), "MAVPLAYBACK_SPEED": "8",
+           "MAVPLAYBACK_SECONDS": "9"}
     holder = {"done": False}
 
     def play():
@@ -576,7 +584,9 @@ def test_a_session_keeps_only_its_last_seconds_and_scores_as_replay(monkeypatch,
     monkeypatch.setattr(estimation, "FORGET_EVERY_S", 0.7)
     monkeypatch.setattr(estimation, "SCORE_EVERY_S", 0.3)
     path = ROOT / "sample_logs" / "figure8.tlog"
-    est = _feed(estimation.LiveEstimation(RunOptions(ALL, reference=reference), history_s=2.0), path)
+    # a step every 21 messages (0.1 s of flight): some 1,000 steps, each forgetting or scoring
+    # every few (every 7: 3,000 steps, three times the time)
+    est = _feed(estimation.LiveEstimation(RunOptions(ALL, reference=reference), history_s=2.0), path, every=21)
     est.step(final=True)
     comparisons, seg = est.final_comparisons()
     runner = seg.runner
@@ -629,15 +639,21 @@ def test_imu_choice_still_waits_for_the_compass_declination():
 
 
 @pytest.mark.slow
-def test_a_compass_in_the_wrong_unit_is_rescaled_live():
+def test_a_compass_in_the_wrong_unit_is_rescaled_live(tmp_path):
     """ArduPilot 4.7 sends HIGHRES_IMU's field 1e6 times too large; replay rescales it, and so
-    does live, rather than dropping every sample as implausible."""
+    does live, rather than dropping every sample as implausible. (The log's first 2 MB, cut
+    where a packet begins: some 60 s of flight, the estimator well under way.)"""
     log = SHARED / "sitl-copter-4.7-50hz.tlog"
     if not log.exists():
         pytest.skip(f"real log {log.name} not found in {SHARED} (it lives beside the project, not in it)")
     from mavattitude.live.estimation import LiveEstimation
+    from mavattitude.readers.tlogrecords import scan
 
-    est = _feed(LiveEstimation(RunOptions(["mahony"], imu="HIGHRES_IMU")), log, every=50)
+    data = log.read_bytes()
+    offsets = scan(np.frombuffer(data, np.uint8), 0, ["HIGHRES_IMU"]).offsets
+    prefix = tmp_path / log.name
+    prefix.write_bytes(data[:int(offsets[np.searchsorted(offsets, 2_000_000)])])
+    est = _feed(LiveEstimation(RunOptions(["mahony"], imu="HIGHRES_IMU")), prefix, every=50)
     assert any("HIGHRES_IMU: magnetometer strength" in e.text and "rescaled by 1e-6" in e.text
                for e in est.events)
     field = est.segments[0].mag["HIGHRES_IMU"].view()[:, 1:4]
@@ -655,7 +671,7 @@ def test_udpout_speaks_first_so_a_listening_vehicle_hears_it(tmp_path, flight):
 
     def run():
         try:
-            SimAutopilot(flight, tap).serve(speed=4.0, t_to=16.0)
+            SimAutopilot(flight, tap).serve(speed=SPEED, t_to=16.0)
         except Exception as exc:
             holder["error"] = exc
         finally:
@@ -681,7 +697,7 @@ def test_a_tcp_peer_that_goes_away_and_comes_back(tmp_path, flight):
                 while server.port is None and time.monotonic() < deadline:
                     server.recv_msg()  # accept the session's (re)connection
                     time.sleep(0.05)
-                SimAutopilot(flight, server).serve(speed=4.0, t_from=t_from, t_to=t_to)
+                SimAutopilot(flight, server).serve(speed=SPEED, t_from=t_from, t_to=t_to)
                 server.close()
                 time.sleep(1.5)
         except Exception as exc:
@@ -728,7 +744,7 @@ def test_bursts_of_loss_are_counted_by_the_autopilot_clock(tmp_path, flight):
     """200-packet bursts lost: the 8-bit sequence number cannot see them (a gap of 200 looks
     like a jump back); the IMU samples missing from the autopilot's clock are counted."""
     port = free_udp_port()
-    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=4.0), flight, tap_class=BurstyTap)
+    thread, tap, holder = sender(port, lambda ap, tap: ap.serve(speed=SPEED), flight, tap_class=BurstyTap)
     result = listen(port, thread, holder, tmp_path)
     loss = result.estimation.samples_lost
     assert tap.lost_imu > 100
@@ -747,7 +763,7 @@ def test_a_second_system_and_unknown_packets_on_the_port(tmp_path, flight):
         other = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=42, source_component=1)
         unknown = bytes([0xFD, 3, 0, 0, 0, 7, 1, 0x39, 0x30, 0x00, 1, 2, 3, 0xAB, 0xCD])  # id 12345
         for k in range(5):
-            ap.serve(speed=4.0, t_from=4.0 * k, t_to=4.0 * (k + 1))
+            ap.serve(speed=SPEED, t_from=4.0 * k, t_to=4.0 * (k + 1))
             other.mav.heartbeat_send(mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0)
             other.mav.raw_imu_send(int(4e6 * k) + 1, 0, 0, -1000, 0, 0, 0, 0, 0, 0)
             tap.conn.port.sendto(unknown, tap.conn.destination_addr)
@@ -815,14 +831,14 @@ def test_a_vehicle_with_a_board_trim_and_a_declination_scores_as_replay_of_its_r
                   extra_params={"AHRS_TRIM_X": trim[0], "AHRS_TRIM_Y": trim[1]})
     path = write_log(sim, tmp_path / "trimmed.tlog")
     names = ["mahony", "ekf"]
-    est = _feed(LiveEstimation(RunOptions(names), params_asked=True), path)
+    est = _feed(LiveEstimation(RunOptions(names), params_asked=True), path, every=21)
     est.step(final=True)
     comparisons, seg = est.final_comparisons()
     assert est.trim == pytest.approx(trim)
     assert any(e.text.startswith("board trim roll 2.50°, pitch -1.50°") for e in est.events)
     assert any(e.text.startswith("declination 5.00° (vehicle parameter COMPASS_DEC") for e in est.events)
     assert_live_equals_replay(est, seg.index, comparisons, path, names)
-    untrimmed = _feed(LiveEstimation(RunOptions(names, trim=False), params_asked=True), path)
+    untrimmed = _feed(LiveEstimation(RunOptions(names, trim=False), params_asked=True), path, every=21)
     untrimmed.step(final=True)
     # without the trim every estimate is off by about it (the figure-eight's own error besides)
     off = untrimmed.final_comparisons()[0]["mahony"].axes["roll"].mae
@@ -883,7 +899,7 @@ def test_repeated_reference_times_are_noted_as_replay_notes_them(tmp_path):
     assert [e.text for e in est.events if "timestamps repeat" in e.text] == [replay.reference_notes[0].detail]
 
 
-@pytest.mark.slow  # 10 s of a simulated plane streamed at 4x
+@pytest.mark.slow  # 40 s of a simulated plane streamed at 8x (5 s)
 def test_live_asks_the_vehicle_for_the_policys_parameters_and_scores_as_replay_of_its_recording(tmp_path):
     """One policy for live and replay (``core.policy``): a simulated ArduPlane that sends no
     parameter unless asked, with a board trim (AHRS_TRIM_X/Y, its autopilot reporting the
@@ -903,7 +919,7 @@ def test_live_asks_the_vehicle_for_the_policys_parameters_and_scores_as_replay_o
 
     def plan(autopilot, tap):
         autopilot.announce_params = False  # as a real ArduPilot: only what is asked for
-        served["stats"] = autopilot.serve(speed=4.0)
+        served["stats"] = autopilot.serve(speed=SPEED)
     port = free_udp_port()
     thread, tap, holder = sender(port, plan, sim)
     names = ["mahony", "eq-kf"]

@@ -258,7 +258,7 @@ def test_a_pool_and_a_dask_cluster_tune_as_one_process_does(tmp_path):
 
     def tuned(where: str, *extra) -> dict:
         report = tmp_path / f"{where}.json"
-        assert run(folder, "--estimator", "eskf", "--trials", "4", "--folds", "3", "-q", "-o", tmp_path / f"{where}.toml",
+        assert run(folder, "--estimator", "eskf", "--trials", "2", "--folds", "2", "-q", "-o", tmp_path / f"{where}.toml",
                    "--json", report, *extra) == 0
         data = json.loads(report.read_text())
         return {"folds": data["folds"], "final": data["final"]}
