@@ -211,6 +211,23 @@ def test_decimation_rules():
     assert view.transform_rate_for(3600.0) == pytest.approx(view.TRANSFORM_MAX_POINTS / 3600.0)
 
 
+def test_min_max_binning_in_runs_of_bins_picks_what_it_picks_whole(monkeypatch):
+    """_bin_minmax cuts a long series at bin ends: the same picks as binning it whole (NaNs,
+    ties, a gap, a backward step)."""
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.0005, 0.01, 20_000))
+    t[5000:] += 4.0
+    y = np.round(rng.normal(size=len(t)), 1)
+    y[rng.random(len(t)) < 0.05] = np.nan
+    whole = view._bin_minmax(t, y, 37.0)
+    for rows in (1, 7, 999):
+        monkeypatch.setattr(view.columns, "MINMAX_ROWS", rows)
+        assert np.array_equal(view._bin_minmax(t, y, 37.0), whole)
+        back = t.copy()
+        back[100] = back[50]  # time stepping back: the first sample of each bin instead
+        assert np.array_equal(view._bin_minmax(back, y, 37.0), view._bin_first(back, 37.0))
+
+
 def test_reference_autopilot_without_truth_or_gps(tmp_path):
     result = make_replay(duration=30.0, reference="autopilot", gps=False)
     path = tmp_path / "att.rrd"
