@@ -51,7 +51,7 @@ REINIT_GAP_S = 2.0
 GAP_KIND = f"IMU gap over {REINIT_GAP_S:g} s, estimators re-initialised"  # the gap events' Event.kind
 # Rows estimated per kernel call at most (5.5 min at 400 Hz): an hour-long log's per-sample
 # scratch and diagnostics (cpf-ekf: 29 float64 a row) stay a few tens of MB, not gigabytes.
-STEP_ROWS = 1 << 17
+STEP_ROWS = 1 << 16
 # A magnetometer sample older than this many of its own intervals (or MAG_STALE_MIN_S) is stale.
 MAG_STALE_PERIODS = 3.0
 MAG_STALE_MIN_S = 0.5

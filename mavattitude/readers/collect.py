@@ -238,24 +238,24 @@ class Collector:
         seg_sorted, _ = tracker.push(t_sorted)
         for g, label in tracker.finish():
             seg_sorted[g] = label
-        seg = np.empty_like(seg_sorted)
-        seg[sort] = seg_sorted
-        if followers or self._events:
-            order_sorted = np.concatenate([m[0] for m in merged.values()])[sort]
-            del sort
-            if followers:
-                self._follow(followers, order_sorted, t_sorted, seg_sorted)
-            if self._events:
-                self._place_events(order_sorted, t_sorted, seg_sorted)
-            del order_sorted
-        self.outliers = int(np.count_nonzero(seg < 0))
-        n_segments = int(seg.max()) + 1 if len(seg) else 0
+        self.outliers = int(np.count_nonzero(seg_sorted < 0))
+        n_segments = int(seg_sorted.max()) + 1 if len(seg_sorted) else 0
         spans = []
         for s in range(n_segments):  # (in file order: the same samples, the same least and greatest)
             mine = seg_sorted == s
             spans.append((float(t_sorted.min(where=mine, initial=np.inf)),
                           float(t_sorted.max(where=mine, initial=-np.inf))))
-        del t_sorted, seg_sorted
+        if followers or self._events:
+            order_sorted = np.concatenate([m[0] for m in merged.values()])[sort]
+            if followers:
+                self._follow(followers, order_sorted, t_sorted, seg_sorted)
+            if self._events:
+                self._place_events(order_sorted, t_sorted, seg_sorted)
+            del order_sorted
+        del t_sorted
+        seg = np.empty_like(seg_sorted)  # each sample's segment, in the series' order
+        seg[sort] = seg_sorted
+        del sort, seg_sorted
         self._segment_spans = spans
         start = 0
         for k, (order, times, values) in merged.items():

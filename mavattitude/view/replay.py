@@ -190,7 +190,7 @@ def _diagnostic_ranges(diagnostics: dict[str, dict[str, np.ndarray]], t: np.ndar
             del ys
             if len(y) < 2:
                 continue
-            lo, hi = np.percentile(y, [1.0, 99.0])
+            lo, hi = np.percentile(y, [1.0, 99.0], overwrite_input=True)  # (y is ours: no copy of it)
             pad = 0.15 * (hi - lo)
             if hi - lo > 1e-12 * max(1.0, abs(hi)):
                 out.setdefault(name, {})[group] = (float(lo - pad), float(hi + pad))
