@@ -3,12 +3,14 @@ it holds, not what it once held.
 
 glibc serves an allocation of 128 kB or more from its own mapping, returned to the system when
 freed; but each time such a block is freed it raises that threshold (up to 32 MB), so that from
-then on arrays of an hour's series (10-30 MB) come from the heap, where what is freed stays in
-the process. Fixing the threshold at 4 MB turns the raising off: a series' arrays are mapped
-and given back, a step's (0.5-2 MB, made and freed a few hundred times a replay) reused from the
-heap. Hour at 400 Hz, all seven estimators, --rrd (scripts/replay_memory.py): peak 881 -> 845 MB
-at no cost in CPU time; at 256 kB, 799 MB, but the page faults of mapping every step's arrays
-afresh cost 3 s of CPU time (12.3 + 2.9 s -> 13.4 + 6.2 s).
+then on a replay's arrays (a step's 0.5-2 MB, an hour's series 10-30 MB) come from the heap,
+where what is freed stays in the process. Fixing the threshold turns the raising off.
+
+The threshold is a trade (hour at 400 Hz, all seven estimators, --rrd; ``ru_maxrss`` and CPU
+time of the replay, scripts/replay_memory.py or bench --read): glibc's own raising 881 MB, 12.3 +
+2.9 s of CPU; 4 MB 845-860 MB at the same CPU time; 1 MB 830-860 MB, 11.9 + 4.0 s; 256 kB 775 MB,
+12-13 + 6.4 s (every step's arrays mapped afresh: their page faults). Memory is what an hour's
+replay runs out of on a small machine, and 16 s of CPU is well inside its 30 s: 256 kB.
 """
 from __future__ import annotations
 
@@ -16,9 +18,8 @@ import ctypes
 import ctypes.util
 import sys
 
-M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # mallopt's parameter numbers (malloc.h)
-MMAP_THRESHOLD_BYTES = 4 << 20
-TRIM_THRESHOLD_BYTES = 2 * MMAP_THRESHOLD_BYTES  # what glibc's own raising sets beside it
+M_MMAP_THRESHOLD = -3  # mallopt's parameter number (malloc.h)
+MMAP_THRESHOLD_BYTES = 256 << 10
 
 
 def give_back_freed_arrays() -> bool:
@@ -29,7 +30,6 @@ def give_back_freed_arrays() -> bool:
     name = ctypes.util.find_library("c")
     try:
         libc = ctypes.CDLL(name or "libc.so.6")
-        return bool(libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and \
-            bool(libc.mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
+        return bool(libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
     except (OSError, AttributeError):  # not glibc (musl has no mallopt)
         return False
