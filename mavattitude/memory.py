@@ -15,7 +15,6 @@ replay runs out of on a small machine, and 16 s of CPU is well inside its 30 s: 
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import sys
 
 M_MMAP_THRESHOLD = -3  # mallopt's parameter number (malloc.h)
@@ -27,9 +26,7 @@ def give_back_freed_arrays() -> bool:
     glibc: macOS and Windows give large blocks back on their own)."""
     if not sys.platform.startswith("linux"):
         return False
-    name = ctypes.util.find_library("c")
-    try:
-        libc = ctypes.CDLL(name or "libc.so.6")
-        return bool(libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
+    try:  # the process's own symbols, libc's among them (find_library would run ldconfig)
+        return bool(ctypes.CDLL(None).mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
     except (OSError, AttributeError):  # not glibc (musl has no mallopt)
         return False

@@ -62,8 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     program = argv is None  # the process's own command line, not a caller's (a test, a script)
     previous = signals.install()  # first: a stop signal during the imports below is one line too
-    memory.give_back_freed_arrays()  # a long replay's peak: what it holds, not what it once held
     try:
+        memory.give_back_freed_arrays()  # a long replay's peak: what it holds, not what it once held
         code = _main(argv)
     except KeyboardInterrupt:  # before the command started, or as it ended
         code = _interrupted()
