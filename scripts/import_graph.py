@@ -15,7 +15,7 @@ Layers, bottom to top; an import is *upward* when a module imports one in a high
 0. foundation: the flight record and its maths (quaternion, flight, the earth and atmosphere),
    the readers, the estimators, the parameter declarations (paramspec), the simulator, the
    input side of a live link (link, loss, recorder), small shared helpers (errors, events,
-   outputs, progress, signals, growing, kernel_cache, declination, phase, aiding).
+   outputs, progress, signals, growing, memory, kernel_cache, declination, phase, aiding).
 1. core: the estimation core (core/: runner, warmup, the parameter sets built from the
    declarations), live's stepping of the core (live.estimation), scoring (scoring/) and
    replay's report (commands.report, which live's final table uses too).
@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 LAYERS = [
-    ("foundation", ["_version", "quaternion", "flight", "earth", "trim", "diagcolumns", "errors", "events", "growing", "kernel_cache", "signals",
+    ("foundation", ["_version", "quaternion", "flight", "earth", "trim", "diagcolumns", "errors", "events", "growing", "memory", "kernel_cache", "signals",
                     "progress", "outputs", "declination", "phase", "aiding", "paramspec", "readers", "estimators",
                     "sim", "live.link", "live.loss", "live.recorder"]),
     ("core", ["core", "live.estimation", "scoring", "commands.report"]),

@@ -73,7 +73,7 @@ def main(argv: list[str]) -> int:
     note(phase[0])
     for name in order:
         print(f"{name:28s} {peaks[name]:7.0f} MB", file=sys.stderr)
-    print(f"{'peak RSS (ru_maxrss)':28s} {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:7.0f} MB",
+    print(f"{'peak RSS (ru_maxrss)':28s} {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e6:7.0f} MB",
           file=sys.stderr)
     return code
 

@@ -211,6 +211,23 @@ def test_decimation_rules():
     assert view.transform_rate_for(3600.0) == pytest.approx(view.TRANSFORM_MAX_POINTS / 3600.0)
 
 
+def test_min_max_binning_in_runs_of_bins_picks_what_it_picks_whole(monkeypatch):
+    """_bin_minmax cuts a long series at bin ends: the same picks as binning it whole (NaNs,
+    ties, a gap, a backward step)."""
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.0005, 0.01, 20_000))
+    t[5000:] += 4.0
+    y = np.round(rng.normal(size=len(t)), 1)
+    y[rng.random(len(t)) < 0.05] = np.nan
+    whole = view._bin_minmax(t, y, 37.0)
+    for rows in (1, 7, 999):
+        monkeypatch.setattr(view.decimation, "MINMAX_ROWS", rows)
+        assert np.array_equal(view._bin_minmax(t, y, 37.0), whole)
+        back = t.copy()
+        back[100] = back[50]  # time stepping back: the first sample of each bin instead
+        assert np.array_equal(view._bin_minmax(back, y, 37.0), view._bin_first(back, 37.0))
+
+
 def test_reference_autopilot_without_truth_or_gps(tmp_path):
     result = make_replay(duration=30.0, reference="autopilot", gps=False)
     path = tmp_path / "att.rrd"
@@ -333,3 +350,36 @@ def test_an_estimate_without_heading_is_shown_as_it_is_scored():
     assert [round(o) for _, o in c.yaw_offsets_deg] == [40, -100]
     assert np.allclose(quat.to_euler(shown.q), quat.to_euler(ref.q), atol=1e-9)  # the shown yaw is the scored one
     assert shown_estimate(est, compare(ref, est, warmup_s=5.0), [30.0]) is est  # with a heading: as it is
+
+
+def test_a_replay_kept_at_the_rows_drawn_is_drawn_as_one_kept_whole(monkeypatch):
+    """``compact``: each estimate kept only at ``drawn_rows`` (not finite rows counted as
+    estimated); the recording receives the same columns as from the whole estimates."""
+    from mavattitude.commands.replay import replay_flight
+    from mavattitude.core.policy import RunOptions
+    from mavattitude.readers import read_log
+    from conftest import SAMPLE_LOGS
+
+    sent = []
+
+    def spy(self, path, indexes, columns, **kwargs):
+        sent.append((path, [str(i.as_arrow_array()) for i in indexes],
+                     [str(c.as_arrow_array()) for c in columns]))
+
+    monkeypatch.setattr(rr.RecordingStream, "send_columns", spy)
+    monkeypatch.setattr(view.decimation, "SCALAR_MAX_HZ", 17.0)  # rates that do not nest, as an hour's
+    monkeypatch.setattr(view.decimation, "TRANSFORM_MAX_HZ", 12.5)
+    options = RunOptions.of(["mahony", "vqf"])
+    whole, _ = replay_flight(read_log(SAMPLE_LOGS / "figure8.bin"), options, compact=False)
+    kept, _ = replay_flight(read_log(SAMPLE_LOGS / "figure8.bin"), options, compact=True)
+    assert kept.shown_rows is not None and len(kept.estimates["mahony"].t) <= len(whole.estimates["mahony"].t) / 2
+    assert kept.nonfinite == whole.nonfinite
+    # as kept whole for the view before: in float32 (the sample log has no board trim)
+    assert whole.trim is None
+    whole.estimates = {n: AttitudeSeries(n, s.t, s.q.astype(np.float32)) for n, s in whole.estimates.items()}
+    drawn = []
+    for result in (whole, kept):
+        sent.clear()
+        view.log_replay(result, rr.RecordingStream("test"), blueprint=False)
+        drawn.append(list(sent))
+    assert drawn[0] == drawn[1] and len(drawn[0]) > 20

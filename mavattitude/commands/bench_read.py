@@ -13,8 +13,9 @@ hour-long replay costs end to end.
 - ``load()``: ``mavattitude.load`` end to end, timed as the ``readers.read_log`` it calls (the
   reader, then the clock, the checks and the series of a ``Flight``) against the same reference read (``x_pymavlink_load``, ``x_pyulog_load``), per log.
 - End to end: ``mavattitude replay LOG --estimators all --rrd`` on the 1-hour log, in a child
-  process (kernels compiled beforehand): wall time and peak RSS, next to the size of the
-  arrays the reader decoded.
+  process (kernels compiled beforehand): wall time and peak RSS (the child's own, as the
+  kernel counts it: ``ru_maxrss``, in MB of 10^6 bytes), next to the size of the arrays the
+  reader decoded (MB likewise). ``scripts/replay_memory.py`` says which phase the peak is in.
 
 Ours: best of ``repeat`` runs (the first compiles or loads the scan kernels); pymavlink's: one
 run (it takes seconds to minutes), pyulog's likewise.
@@ -130,7 +131,8 @@ def end_to_end(path: str, out_dir: str) -> dict:
     wall = time.perf_counter() - start
     if status != 0:
         raise RuntimeError(f"replay failed: {errors.read_text(errors='replace').strip()}")
-    peak_mb = usage.ru_maxrss / (1 << 20 if sys.platform == "darwin" else 1 << 10)  # macOS: bytes; Linux: kB
+    # in MB of 10^6 bytes, as decoded_mb: macOS counts bytes, Linux KiB
+    peak_mb = usage.ru_maxrss * (1 if sys.platform == "darwin" else 1024) / 1e6
     return {"wall_s": round(wall, 2), "peak_rss_mb": round(peak_mb, 1),
             "rrd_mb": round((Path(out_dir) / "replay.rrd").stat().st_size / 1e6, 1)}
 

@@ -94,6 +94,9 @@ class ReplayResult:
     imu_rate_hz: float = 0.0  # the IMU's median rate
     not_meaningful: str | None = None  # why the estimators' scores are not meaningful (imucheck); None: they are
     accel_g_reading: tuple[float | None, bool] = (None, False)  # m/s², whether at rest (imucheck.accel_at_rest)
+    # the IMU rows ``estimates`` hold, when only those the view draws are kept (``compact``); None: every row
+    shown_rows: np.ndarray | None = None
+    nonfinite: dict[str, int] = field(default_factory=dict)  # estimator -> rows estimated not finite
 
     @property
     def scoring(self) -> dict:
@@ -248,17 +251,18 @@ def choose_imu(flight: Flight, imu_source: str | None = None, imu_family: str | 
 
 
 def run_estimators(flight: Flight, policy: RunPolicy, progress=None,
-                   scored_against: AttitudeSeries | None = None) -> Runner:
+                   scored_against: AttitudeSeries | None = None, shown_rows: np.ndarray | None = None) -> Runner:
     """Run the policy's estimators over the chosen IMU of a whole flight (``choose_imu``): the
     runner, which holds estimates, diagnostics and events. ``progress(fraction)`` is called as
     it goes. ``scored_against``: the reference the estimates will be scored against, when the
     whole estimates are wanted only for the view: kept in float32, and in float64 only at the
-    rows scoring reads (``Runner.scoring_estimate``; an hour at 400 Hz: 46 -> 29 MB an estimator)."""
+    rows scoring reads (``Runner.scoring_estimate``; an hour at 400 Hz: 46 -> 29 MB an estimator).
+    ``shown_rows``: and only at these rows in float32 (``view.drawn_rows``: 1 MB, not 23)."""
     imu_source = choose_imu(flight, policy.options.imu, policy.options.imu_family)
     mag_source = mag_for_imu(flight, imu_source) if policy.use_mag else None
     rows = None if scored_against is None else bracket_rows(flight.imu[imu_source].t, scored_against.t)
     runner = Runner(policy.names, policy.params, policy.declination.rad, policy.use_mag, imu_source, mag_source,
-                    scored_rows=rows)
+                    scored_rows=rows, shown_rows=shown_rows)
     runner.add_flight(flight)
     runner.step(final=True, chunk=False, progress=progress)
     runner.release_inputs()  # the flight holds them; the runner's copy would double the IMU
@@ -303,16 +307,21 @@ def replay_policy(flight: Flight, policy: RunPolicy, progress=None, compact: boo
     autopilot's primary the estimates are turned by the board trim first, as the autopilot turns
     its own (``RunPolicy.trim_for``); not against another stream, which the autopilot logs untrimmed.
     ``compact``: the estimates are kept whole for the view only (``ReplayResult.estimates`` in
-    float32; scored from the float64 rows scoring reads, the same numbers to the bit: ``scoredrows``).
+    float32; scored from the float64 rows scoring reads, the same numbers to the bit: ``scoredrows``),
+    and ``flight`` keeps only the IMU series the estimators run on (``drop_other_imus``).
     """
     names, warmup_s = policy.names, policy.warmup_s
+    if compact:
+        drop_other_imus(flight, choose_imu(flight, policy.options.imu, policy.options.imu_family))
     named = name_attitudes(flight)
     chosen = choose_reference(flight, policy.reference, named)
     ref = None if chosen is None else flight.truth if chosen.algorithm == "truth" else flight.attitudes[chosen.stream]
     against_truth = chosen is not None and chosen.algorithm == "truth"
 
     declination = policy.declination
-    runner = run_estimators(flight, policy, progress, scored_against=ref if compact else None)
+    shown_rows = _drawn_rows(flight, policy, named, chosen, ref) if compact else None
+    runner = run_estimators(flight, policy, progress, scored_against=ref if compact else None,
+                            shown_rows=shown_rows)
     estimates = {name: runner.estimate(name) for name in names}
     # what scoring reads: the same series, or (compact) the float64 rows it reads
     scored = {name: runner.scoring_estimate(name) for name in names} if compact else estimates
@@ -334,7 +343,7 @@ def replay_policy(flight: Flight, policy: RunPolicy, progress=None, compact: boo
                             "before scoring and drawing, as the autopilot turns its own (--no-trim: raw); "
                             "the autopilot's other streams are scored as logged"))
     for name, series in estimates.items():
-        bad = int(np.count_nonzero(~np.isfinite(series.q).all(axis=1)))
+        bad = runner.nonfinite[name]  # (as estimated: the board trim keeps a row finite or not)
         if bad:
             events.append(Event(float(series.t[0]), "warn", non_finite_warning(name, bad)))
     restarts = [t for t, _ in runner.restarts]
@@ -368,7 +377,7 @@ def replay_policy(flight: Flight, policy: RunPolicy, progress=None, compact: boo
     else:
         events.append(Event(flight.time_span[0], "warn",
                             "the log has no attitude reference (ATT / ATTITUDE / vehicle_attitude): nothing to score against"))
-    imu_t = runner.estimate(names[0]).t if names else np.empty(0)
+    imu_t = runner.times()
     diagnostics = {name: runner.diagnostic_series(name) for name in names}
     estimator_events = {e.name: accel_state_events(imu_t, diagnostics[e.name]["accel_state"], e.ACCEL_STATES)
                         for e in runner.estimators if "accel_state" in diagnostics[e.name]}
@@ -385,7 +394,36 @@ def replay_policy(flight: Flight, policy: RunPolicy, progress=None, compact: boo
                         diagnostics=diagnostics, estimator_events=estimator_events,
                         params={e.name: e.params for e in runner.estimators}, aiding=runner.aiding(given_only=True),
                         trim=applied_trim, suspects=suspects, reference_notes=notes, restarts=restarts, imu_rate_hz=rate,
-                        not_meaningful=not_meaningful, accel_g_reading=g_reading)
+                        not_meaningful=not_meaningful, accel_g_reading=g_reading, shown_rows=shown_rows,
+                        nonfinite=dict(runner.nonfinite))
+
+
+def _drawn_rows(flight: Flight, policy: RunPolicy, named: list[NamedAttitude], chosen: Reference | None,
+                ref: AttitudeSeries | None) -> np.ndarray:
+    """The IMU rows the view draws of an estimate (``view.drawn_rows``), for the length the
+    view's rates are chosen for: the flight's span, or a stream drawn beside it that is longer."""
+    from ..view.decimation import drawn_duration, drawn_rows  # (no Rerun)
+
+    imu = flight.imu[choose_imu(flight, policy.options.imu, policy.options.imu_family)]
+    against_truth = chosen is not None and chosen.algorithm == "truth"
+    primary = flight.attitude.source if against_truth and flight.attitude is not None else None
+    streams = [] if ref is None else [flight.attitudes[n.key] for n in autopilot_streams(named, primary or chosen.stream)]
+    drawn = [s for s in (ref, flight.attitude, flight.truth, *streams) if s is not None]
+    return drawn_rows(imu.t, drawn_duration(flight, [*drawn, AttitudeSeries("imu", imu.t, np.empty((0, 4)))]))
+
+
+def drop_other_imus(flight: Flight, source: str) -> None:
+    """Let go of the IMU series but ``source`` (a second IMU of an hour at 400 Hz: 92 MB through
+    estimating, scoring and the view), but for one that begins or ends the flight's time span,
+    which the events and the view read (it stays the same to the bit)."""
+    span, every = flight.time_span, flight.imu
+    flight.imu = {source: every[source]}
+    for key, series in every.items():
+        a, b = flight.time_span
+        if key != source and len(series.t) and (series.t[0] < a or series.t[-1] > b):
+            flight.imu[key] = series  # it begins or ends the span: kept
+    flight.imu = {key: s for key, s in every.items() if key in flight.imu}  # in the log's order
+    assert flight.time_span == span
 
 
 def replay_flight(flight: Flight, options: RunOptions, progress=None,

@@ -218,7 +218,8 @@ def estimator_extras(result) -> dict[str, dict]:
             diag[key] = {"median": float(np.median(finite)) if len(finite) else None,
                          "max": float(finite.max()) if len(finite) else None}
         params = result.params.get(name)
-        nonfinite = int(np.count_nonzero(~np.isfinite(result.estimates[name].q).all(axis=1)))
+        nonfinite = result.nonfinite[name] if name in result.nonfinite else \
+            int(np.count_nonzero(~np.isfinite(result.estimates[name].q).all(axis=1)))  # (kept at every row)
         out[name] = {"events": result.estimator_events.get(name, {}), "diagnostics": diag,
                      "nonfinite_samples": nonfinite,
                      "params": asdict(params) if params is not None else {}}

@@ -51,7 +51,7 @@ REINIT_GAP_S = 2.0
 GAP_KIND = f"IMU gap over {REINIT_GAP_S:g} s, estimators re-initialised"  # the gap events' Event.kind
 # Rows estimated per kernel call at most (5.5 min at 400 Hz): an hour-long log's per-sample
 # scratch and diagnostics (cpf-ekf: 29 float64 a row) stay a few tens of MB, not gigabytes.
-STEP_ROWS = 1 << 17
+STEP_ROWS = 1 << 16
 # A magnetometer sample older than this many of its own intervals (or MAG_STALE_MIN_S) is stale.
 MAG_STALE_PERIODS = 3.0
 MAG_STALE_MIN_S = 0.5
@@ -104,11 +104,14 @@ class Runner:
     now and then). ``declination``: rad, east positive. ``keep_history``: keep every row's
     diagnostics and aiding for ``diagnostic_series`` and ``aiding`` (replay); a live session
     takes them from each step's ``Chunk`` instead, and keeps only the attitudes.
+    ``scored_rows``, ``shown_rows``: a replay's estimates kept for scoring and the view only,
+    see ``estimates`` below.
     """
 
     def __init__(self, names: list[str], params: dict | None = None, declination: float = 0.0,
                  use_mag: bool = True, imu_source: str = "IMU", mag_source: str | None = None,
-                 keep_history: bool = True, scored_rows: np.ndarray | None = None):
+                 keep_history: bool = True, scored_rows: np.ndarray | None = None,
+                 shown_rows: np.ndarray | None = None):
         self.names = list(names)
         self.estimators = [est.create(n, (params or {}).get(n), declination) for n in self.names]
         self.uses_aiding = any(e.uses_aiding for e in self.estimators)
@@ -125,10 +128,14 @@ class Runner:
         self.running = False
         self.events: list[Event] = []
         # (N, 4) at the IMU rows estimated; with ``scored_rows`` (a replay's ``scoredrows.bracket_rows``)
-        # in float32, for the view, and in float64 only where scoring reads them (``scoring_estimate``)
+        # in float32, for the view, and in float64 only where scoring reads them (``scoring_estimate``);
+        # with ``shown_rows`` (sorted: the rows the view draws) only at those (an hour at 400 Hz: 23 MB
+        # an estimator otherwise)
         self.estimates = {n: Growing(4, dtype=np.float64 if scored_rows is None else np.float32)
                           for n in self.names}
         self.scored = None if scored_rows is None else {n: ScoredRows(scored_rows) for n in self.names}
+        self.shown = None if shown_rows is None else np.asarray(shown_rows, dtype=np.int64)
+        self.nonfinite = {n: 0 for n in self.names}  # rows estimated with a non-finite attitude
         self._last_q: dict[str, np.ndarray] = {}  # each estimator's last attitude, as estimated
         self.diagnostics: dict[str, dict[str, Column]] = {n: {} for n in self.names}  # key -> every row's
         self.has_heading = {e.name: e.has_heading_reference(False) for e in self.estimators}
@@ -183,8 +190,8 @@ class Runner:
             return s.t if by_time else s.arrival
         self.add_imu(imu.t, imu.gyro, imu.accel, arrival(imu))
         self._rows_expected = len(imu.t)
-        for series in self.estimates.values():
-            series.reserve(len(imu.t))  # filled to exactly this size, never doubled
+        for series in self.estimates.values():  # filled to exactly this size, never doubled
+            series.reserve(len(imu.t) if self.shown is None else int(np.searchsorted(self.shown, len(imu.t))))
         if mag is not None:
             self.add_mag(mag.t, mag.field, arrival(mag))
         if flight.gps is not None:
@@ -236,8 +243,7 @@ class Runner:
             alignment.accel_g = self.runs[0].alignment.accel_g
         for e in self.estimators:
             q0 = alignment.q0
-            previous = self.estimates[e.name]
-            if self.runs and not alignment.heading_from_mag and previous.n:
+            if self.runs and not alignment.heading_from_mag and e.name in self._last_q:
                 # no heading reference: carry the yaw over the gap rather than restart it at 0
                 roll, pitch, _ = quat.to_euler(q0)
                 q0 = quat.from_euler(roll, pitch, quat.to_euler(self._last_q[e.name])[2])
@@ -281,12 +287,18 @@ class Runner:
         out, diagnostics = {}, {}
         for e in self.estimators:
             q = e.update(t, gyro, accel, mag, in_air, aiding=aiding)
-            self.estimates[e.name].extend(q)
+            self.nonfinite[e.name] += int(np.count_nonzero(~np.isfinite(q).all(axis=1)))
+            if self.shown is None:
+                self.estimates[e.name].extend(q)
+                out[e.name] = self.estimates[e.name].view()[-len(t):]  # one copy of the result, not two
+            else:
+                lo, hi = np.searchsorted(self.shown, [a, b])
+                self.estimates[e.name].extend(q[self.shown[lo:hi] - a])
+                out[e.name] = q
             if len(q):
                 self._last_q[e.name] = np.array(q[-1], dtype=np.float64)
             if self.scored is not None:
                 self.scored[e.name].add(a, q)
-            out[e.name] = self.estimates[e.name].view()[-len(t):]  # one copy of the result, not two
             # Diagnostics are kept in float32 (for plots and events; half the memory of an hour at 400 Hz)
             new = {key: _compact(value) for key, value in e.diagnostics.items()}
             e.diagnostics = new  # the estimator's float64 arrays go now, not at its next update
@@ -438,17 +450,23 @@ class Runner:
 
     # ------------------------------------------------------------ results
 
+    def times(self) -> np.ndarray:
+        """The times of every IMU row estimated so far."""
+        return self.store[IMU].column(0)[:self.done] if self._imu_t is None else self._imu_t
+
     def estimate(self, name: str) -> AttitudeSeries:
-        """An estimator's attitude at every IMU row estimated so far."""
-        t = self.store[IMU].column(0)[:self.done] if self._imu_t is None else self._imu_t
-        return AttitudeSeries(name, t, self.estimates[name].view())
+        """An estimator's attitude at every IMU row estimated so far (with ``shown_rows``: at
+        those rows among them)."""
+        q = self.estimates[name].view()
+        t = self.times() if self.shown is None else self.times()[self.shown[:len(q)]]
+        return AttitudeSeries(name, t, q)
 
     def scoring_estimate(self, name: str) -> AttitudeSeries:
         """What scoring reads of an estimator's attitude, as estimated: the whole estimate, or
         with ``scored_rows`` the rows kept for it (``scoredrows``)."""
         if self.scored is None:
             return self.estimate(name)
-        return self.scored[name].series(name, self.estimate(name).t)
+        return self.scored[name].series(name, self.times())
 
     def release_inputs(self) -> None:
         """Drop the samples added (IMU, compass, GPS, baro) but the IMU's times, once a whole

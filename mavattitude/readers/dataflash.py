@@ -42,7 +42,7 @@ import numpy as np
 
 from ..errors import InputError, reraise_interrupt
 from .collect import Collector, Decoded, first_utc, gps_to_unix
-from .dfrecords import decode, open_log, scan_log
+from .dfrecords import decode, open_log, release_pages, scan_log
 from .logevents import ARMED_EVENTS, BUILD_TYPES, ERROR, INFO, err_text
 
 MILLIGAUSS_TO_TESLA = 1e-7  # 1 mG = 1e-3 G = 1e-7 T
@@ -75,6 +75,7 @@ def read_dataflash(path: str, progress=None) -> Decoded:
     try:
         data = open_log(path)
         scan = scan_log(data, WANTED)
+        release_pages(data)  # the scan read every page; a type's records are gathered from a few
     except Exception as exc:  # not expected: pymavlink may still make something of it
         reraise_interrupt(exc)  # but a Ctrl-C in the compiled scan is no reason to read on
         return _read_with_pymavlink(path, progress, f"read with pymavlink ({type(exc).__name__}: {exc})")
@@ -90,7 +91,9 @@ def read_dataflash(path: str, progress=None) -> Decoded:
             step = PART_ROWS if name.rstrip("23") in SENSORS and not scan.has_text(name) else len(offsets)
             for a in range(0, len(offsets), max(step, 1)):
                 try:
-                    yield name, decode(data, scan, name, slice(a, a + step)), slice(a, a + step)
+                    part = decode(data, scan, name, slice(a, a + step))  # a copy: the pages go
+                    release_pages(data)
+                    yield name, part, slice(a, a + step)
                 except ValueError as exc:  # a format the firmware or damage got wrong (then in the first part)
                     warnings.append(f"{name}: {exc} (a corrupt FMT record?): {len(offsets)} records skipped")
                     break

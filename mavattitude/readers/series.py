@@ -20,9 +20,10 @@ ACCEL_GAP_S = 0.02  # a gyro sample this far from any accelerometer sample has n
 
 def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
     """Fill the flight's series from one clock segment; returns why each IMU series that
-    holds data was not usable (none when every one was)."""
+    holds data was not usable (none when every one was). The collector gives up each series
+    as it is taken: its rows and the series' own arrays are not all held at once."""
     def columns(kind, key):
-        c = col.columns(kind, key, segment)
+        c = col.columns(kind, key, segment, take=True)
         if c.duplicates:
             flight.repeated[key] = c.duplicates
         # a message that feeds two series (RAW_IMU: IMU and compass) has the same fixes in both
@@ -47,7 +48,8 @@ def fill_series(flight: Flight, col: Collector, segment: int) -> list[str]:
         accel_key = "ACC" + key[len("GYR"):]
         if accel_key in col.keys("acc"):
             imus.append((key, *sensor_rate_imu(columns("gyr", key), columns("acc", accel_key))))
-    for key, t, v, arrival in imus:
+    while imus:  # each let go once its series is made
+        key, t, v, arrival = imus.pop(0)
         ok, fitted = plausible(key, v, IMU_LIMITS)  # (an unfitted sensor sends all zeros)
         live = fitted & ok
         if np.count_nonzero(live) >= 2:

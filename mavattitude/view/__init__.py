@@ -66,7 +66,7 @@ from .. import signals
 
 # The view's names, from the module that defines them: loaded on first use (PEP 562), so that a
 # command without a viewer (``live --no-record``, which imports ``view.sink``) never imports Rerun.
-_MODULES = ("style", "ranges", "marks", "replay", "columns", "blueprint")  # the first that has a name gives it
+_MODULES = ("style", "ranges", "marks", "replay", "columns", "decimation", "blueprint")  # the first that has a name gives it
 
 
 def import_rerun():

@@ -1,4 +1,5 @@
-"""What goes into the recording: static styling, decimation and the columnar logging of every series."""
+"""What goes into the recording: static styling and the columnar logging of every series
+(decimated by ``decimation``'s rules)."""
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -14,6 +15,7 @@ from ..aiding import ned_to_geodetic
 from ..flight import GpsSeries
 from ..scoring.metrics import AXES
 from ..core.runner import REINIT_GAP_S
+from .decimation import MINMAX_ROWS, _bin_first, _bin_minmax, scalar_rate_for, transform_rate_for  # noqa: F401
 from .style import *  # noqa: F403
 
 if TYPE_CHECKING:  # for types only: replay (commands.replay) is above the view and draws through it
@@ -73,75 +75,6 @@ def setup_series(rec: rr.RecordingStream, name: str, *, color: Color, label: str
                 static=True)
 
 
-# ---------------------------------------------------------------- decimation
-
-
-def _faster_than(t: np.ndarray, hz: float) -> bool:
-    """Whether a series comes faster than hz on average (else decimating it keeps everything)."""
-    return len(t) >= 2 and hz > 0 and len(t) > hz * float(t[-1] - t[0]) + 1
-
-
-def _bin_first(t: np.ndarray, hz: float) -> np.ndarray:
-    """Indices keeping the first sample of each 1/hz bin of absolute time (all of them when
-    the series is not faster than hz on average)."""
-    n = len(t)
-    if not _faster_than(t, hz):
-        return np.arange(n)
-    b = np.floor(t * hz)
-    keep = np.empty(n, dtype=bool)
-    # The first sample opens a bin unless the sample before it (one typical step earlier,
-    # possibly in the previous chunk) was in the same bin: chunks then keep what the
-    # whole series would.
-    step = float(np.median(np.diff(t)))
-    keep[0] = np.floor((t[0] - step) * hz) != b[0]
-    keep[1:] = b[1:] != b[:-1]
-    return np.flatnonzero(keep)
-
-
-def _bin_minmax(t: np.ndarray, y: np.ndarray, hz: float) -> np.ndarray:
-    """Peak-preserving decimation to about hz: the (first) argmin and argmax of y in each
-    2/hz bin, in time order; all samples when the series is not faster than hz. O(n)."""
-    n = len(t)
-    if not _faster_than(t, hz):
-        return np.arange(n)
-    b = np.floor(t * (hz / 2.0))
-    if np.any(np.diff(b) < 0):  # unsorted time: keep the simple rule
-        return _bin_first(t, hz)
-    new = np.empty(n, dtype=bool)
-    new[0] = True
-    new[1:] = b[1:] != b[:-1]
-    starts = np.flatnonzero(new)
-    counts = np.diff(np.append(starts, n))
-    bin_of = np.repeat(np.arange(len(starts)), counts)
-    picks = []
-    for ufunc, fill in ((np.maximum, -np.inf), (np.minimum, np.inf)):
-        yy = np.where(np.isnan(y), fill, y)
-        extreme = ufunc.reduceat(yy, starts)
-        hits = np.flatnonzero(yy == np.repeat(extreme, counts))
-        hb = bin_of[hits]
-        first = np.ones(len(hits), dtype=bool)
-        first[1:] = hb[1:] != hb[:-1]
-        picks.append(hits[first])
-    idx = np.sort(np.concatenate(picks))
-    keep = np.ones(len(idx), dtype=bool)
-    keep[1:] = idx[1:] != idx[:-1]
-    return idx[keep]
-
-
-def scalar_rate_for(duration_s: float) -> float:
-    """The scalar rate for a log of this length (see the module docstring)."""
-    if duration_s <= 0:
-        return SCALAR_MAX_HZ
-    return min(SCALAR_MAX_HZ, SCALAR_MAX_POINTS / duration_s)
-
-
-def transform_rate_for(duration_s: float) -> float:
-    """The 3D transform rate for a log of this length (see the module docstring)."""
-    if duration_s <= 0:
-        return TRANSFORM_MAX_HZ
-    return min(TRANSFORM_MAX_HZ, TRANSFORM_MAX_POINTS / duration_s)
-
-
 # ---------------------------------------------------------------- columnar logging
 
 
@@ -179,17 +112,20 @@ def _send_scalars(rec: rr.RecordingStream, path: str, t: np.ndarray, y: np.ndarr
                      columns=rr.Scalars.columns(scalars=np.asarray(y, dtype=np.float64)))
 
 
-def _binned_attitudes(t, q, max_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """The first quaternion of each 1/``max_hz`` bin (``_bin_first``) and its time."""
+def _binned_attitudes(t, q, max_hz: float, rows=None) -> tuple[np.ndarray, np.ndarray]:
+    """The first quaternion of each 1/``max_hz`` bin (``_bin_first``) and its time. ``rows``:
+    ``q`` holds only these rows of ``t`` (sorted, among them every row picked: ``drawn_rows``)."""
     t = np.asarray(t, dtype=np.float64)
     idx = _bin_first(t, max_hz)
-    return t[idx], np.asarray(np.asarray(q)[idx], dtype=np.float64)  # picked, then widened: not a whole float32 estimate
+    at = idx if rows is None else np.searchsorted(rows, idx)
+    return t[idx], np.asarray(np.asarray(q)[at], dtype=np.float64)  # picked, then widened: not a whole float32 estimate
 
 
 def log_euler_columns(rec: rr.RecordingStream, name: str, t, q, *,
-                      max_hz: float = SCALAR_MAX_HZ) -> None:
-    """Roll, pitch, yaw (degrees) of quaternions ``q`` (N, 4) at ``t`` to attitude/<axis>/<name>."""
-    t, q = _binned_attitudes(t, q, max_hz)
+                      max_hz: float = SCALAR_MAX_HZ, rows=None) -> None:
+    """Roll, pitch, yaw (degrees) of quaternions ``q`` (N, 4) at ``t`` to attitude/<axis>/<name>
+    (``rows``: see ``_binned_attitudes``)."""
+    t, q = _binned_attitudes(t, q, max_hz, rows)
     if len(t) == 0:
         return
     euler = np.degrees(quat.to_euler(q))
@@ -198,9 +134,10 @@ def log_euler_columns(rec: rr.RecordingStream, name: str, t, q, *,
 
 
 def log_transform_columns(rec: rr.RecordingStream, path: str, t, q, *,
-                          max_hz: float = TRANSFORM_MAX_HZ) -> None:
-    """An animated rotation (body -> NED quaternions [w, x, y, z]) at ``path``."""
-    t, qs = _binned_attitudes(t, q, max_hz)
+                          max_hz: float = TRANSFORM_MAX_HZ, rows=None) -> None:
+    """An animated rotation (body -> NED quaternions [w, x, y, z]) at ``path`` (``rows``: see
+    ``_binned_attitudes``)."""
+    t, qs = _binned_attitudes(t, q, max_hz, rows)
     ok = np.all(np.isfinite(qs), axis=1)
     t, qs = t[ok], qs[ok]
     if len(t) == 0:
@@ -213,14 +150,15 @@ def log_transform_columns(rec: rr.RecordingStream, path: str, t, q, *,
 def log_attitude_columns(rec: rr.RecordingStream, name: str, t, q, *,
                          scalar_max_hz: float = SCALAR_MAX_HZ,
                          transform_max_hz: float = TRANSFORM_MAX_HZ,
-                         box: bool = True, ghost_in: Sequence[str] = ()) -> None:
+                         box: bool = True, ghost_in: Sequence[str] = (), rows=None) -> None:
     """One chunk of an attitude series: its Euler plots and its box in the 3D view; a
-    reference also passes ``ghost_in`` (the other series) to animate their ghosts."""
-    log_euler_columns(rec, name, t, q, max_hz=scalar_max_hz)
+    reference also passes ``ghost_in`` (the other series) to animate their ghosts. ``rows``:
+    ``q`` holds only these rows of ``t`` (``drawn_rows``)."""
+    log_euler_columns(rec, name, t, q, max_hz=scalar_max_hz, rows=rows)
     if box:
-        log_transform_columns(rec, body_path(name), t, q, max_hz=transform_max_hz)
+        log_transform_columns(rec, body_path(name), t, q, max_hz=transform_max_hz, rows=rows)
     for other in ghost_in:
-        log_transform_columns(rec, ghost_path(other), t, q, max_hz=transform_max_hz)
+        log_transform_columns(rec, ghost_path(other), t, q, max_hz=transform_max_hz, rows=rows)
 
 
 def log_error_columns(rec: rr.RecordingStream, name: str, t, error_deg, scored, *,

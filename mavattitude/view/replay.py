@@ -20,6 +20,7 @@ from . import ranges
 from .blueprint import map_zoom_for, send_blueprint
 from .columns import *  # noqa: F403
 from .columns import _gps_fix
+from .decimation import drawn_duration
 from .flightlog import flight_events, has_band, log_flight_band
 from .marks import log_event_markers, log_events, log_spans
 from .style import *  # noqa: F403
@@ -189,7 +190,7 @@ def _diagnostic_ranges(diagnostics: dict[str, dict[str, np.ndarray]], t: np.ndar
             del ys
             if len(y) < 2:
                 continue
-            lo, hi = np.percentile(y, [1.0, 99.0])
+            lo, hi = np.percentile(y, [1.0, 99.0], overwrite_input=True)  # (y is ours: no copy of it)
             pad = 0.15 * (hi - lo)
             if hi - lo > 1e-12 * max(1.0, abs(hi)):
                 out.setdefault(name, {})[group] = (float(lo - pad), float(hi + pad))
@@ -251,9 +252,8 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
                        has_track=has_gps and bool(estimated_tracks(result))
                        and result.aiding is not None and result.aiding.origin is not None)
 
-    a, b = fl.time_span
-    duration = max(b - a, max((float(s.t[-1] - s.t[0]) for _, _, s in series if len(s.t)),
-                              default=0.0))
+    b = fl.time_span[1]
+    duration = drawn_duration(fl, [s for _, _, s in series])
     hz = scalar_rate_for(duration)
     hz3d = transform_rate_for(duration)
 
@@ -270,8 +270,9 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
     for key, _, s in series:
         if len(s.t) == 0:
             continue
-        log_attitude_columns(rec, key, s.t, s.q, scalar_max_hz=hz, transform_max_hz=hz3d,
-                             ghost_in=others if key == ref_key else ())
+        kept = key in result.estimates and result.shown_rows is not None  # at the rows drawn only
+        log_attitude_columns(rec, key, imu_t if kept else s.t, s.q, scalar_max_hz=hz, transform_max_hz=hz3d,
+                             ghost_in=others if key == ref_key else (), rows=result.shown_rows if kept else None)
     for key, c in scored.items():
         log_error_columns(rec, key, c.t, c.error_deg, c.scored, max_hz=hz)
 

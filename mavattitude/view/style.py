@@ -7,14 +7,8 @@ import rerun as rr
 
 TIMELINE = "time"
 
-# What a screen can show: a time plot is 500-800 px wide; zoomed to 10 s, 50 Hz is a point
-# every 1-2 px, and the error and diagnostic lines keep each bin's minimum and maximum, so no
-# spike is lost. The 3D boxes move at 25 frames per second. (Was 200 Hz and 50 Hz: 4.7-19.6 MB
-# per minute of log; scripts/rrd_size.py.)
-SCALAR_MAX_HZ = 50.0
-SCALAR_MAX_POINTS = 60_000
-TRANSFORM_MAX_HZ = 25.0
-TRANSFORM_MAX_POINTS = 45_000
+# the rates of the time plots and the 3D boxes: ``decimation`` (which does not import Rerun)
+from .decimation import SCALAR_MAX_HZ, SCALAR_MAX_POINTS, TRANSFORM_MAX_HZ, TRANSFORM_MAX_POINTS  # noqa: E402,F401
 DIAGNOSTIC_MAX_HZ = 10.0  # diagnostics drift slowly; min/max bins keep a reset's one-sample spike
 GPS_MARKER_MAX_HZ = 10.0
 GPS_TRACK_MAX_POINTS = 5_000

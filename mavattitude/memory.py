@@ -1,0 +1,32 @@
+"""Freed arrays given back to the system at once (glibc), so a long replay's peak memory is what
+it holds, not what it once held.
+
+glibc serves an allocation of 128 kB or more from its own mapping, returned to the system when
+freed; but each time such a block is freed it raises that threshold (up to 32 MB), so that from
+then on a replay's arrays (a step's 0.5-2 MB, an hour's series 10-30 MB) come from the heap,
+where what is freed stays in the process. Fixing the threshold turns the raising off.
+
+The threshold is a trade (hour at 400 Hz, all seven estimators, --rrd; ``ru_maxrss`` and CPU
+time of the replay, scripts/replay_memory.py or bench --read): glibc's own raising 881 MB, 12.3 +
+2.9 s of CPU; 4 MB 845-860 MB at the same CPU time; 1 MB 830-860 MB, 11.9 + 4.0 s; 256 kB 775 MB,
+12-13 + 6.4 s (every step's arrays mapped afresh: their page faults). Memory is what an hour's
+replay runs out of on a small machine, and 16 s of CPU is well inside its 30 s: 256 kB.
+"""
+from __future__ import annotations
+
+import ctypes
+import sys
+
+M_MMAP_THRESHOLD = -3  # mallopt's parameter number (malloc.h)
+MMAP_THRESHOLD_BYTES = 256 << 10
+
+
+def give_back_freed_arrays() -> bool:
+    """Fix glibc's mmap threshold (see the module docstring); whether it was set (False off
+    glibc: macOS and Windows give large blocks back on their own)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:  # the process's own symbols, libc's among them (find_library would run ldconfig)
+        return bool(ctypes.CDLL(None).mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
+    except (OSError, AttributeError):  # not glibc (musl has no mallopt)
+        return False
