@@ -72,6 +72,9 @@ def compare(a_path: str, b_path: str) -> int:
 
 
 def main(argv: list[str]) -> int:
+    if not argv or argv[0] in ("-h", "--help") or (argv[0].startswith("-") and argv[0] not in ("--compare", "--no-export")):
+        print(__doc__)
+        return 0 if argv[:1] in (["-h"], ["--help"]) else 2
     if argv[:1] == ["--compare"]:
         return compare(argv[1], argv[2])
     export = argv[:1] != ["--no-export"]
