@@ -45,7 +45,7 @@ class Exclusive(ev.Listener):
             self.kernels[name]["signatures"] += 1
         elif event.kind == "numba:run_pass":
             name = f"{event.data['module'].replace('mavattitude.', '')}.{event.data['qualname']}"
-            kind = "other" if event.data["name"] in LOWERING else "typing"
+            kind = "other" if event.data["name"].split(" [")[0] in LOWERING else "typing"
         else:
             name, kind = None, "llvm"
         if event.kind == "numba:compile":
