@@ -600,7 +600,7 @@ def ncs_predict(q, P, bias_est, w0, w1, w2, dt, q_theta, q_bias):
     P[5, 5] += q_bias
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def ncs_update(q, P, bias_est, r0, r1, r2, R, gravity):
     """Accelerometer update (eq 12-16), in place, in the exactly equivalent navigation-frame
     form; returns δθ.
