@@ -297,7 +297,7 @@ class CpfEkf(Estimator):
     uses_aiding = True
     kernels = (lowpass_in_inertial_frame, cpf_ekf_run)
     color = (195, 0, 0)
-    compile_seconds = 9.5  # measured with warmup.compile_kernels, one core
+    compile_seconds = 13.0  # CPU s, one core (scripts/compile_profile.py)
     # its work per sample is of another order (a 20×20 covariance, a complementary filter alongside):
     # bench's target is imufusion's rate, not five times it
     bench_min_x_imufusion = 1.0

@@ -466,7 +466,7 @@ class Ekf(Estimator):
     uses_mag = True
     kernels = (lowpass_in_inertial_frame, ekf_run)
     color = (0, 135, 255)
-    compile_seconds = 4.0  # measured with warmup.compile_kernels, one core
+    compile_seconds = 4.0  # CPU s, one core (scripts/compile_profile.py)
     PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads
     DIAGNOSTICS = {"cov_trace": "trace of the 4×4 quaternion covariance P (dimensionless)"}
 

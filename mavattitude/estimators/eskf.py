@@ -249,7 +249,7 @@ class Eskf(Estimator):
     uses_mag = False
     kernels = (lowpass_in_inertial_frame, eskf_run)
     color = (120, 15, 255)
-    compile_seconds = 2.5  # measured with warmup.compile_kernels, one core
+    compile_seconds = 2.5  # CPU s, one core (scripts/compile_profile.py)
     PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads
     DIAGNOSTICS = {"cov_trace": "trace of the attitude-error covariance P, rad²"}
 

@@ -165,7 +165,7 @@ class Mahony(Estimator):
     uses_mag = True
     kernels = (lowpass_in_inertial_frame, mahony_run)
     color = (255, 150, 0)
-    compile_seconds = 2.0  # measured with warmup.compile_kernels, one core
+    compile_seconds = 1.5  # CPU s, one core (scripts/compile_profile.py)
     bench_min_rate = 1e6  # samples/s, bench's target beside the one every estimator has
     PAPER = dict(accel_tau=0.0)  # strict: the accelerometer as it reads
 

@@ -398,7 +398,7 @@ class MahonyEkf(Estimator):
     uses_mag = True
     kernels = (lowpass_in_inertial_frame, mahony_ekf_run)
     color = (120, 90, 0)
-    compile_seconds = 4.0  # measured with warmup.compile_kernels, one core
+    compile_seconds = 3.0  # CPU s, one core (scripts/compile_profile.py)
     PAPER = dict(k_mahony=0.0, accel_tau=0.0)  # strict: the unweighted Mahony measurement (eq 16-17); the additions act on the weight
     keep_mahony = False  # set True to keep the internal Mahony attitude of each chunk in ``mahony_q``
     DIAGNOSTICS = {

@@ -396,15 +396,17 @@ def ncs_eskf_run(s, state, cfg, out, diag):
                 sn2 = _residual_noise(noise, r0 / gravity, r1 / gravity, dt if stepped else 0.0)
             gate = math.sqrt(base * base + noise_gate * noise_gate * sn2
                              + gate_sigma * gate_sigma * (P[0, 0] + P[1, 1]))
-            low_tried = low_used = False
+            # at most one update a sample, from the reading or the low-passed one: written once (the
+            # kernel compiles in a third of the time with one inlined copy of ncs_update, not three)
+            u0 = u1 = u2 = weight = 0.0
+            low_tried = False
             l0, l1, l2 = accel_low[i, 0], accel_low[i, 1], accel_low[i, 2]
             if stepped and cfg.fallback and _gravity_residual(q, l0, l1, l2, gravity)[3] < resid_h:
                 low_tried = True  # the closer of the two first
-                low_used = _low_passed_update(q, P, bias_est, l0, l1, l2, gravity, total_threshold, gate, taper,
-                                              acc2, dt)
-            if low_used:
-                state = ACCEL_LOWPASSED
-            elif stepped:
+                u0, u1, u2, weight = _low_passed_residual(q, l0, l1, l2, gravity, total_threshold, gate, taper)
+                if weight > 0.0:
+                    state = ACCEL_LOWPASSED
+            if state != ACCEL_LOWPASSED and stepped:
                 if abs(math.sqrt(ax * ax + ay * ay + az * az) - gravity) > total_threshold * gravity:
                     state = ACCEL_TOTAL
                 else:
@@ -414,10 +416,13 @@ def ncs_eskf_run(s, state, cfg, out, diag):
                         state = ACCEL_HORIZONTAL
                     else:
                         state = ACCEL_USED
-                        ncs_update(q, P, bias_est, r0, r1, r2, acc2 / (dt * weight), gravity)
-                if state != ACCEL_USED and cfg.fallback and not low_tried and _low_passed_update(
-                        q, P, bias_est, l0, l1, l2, gravity, total_threshold, gate, taper, acc2, dt):
-                    state = ACCEL_LOWPASSED
+                        u0, u1, u2 = r0, r1, r2
+                if state != ACCEL_USED and cfg.fallback and not low_tried:
+                    u0, u1, u2, weight = _low_passed_residual(q, l0, l1, l2, gravity, total_threshold, gate, taper)
+                    if weight > 0.0:
+                        state = ACCEL_LOWPASSED
+            if state == ACCEL_USED or state == ACCEL_LOWPASSED:
+                ncs_update(q, P, bias_est, u0, u1, u2, acc2 / (dt * weight), gravity)
         if stepped:  # one normalisation per sample, after the last product
             normalize_into(q, q[0], q[1], q[2], q[3])
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q[0], q[1], q[2], q[3]
@@ -440,20 +445,18 @@ def _gravity_residual(q, ax, ay, az, gravity):
 
 
 @njit(cache=True, inline="always")
-def _low_passed_update(q, P, bias_est, ax, ay, az, gravity, total_threshold, gate, taper, acc2, dt):
-    """The update from the low-passed reading (``inertial_accel``) where the reading itself was
-    refused, if it passes the same two gates; True when it was used. A vibration or a circle the
-    reading cannot pass averages out in it; a sustained manoeuvre stays in it and is refused."""
+def _low_passed_residual(q, ax, ay, az, gravity, total_threshold, gate, taper):
+    """The residual of the low-passed reading (``inertial_accel``) and its weight in the update,
+    for where the reading itself is refused: weight 0 (not used) unless it passes the same two
+    gates. A vibration or a circle the reading cannot pass averages out in it; a sustained
+    manoeuvre stays in it and is refused."""
     if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):
-        return False
+        return 0.0, 0.0, 0.0, 0.0
     if abs(math.sqrt(ax * ax + ay * ay + az * az) - gravity) > total_threshold * gravity:
-        return False
+        return 0.0, 0.0, 0.0, 0.0
     r0, r1, r2, resid_h = _gravity_residual(q, ax, ay, az, gravity)
     weight = 1.0 - taper * resid_h / gate if resid_h < gate else 0.0
-    if weight <= 0.0:
-        return False
-    ncs_update(q, P, bias_est, r0, r1, r2, acc2 / (dt * weight), gravity)
-    return True
+    return r0, r1, r2, weight
 
 
 @njit(cache=True, inline="always")
@@ -597,7 +600,7 @@ def ncs_predict(q, P, bias_est, w0, w1, w2, dt, q_theta, q_bias):
     P[5, 5] += q_bias
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def ncs_update(q, P, bias_est, r0, r1, r2, R, gravity):
     """Accelerometer update (eq 12-16), in place, in the exactly equivalent navigation-frame
     form; returns δθ.
@@ -702,7 +705,7 @@ class NcsEskf(Estimator):
     uses_mag = False
     kernels = (lowpass_in_inertial_frame, ncs_eskf_run)
     color = (210, 0, 120)
-    compile_seconds = 5.0  # measured with warmup.compile_kernels, one core
+    compile_seconds = 7.0  # CPU s, one core (scripts/compile_profile.py)
     # strict: the published thresholds (§1.3, §3.2 Table 2) and every addition off
     PAPER = dict(accel_tau=0.0, total_threshold=0.2, h_threshold_air=0.01, h_threshold_ground=0.1, gate_sigma=0.0, taper=0.0,
                  estimate_bias=False, step_noise=0.0, cons_time=0.0, noise_gate=0.0)

@@ -108,7 +108,7 @@ class Scan:
 USED, UNUSABLE, IGNORED, BAD_HEADER = 0, 1, 2, 3  # IGNORED: its type defined before; BAD_HEADER: not a record
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _append(values, n, value):
     """``values`` with ``value`` at ``n``, twice as long when full."""
     if n == len(values):
