@@ -279,7 +279,6 @@ class CpfEkf(Estimator):
     """20-state EKF with complementary-filter reset (paper 003); see the module docstring."""
     name = "cpf-ekf"
     Params = CpfEkfParams
-    uses_mag = True
     uses_aiding = True
     kernels = (lowpass_in_inertial_frame, cpf_ekf_run)
     color = (195, 0, 0)
@@ -345,8 +344,7 @@ class CpfEkf(Estimator):
         # the complementary filter starts as mahony does
         self._state = CpfEkfState(x=x, P=P, qc=np.array(q0, dtype=np.float64),
                                   bc=-np.asarray(gyro_bias, dtype=np.float64).copy(), aux=aux, ring=np.zeros((RING, 7)))
-        self._start_accel_lowpass(q0, gyro_bias, p.accel_tau)
-        self.initialized = True
+        self._ready(q0, gyro_bias)
 
     def _run(self, s, out, aiding) -> dict:
         n = len(s.t)
@@ -366,10 +364,6 @@ class CpfEkf(Estimator):
         diag = np.empty((n, NDIAG))
         cpf_ekf_run(s, aid, self._state, self._settings, out, diag)
         return {key: diag[:, k] for k, key in enumerate(DIAG_KEYS)}
-
-    @property
-    def covariance(self) -> np.ndarray:
-        return self._state.P.copy()
 
     @property
     def state(self) -> np.ndarray:

@@ -650,7 +650,6 @@ class EqKf(Estimator):
     """Error-quaternion KF with accelerometer trust (paper 002); see the module docstring."""
     name = "eq-kf"
     Params = EqKfParams
-    uses_mag = True
     kernels = (lowpass_in_inertial_frame, eqkf_run, picard_step, error_transition, accel_tangent, accel_jacobian,
                mag_jacobian, ramp, inject)
     color = (0, 195, 195)
@@ -727,8 +726,7 @@ class EqKf(Estimator):
                 trust_lpf=0.0, vib_time=0.0, still_rate=0.0, still_accel=0.0, still_time=inf, cons_tol=0.0,
                 cons_norm=0.0, cons_time=inf, learn_g=False, airspeed=0.0, fallback=False)
         self._settings = settings
-        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
-        self.initialized = True
+        self._ready(q0, gyro_bias)
 
     def _run(self, s, out, aiding) -> dict:
         n = len(s.t)
