@@ -414,15 +414,12 @@ def _save_aux(aux, lp0, lp1, lp2, dir0, dir1, dir2, vib, still_t, w_prev, ref0, 
 
 
 @njit(cache=True, inline="always")
-def _accel_model(q, hv, tb, hm):
-    """The accelerometer's model at Q̄: h̄ = C(Q̄)ᵀ [0, 0, -1] into hv, the tangent basis T into tb
-    and H = Tᵀ 2[h̄]× into hm."""
+def _gravity_direction(q, hv):
+    """h̄ = C(Q̄)ᵀ [0, 0, -1] into hv: where the accelerometer of a vehicle at rest points."""
     w_, x_, y_, z_ = q[0], q[1], q[2], q[3]
     hv[0] = -2.0 * (x_ * z_ - w_ * y_)
     hv[1] = -2.0 * (y_ * z_ + w_ * x_)
     hv[2] = -(1.0 - 2.0 * (x_ * x_ + y_ * y_))
-    accel_tangent(hv, tb)
-    accel_jacobian(hv, tb, hm)
 
 
 @njit(cache=True, inline="always")
@@ -599,16 +596,16 @@ def eqkf_run(s, state, cfg, out_q, diag):
         w_acc, low_used = 0.0, False
         fn = np.sqrt(lp0 ** 2 + lp1 ** 2 + lp2 ** 2)
         if step and accel_ok and fn > 0.0 and fn == fn:
-            _accel_model(q, hv, tb, hm)
+            _gravity_direction(q, hv)
+            accel_tangent(hv, tb)  # T and H = Tᵀ 2[h̄]×
+            accel_jacobian(hv, tb, hm)
             eps = fn / g_a - 1.0
             w_norm = ramp(abs(eps), norm_lo, norm_hi)
             w_rate = 1.0 if rate2 <= rate_lo * rate_lo else ramp(np.sqrt(rate2), rate_lo, rate_hi)
             # consistency: the residual angle ρ (f̃ against predicted gravity) beyond the angle φ_m a horizontal
             # acceleration would explain given ‖f̃‖, held for cons_time with ‖f̃‖ ≈ g and modest rotation: attitude error
             cosr = (lp0 * hv[0] + lp1 * hv[1] + lp2 * hv[2]) / fn
-            inconsistent = False
-            if w_rate >= 1.0 and abs(eps) < cons_norm:
-                inconsistent = attitude_error(cosr, eps, cos_tol, sin_tol)
+            inconsistent = w_rate >= 1.0 and abs(eps) < cons_norm and attitude_error(cosr, eps, cos_tol, sin_tol)
             cons_t = cons_t + dt if inconsistent else 0.0
             if cons_t >= cons_time:
                 _open_gate(p, cosr, gate_lo)
