@@ -458,24 +458,19 @@ def _open_gate(p, cos_rho, gate_lo):
             p[k, k] = target
 
 
-@njit(cache=True)
-def _low_passed_update(p, q, bias, low, hv, tb, ph, sa, sb, s00, s01, s11, g_a, acc_var, dt, cfg, x, qn):
-    """The reading refused: the low-passed one (``accel_tau``) through the norm and residual
-    tests, and the update with it. Returns whether it was used."""
-    l0, l1, l2 = low[0], low[1], low[2]
+@njit(cache=True, inline="always")
+def _low_passed_trust(l0, l1, l2, hv, tb, sa, sb, s01, g_a, norm_lo, norm_hi, gate_lo, gate_hi):
+    """The reading refused: the trust in the low-passed one (l0, l1, l2; ``accel_tau``) by the norm
+    and residual tests (0 where it has no length), and its residual r."""
     ln = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
     if not ln > 0.0:
-        return False
+        return 0.0, 0.0, 0.0
     r0, r1 = _tangent_residual(tb, hv, l0 / ln, l1 / ln, l2 / ln)
     d2 = _gate_d2(sa, sb, s01, r0, r1)
-    w_low = ramp(abs(ln / g_a - 1.0), cfg.norm_lo, cfg.norm_hi)
-    if d2 > cfg.gate_lo * cfg.gate_lo:
-        w_low *= ramp(np.sqrt(d2), cfg.gate_lo, cfg.gate_hi)
-    if not w_low > 0.0:
-        return False
-    _tangent_update(p, ph, s00, s01, s11, r0, r1, acc_var / (dt * w_low), x)
-    inject(q, bias, x, qn)
-    return True
+    w_low = ramp(abs(ln / g_a - 1.0), norm_lo, norm_hi)
+    if d2 > gate_lo * gate_lo:
+        w_low *= ramp(np.sqrt(d2), gate_lo, gate_hi)
+    return w_low, r0, r1
 
 
 @njit(cache=True, inline="always")
@@ -537,10 +532,8 @@ def eqkf_run(s, state, cfg, out_q, diag):
     gate_lo, gate_hi, use_mag, max_step = cfg.gate_lo, cfg.gate_hi, cfg.use_mag, cfg.max_step
     tau, vib_tau, rise = cfg.trust_lpf, cfg.vib_time, cfg.trust_rise
     still_rate2, still_acc2 = cfg.still_rate * cfg.still_rate, cfg.still_accel * cfg.still_accel
-    still_time, airspeed, learn_g = cfg.still_time, cfg.airspeed, cfg.learn_g
-    cons_tol, cons_norm, cons_time = cfg.cons_tol, cfg.cons_norm, cfg.cons_time
-    cos_tol, sin_tol = np.cos(cons_tol), np.sin(cons_tol)
-    cdec, sdec = np.cos(cfg.declination), np.sin(cfg.declination)
+    still_time, airspeed, learn_g, cons_norm, cons_time = cfg.still_time, cfg.airspeed, cfg.learn_g, cfg.cons_norm, cfg.cons_time
+    cos_tol, sin_tol, cdec, sdec = np.cos(cfg.cons_tol), np.sin(cfg.cons_tol), np.cos(cfg.declination), np.sin(cfg.declination)
     lp0, lp1, lp2, dir0, dir1, dir2, vib, still_t, w_prev, ref0, ref1, ref2, g_a, cons_t = _load_aux(aux)
     for i in range(len(t)):
         gx, gy, gz = gyro[i, 0], gyro[i, 1], gyro[i, 2]
@@ -618,12 +611,14 @@ def eqkf_run(s, state, cfg, out_q, diag):
             # trust falls at once but rises at most 1/trust_rise per second
             w_acc = min(w_norm * w_rate * w_res, w_prev + dt / rise)
             w_prev = w_acc
-            if w_acc > 0.0:
-                _tangent_update(p, ph, s00, s01, s11, r0, r1, acc_var / (dt * w_acc), x)  # R = R₀ / w, R₀ = σ_a²/Δt
+            w_upd = w_acc
+            if not w_acc > 0.0 and cfg.fallback:  # refused: the low-passed reading, through the norm and residual tests
+                w_upd, r0, r1 = _low_passed_trust(accel_low[i, 0], accel_low[i, 1], accel_low[i, 2], hv, tb, sa, sb, s01,
+                                                  g_a, norm_lo, norm_hi, gate_lo, gate_hi)
+                low_used = w_upd > 0.0
+            if w_upd > 0.0:
+                _tangent_update(p, ph, s00, s01, s11, r0, r1, acc_var / (dt * w_upd), x)  # R = R₀ / w, R₀ = σ_a²/Δt
                 inject(q, bias, x, qn)
-            elif cfg.fallback:
-                low_used = _low_passed_update(p, q, bias, accel_low[i], hv, tb, ph, sa, sb, s00, s01, s11, g_a,
-                                              acc_var, dt, cfg, x, qn)
         out_state[i] = _accel_state(low_used, w_acc)
         out_w[i] = w_acc
 
