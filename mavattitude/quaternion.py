@@ -192,17 +192,8 @@ def qnormalize(q):
 @njit(cache=True)
 def qdcm(q):
     """C(q), body -> navigation."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
     c = np.empty((3, 3))
-    c[0, 0] = 1 - 2 * (y * y + z * z)
-    c[0, 1] = 2 * (x * y - w * z)
-    c[0, 2] = 2 * (x * z + w * y)
-    c[1, 0] = 2 * (x * y + w * z)
-    c[1, 1] = 1 - 2 * (x * x + z * z)
-    c[1, 2] = 2 * (y * z - w * x)
-    c[2, 0] = 2 * (x * z - w * y)
-    c[2, 1] = 2 * (y * z + w * x)
-    c[2, 2] = 1 - 2 * (x * x + y * y)
+    dcm_into(q[0], q[1], q[2], q[3], c)
     return c
 
 

@@ -11,6 +11,11 @@ and of this checkout run interleaved, ``--runs`` times each, with and without th
 samples/s of both by CPU time (``time.process_time``, min of the runs) and the ratio (this / base):
 under 1 this checkout is slower. Checks the two give the same attitudes to the bit, else says so.
 Both compile first (cold caches: a minute or two).
+
+The one compiled first runs faster here (measured on this 2-core EPYC: identical code read 0.80-0.89 when
+compiled second, 1.14-1.22 when first), so one order says little about a few per cent: run it with
+``--first base`` and ``--first this`` and take the geometric mean of the two ratios (identical code:
+1.01-1.02).
 """
 from __future__ import annotations
 
@@ -50,6 +55,8 @@ def main() -> int:
     ap.add_argument("--estimators", default="mahony,mahony-ekf,ekf,eskf,ncs-eskf,eq-kf,cpf-ekf")
     ap.add_argument("--runs", type=int, default=15)
     ap.add_argument("--duration", type=float, default=300.0, help="simulated seconds at 400 Hz (default 300)")
+    ap.add_argument("--first", choices=("base", "this"), default="base",
+                    help="which one compiles (and runs) first (default base; see the docstring: run both)")
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="speed-ab-") as tmp:
@@ -62,14 +69,19 @@ def main() -> int:
 
         data = make_data("figure8", args.duration, 400.0, 0)
         n = len(data.t)
-        print(f"{n} samples; CPU time, min of {args.runs} interleaved runs; ratio = this checkout / {args.rev}")
+        print(f"{n} samples; CPU time, min of {args.runs} interleaved runs; ratio = this checkout / {args.rev}; "
+              f"{args.first} compiled first")
         for name in args.estimators.split(","):
             for use_mag in (True, False):
                 if name not in base.ESTIMATORS:
                     print(f"{name}: not in {args.rev}")
                     break
-                _, qb = timed(base, name, data, use_mag)  # compiles both first
-                _, qo = timed(ours, name, data, use_mag)
+                if args.first == "base":  # compiles both first
+                    _, qb = timed(base, name, data, use_mag)
+                    _, qo = timed(ours, name, data, use_mag)
+                else:
+                    _, qo = timed(ours, name, data, use_mag)
+                    _, qb = timed(base, name, data, use_mag)
                 same = "same attitudes" if np.array_equal(qb, qo) else "ATTITUDES DIFFER"
                 tb, to = [], []
                 for _ in range(args.runs):

@@ -23,7 +23,7 @@ counts the accel states into the JSON events and the view shows them.
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import fields, is_dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -39,7 +39,9 @@ MAX_STEP_S = 1.5
 class Estimator:
     name: str = ""
     Params: type = None  # a dataclass of tunable parameters with the paper's defaults
-    uses_mag: bool = False  # can take its heading from the magnetometer
+    # can take its heading from the magnetometer; unless a class states it, whether its Params have a
+    # ``use_mag`` switch (set in __init_subclass__: the two cannot disagree)
+    uses_mag: bool = False
     kernels: tuple = ()  # the numba functions it runs, to tell when a first run must compile them
     DIAGNOSTICS: dict = {}  # diagnostic series name -> what it holds, with its unit
     ACCEL_STATES: tuple = ()  # meaning of each accel_state code, code 0 = "used"
@@ -72,6 +74,11 @@ class Estimator:
         "NAME FIELD VALUE" in the replay's notes). ``params.log_defaults`` applies them where
         the user set nothing. None unless a class says."""
         return {}
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if "uses_mag" not in cls.__dict__ and is_dataclass(cls.Params):
+            cls.uses_mag = any(f.name == "use_mag" for f in fields(cls.Params))
 
     def run_params(self):
         """The parameters the filter runs with: ``params``, or with ``strict`` set, ``params``
@@ -125,10 +132,18 @@ class Estimator:
         self._accel_tau = float(tau)
         self._accel_lowpass = inertial_accel.start(q0, gyro_bias) if tau > 0 else None
 
+    def _ready(self, q0, gyro_bias) -> None:
+        """The end of ``initialize``: the accelerometer low-passed as ``accel_tau`` says (``run_params``:
+        strict turns it off where the paper's ``PAPER`` does), and the filter ready for ``update``."""
+        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
+        self.initialized = True
+
     @property
     def covariance(self) -> np.ndarray | None:
-        """The current state covariance (a copy), or None for a filter without one."""
-        return None
+        """The current state covariance (a copy): the ``P`` of the filter's state where it has one
+        (``FilterState`` and the like), else None."""
+        P = getattr(getattr(self, "_state", None), "P", None)
+        return None if P is None else P.copy()
 
     def has_heading_reference(self, mag_available: bool) -> bool:
         """Whether yaw is observed (magnetometer) rather than integrated from the gyro alone:
@@ -174,6 +189,14 @@ def filter_state(q0, P0: np.ndarray, gyro_bias) -> FilterState:
     q0 = np.array(q0, dtype=np.float64)
     return FilterState(q0 / np.linalg.norm(q0), np.array(P0, dtype=np.float64), np.array([np.nan]), np.zeros(3),
                        np.array(gyro_bias, dtype=np.float64).reshape(3))
+
+
+def run_with_trace(kernel, s, state, settings, out) -> dict[str, np.ndarray]:
+    """``_run`` of a Kalman filter whose kernel writes trace(P) after each sample (ekf, eskf):
+    ``kernel(s, state, settings, out, cov_trace)``; the diagnostics."""
+    cov_trace = np.empty(len(s.t))
+    kernel(s, state, settings, out, cov_trace)
+    return {"cov_trace": cov_trace}
 
 
 class Samples(NamedTuple):

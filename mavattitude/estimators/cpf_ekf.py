@@ -78,13 +78,13 @@ from ..flight import GRAVITY
 from ..paramspec import param
 from ..quaternion import left_matrix_into, right_matrix_into, rotate_into
 from .base import Estimator, Marked
-from .cpf_ekf_model import (A_ACC, A_COUNT, A_GYRO, A_LASTMAG, A_MAGINIT, A_RESETS, A_TBARO, A_TGPS, A_TPREV, A_TSYNTH,
-                            A_GPOS, A_GVEL, A_WDBIN, D_WD, D_BA, D_BG, D_M, D_MB, D_RESET, D_S, D_TRACE, D_V, DIAG_KEYS, IA,
+from .cpf_ekf_model import (A_ACC, A_GYRO, A_LASTMAG, A_MAGINIT, A_RESETS, A_TBARO, A_TGPS, A_TPREV, A_TSYNTH,
+                            A_GPOS, A_GVEL, A_WDBIN, D_BA, D_BG, D_M, D_MB, D_RESET, D_S, D_TRACE, D_V, DIAG_KEYS, IA,
                             IB, IM, IMB, IS, IV, NAUX, NDIAG, NX, RING, SYNTH_PERIOD_S, TESLA_TO_GAUSS, AidingRows,
                             CpfEkfSettings, CpfEkfState, add_process_noise, exp_dexp_pair, init_covariance,
                             propagate_covariance, rot_jacobian, step_state)
 from .cpf_ekf_updates import fuse_baro, fuse_compass, fuse_gps, fuse_zero_velocity, hold_heading, new_work
-from .cpf_ekf_watchdog import reset_from_cpf, watchdog_distance
+from .cpf_ekf_watchdog import watchdog_cycle, watchdog_due
 from .inertial_accel import lowpass_in_inertial_frame
 from .mahony import mahony_step
 from .timestep import integrates, step_dt, step_rate
@@ -173,8 +173,7 @@ def cpf_ekf_run(s, aid, state, cfg, out, diag):
     phi, e, d, eh, dh = np.empty(3), np.empty(4), np.empty((4, 3)), np.empty(4), np.empty((4, 3))
     rh, lq, ldh, jm = np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 3)), np.empty((3, 4))
     qm, qn, ap, an, cz = np.empty(4), np.empty(4), np.empty(3), np.empty(3), np.empty(3)
-    ez = np.zeros(3)
-    ez[2] = 1.0
+    ez = np.array((0.0, 0.0, 1.0))
     tp = aux[A_TPREV]
     for i in range(len(t)):
         ti = t[i]
@@ -265,22 +264,9 @@ def cpf_ekf_run(s, aid, state, cfg, out, diag):
                 hold_heading(x, P, cfg.heading_hold_noise, wk.pht, wk.idx, wk.val, wk.h_q)
             fuse_zero_velocity(x, P, baro_fresh, cfg, wk)
 
-        # the watchdog (eq 21), once per watchdog period
-        check = True
-        if cfg.watchdog_period > 0.0:
-            wd_bin = math.floor(ti / cfg.watchdog_period)
-            check = wd_bin != aux[A_WDBIN]
-            aux[A_WDBIN] = wd_bin
-        if check:
-            dist = watchdog_distance(x, qc, heading)
-            drow[D_WD] = dist
-            if cfg.watchdog > 0.5:
-                aux[A_COUNT] = aux[A_COUNT] + 1.0 if dist > cfg.reset_threshold else 0.0
-                if aux[A_COUNT] >= cfg.reset_cycles:
-                    aux[A_COUNT] = 0.0
-                    aux[A_RESETS] += 1.0
-                    drow[D_RESET] = 1.0
-                    reset_from_cpf(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk)
+        check, aux[A_WDBIN] = watchdog_due(ti, cfg.watchdog_period, aux[A_WDBIN])
+        if check:  # the watchdog (eq 21), once per watchdog period
+            watchdog_cycle(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk, drow)
         _write_row(x, P, out[i], drow)
     aux[A_TPREV] = tp
     return out
@@ -293,7 +279,6 @@ class CpfEkf(Estimator):
     """20-state EKF with complementary-filter reset (paper 003); see the module docstring."""
     name = "cpf-ekf"
     Params = CpfEkfParams
-    uses_mag = True
     uses_aiding = True
     kernels = (lowpass_in_inertial_frame, cpf_ekf_run)
     color = (195, 0, 0)
@@ -359,8 +344,7 @@ class CpfEkf(Estimator):
         # the complementary filter starts as mahony does
         self._state = CpfEkfState(x=x, P=P, qc=np.array(q0, dtype=np.float64),
                                   bc=-np.asarray(gyro_bias, dtype=np.float64).copy(), aux=aux, ring=np.zeros((RING, 7)))
-        self._start_accel_lowpass(q0, gyro_bias, p.accel_tau)
-        self.initialized = True
+        self._ready(q0, gyro_bias)
 
     def _run(self, s, out, aiding) -> dict:
         n = len(s.t)
@@ -380,10 +364,6 @@ class CpfEkf(Estimator):
         diag = np.empty((n, NDIAG))
         cpf_ekf_run(s, aid, self._state, self._settings, out, diag)
         return {key: diag[:, k] for k, key in enumerate(DIAG_KEYS)}
-
-    @property
-    def covariance(self) -> np.ndarray:
-        return self._state.P.copy()
 
     @property
     def state(self) -> np.ndarray:

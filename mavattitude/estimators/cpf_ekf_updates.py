@@ -255,8 +255,10 @@ class Work(NamedTuple):
 
 @njit(cache=True)
 def new_work():
-    return Work(np.empty(3), np.empty(3), np.empty(3), np.zeros(3), np.empty((4, 4)), np.empty(NX),
-                np.zeros(8, dtype=np.int64), np.zeros(8), np.empty(4), np.empty(6), np.empty(3))
+    """A ``Work`` for one chunk."""
+    return Work(vec=np.empty(3), ned=np.empty(3), col=np.empty(3), unit=np.zeros(3), rq=np.empty((4, 4)),
+                pht=np.empty(NX), idx=np.zeros(8, dtype=np.int64), val=np.zeros(8), h_q=np.empty(4),
+                bias_var=np.empty(6), body_field_var=np.empty(3))
 
 
 

@@ -14,10 +14,13 @@ Choices the paper leaves open, made here:
 """
 from __future__ import annotations
 
+import math
+
 from numba import njit
 
 from ..quaternion import euler_s, wrap_pi_s
-from .cpf_ekf_model import A_GPOS, A_GVEL, A_LASTMAG, IA, IB, IMB, IS, IV, TESLA_TO_GAUSS, init_covariance
+from .cpf_ekf_model import (A_COUNT, A_GPOS, A_GVEL, A_LASTMAG, A_RESETS, D_RESET, D_WD, IA, IB, IMB, IS, IV, TESLA_TO_GAUSS,
+                            init_covariance)
 from .cpf_ekf_updates import start_earth_field
 
 
@@ -33,6 +36,31 @@ def watchdog_distance(x, qc, heading):
         dy = wrap_pi_s(ey - cy)
         dist += dy * dy
     return dist
+
+
+@njit(cache=True, inline="always")
+def watchdog_due(ti, period, last_bin):
+    """Whether the watchdog checks at time ti, once per period (every sample with period 0), and
+    the period's number, the next sample's last_bin."""
+    if period > 0.0:
+        wd_bin = math.floor(ti / period)
+        return wd_bin != last_bin, wd_bin
+    return True, last_bin
+
+
+@njit(cache=True)
+def watchdog_cycle(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk, drow):
+    """One watchdog cycle (eq 21): the distance into the row; with the watchdog on, the count of
+    consecutive cycles over N, and at reset_cycles the reset (counted in aux, marked in the row)."""
+    dist = watchdog_distance(x, qc, heading)
+    drow[D_WD] = dist
+    if cfg.watchdog > 0.5:
+        aux[A_COUNT] = aux[A_COUNT] + 1.0 if dist > cfg.reset_threshold else 0.0
+        if aux[A_COUNT] >= cfg.reset_cycles:
+            aux[A_COUNT] = 0.0
+            aux[A_RESETS] += 1.0
+            drow[D_RESET] = 1.0
+            reset_from_cpf(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk)
 
 
 @njit(cache=True)

@@ -72,7 +72,7 @@ from numba import njit
 from ..flight import GRAVITY
 from ..paramspec import param
 from ..quaternion import wrap_pi_s
-from .base import MAX_STEP_S, Estimator, filter_state
+from .base import MAX_STEP_S, Estimator, filter_state, run_with_trace
 from .inertial_accel import lowpass_in_inertial_frame
 from .timestep import integrates, step_dt, step_rate
 
@@ -463,7 +463,6 @@ class Ekf(Estimator):
     """Conventional quaternion EKF (baseline of papers 000, 001); see the module docstring."""
     name = "ekf"
     Params = EkfParams
-    uses_mag = True
     kernels = (lowpass_in_inertial_frame, ekf_run)
     color = (0, 135, 255)
     compile_seconds = 4.0  # CPU s, one core (scripts/compile_profile.py)
@@ -476,14 +475,7 @@ class Ekf(Estimator):
         self._settings = EkfSettings(
             q_gyro=float(p.q_gyro), r_accel=float(p.r_accel), r_mag=float(p.r_mag), declination=self.declination,
             use_mag=bool(p.use_mag), max_step=MAX_STEP_S)
-        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
-        self.initialized = True
+        self._ready(q0, gyro_bias)
 
     def _run(self, s, out, aiding) -> dict:
-        cov_trace = np.empty(len(s.t))
-        ekf_run(s, self._state, self._settings, out, cov_trace)
-        return {"cov_trace": cov_trace}
-
-    @property
-    def covariance(self) -> np.ndarray:
-        return self._state.P.copy()
+        return run_with_trace(ekf_run, s, self._state, self._settings, out)

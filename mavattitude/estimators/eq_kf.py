@@ -347,54 +347,194 @@ def _tangent_update(p, ph, s00, s01, s11, r0, r1, rr, x):
             p[c, r] = s
 
 
+@njit(cache=True, inline="always")
+def _normalise_into(qn, q):
+    """q ← qn / ‖qn‖."""
+    inv = 1.0 / np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
+    for k in range(4):
+        q[k] = qn[k] * inv
+
+
+@njit(cache=True, inline="always")
+def _propagate_covariance(p, a, b, tp, q_e, qb_var, dt):
+    """P ← Φ P Φᵀ + Q for Φ = [[a, b], [0, I]] (``error_transition``), Q = diag(q_e I, qb_var Δt I)."""
+    # tp = rows 0-2 of Φ P
+    for r in range(3):
+        for c in range(6):
+            tp[r, c] = (a[r, 0] * p[0, c] + a[r, 1] * p[1, c] + a[r, 2] * p[2, c]
+                        + b[r, 0] * p[3, c] + b[r, 1] * p[4, c] + b[r, 2] * p[5, c])
+    # P_ee = tp Φ[0:3]ᵀ (upper triangle, mirrored); P_eb = tp[:, 3:6]; P_bb += Q_b
+    for r in range(3):
+        for c in range(r, 3):
+            s = (tp[r, 0] * a[c, 0] + tp[r, 1] * a[c, 1] + tp[r, 2] * a[c, 2]
+                 + tp[r, 3] * b[c, 0] + tp[r, 4] * b[c, 1] + tp[r, 5] * b[c, 2])
+            if r == c:
+                s += q_e
+            p[r, c] = s
+            p[c, r] = s
+        for c in range(3, 6):
+            p[r, c] = tp[r, c]
+            p[c, r] = tp[r, c]
+    for r in range(3, 6):
+        p[r, r] += qb_var * dt
+
+
+@njit(cache=True, inline="always")
+def _low_pass_carried(a, lp0, lp1, lp2, ax, ay, az, alpha):
+    """The low-pass f̃ carried across the step (f̃ ← a f̃, a = C(p̂)ᵀ), then moved by alpha toward the sample."""
+    f0, f1, f2 = carried(a, lp0, lp1, lp2)
+    return f0 + alpha * (ax - f0), f1 + alpha * (ay - f1), f2 + alpha * (az - f2)
+
+
+@njit(cache=True, inline="always")
+def _direction_noise(a, dir0, dir1, dir2, u0, u1, u2, vib, alpha):
+    """σ_vib² moved by alpha toward the change of the direction u = a/‖a‖ since the last
+    sample's (carried across the step): |Δu|² = 2 axes × 2 samples × σ², so σ² per axis = |Δu|²/4."""
+    d0 = u0 - (a[0, 0] * dir0 + a[0, 1] * dir1 + a[0, 2] * dir2)
+    d1 = u1 - (a[1, 0] * dir0 + a[1, 1] * dir1 + a[1, 2] * dir2)
+    d2 = u2 - (a[2, 0] * dir0 + a[2, 1] * dir1 + a[2, 2] * dir2)
+    return vib + alpha * (0.25 * (d0 * d0 + d1 * d1 + d2 * d2) - vib)
+
+
+@njit(cache=True)
+def _load_aux(aux):
+    """The auxiliary state as the loop's locals (the _A_* indices, in order)."""
+    return (aux[_A_LP], aux[_A_LP + 1], aux[_A_LP + 2], aux[_A_DIR], aux[_A_DIR + 1], aux[_A_DIR + 2], aux[_A_VIB],
+            aux[_A_STILL], aux[_A_W], aux[_A_REF], aux[_A_REF + 1], aux[_A_REF + 2], aux[_A_G], aux[_A_CONS])
+
+
+@njit(cache=True)
+def _save_aux(aux, lp0, lp1, lp2, dir0, dir1, dir2, vib, still_t, w_prev, ref0, ref1, ref2, g_a, cons_t):
+    """The loop's locals back into the auxiliary state (``_load_aux``'s order)."""
+    aux[_A_LP], aux[_A_LP + 1], aux[_A_LP + 2] = lp0, lp1, lp2
+    aux[_A_DIR], aux[_A_DIR + 1], aux[_A_DIR + 2] = dir0, dir1, dir2
+    aux[_A_VIB], aux[_A_STILL], aux[_A_W] = vib, still_t, w_prev
+    aux[_A_REF], aux[_A_REF + 1], aux[_A_REF + 2] = ref0, ref1, ref2
+    aux[_A_G], aux[_A_CONS] = g_a, cons_t
+
+
+@njit(cache=True, inline="always")
+def _gravity_direction(q, hv):
+    """h̄ = C(Q̄)ᵀ [0, 0, -1] into hv: where the accelerometer of a vehicle at rest points."""
+    w_, x_, y_, z_ = q[0], q[1], q[2], q[3]
+    hv[0] = -2.0 * (x_ * z_ - w_ * y_)
+    hv[1] = -2.0 * (y_ * z_ + w_ * x_)
+    hv[2] = -(1.0 - 2.0 * (x_ * x_ + y_ * y_))
+
+
+@njit(cache=True, inline="always")
+def _innovation_covariance(p, hm, ph):
+    """P Hᵀ (6×2) into ph; returns H P Hᵀ (2×2) as s00, s01, s11."""
+    for r in range(6):
+        for j in range(2):
+            ph[r, j] = p[r, 0] * hm[j, 0] + p[r, 1] * hm[j, 1] + p[r, 2] * hm[j, 2]
+    s00 = hm[0, 0] * ph[0, 0] + hm[0, 1] * ph[1, 0] + hm[0, 2] * ph[2, 0]
+    s01 = hm[0, 0] * ph[0, 1] + hm[0, 1] * ph[1, 1] + hm[0, 2] * ph[2, 1]
+    s11 = hm[1, 0] * ph[0, 1] + hm[1, 1] * ph[1, 1] + hm[1, 2] * ph[2, 1]
+    return s00, s01, s11
+
+
+@njit(cache=True, inline="always")
+def _tangent_residual(tb, hv, u0, u1, u2):
+    """r = Tᵀ (u - h̄), the residual of a unit vector u in the tangent plane."""
+    e0, e1, e2 = u0 - hv[0], u1 - hv[1], u2 - hv[2]
+    return tb[0, 0] * e0 + tb[0, 1] * e1 + tb[0, 2] * e2, tb[1, 0] * e0 + tb[1, 1] * e1 + tb[1, 2] * e2
+
+
+@njit(cache=True, inline="always")
+def _gate_d2(sa, sb, s01, r0, r1):
+    """d² = rᵀ S_g⁻¹ r for S_g = [[sa, s01], [s01, sb]]."""
+    return (sb * r0 * r0 - 2.0 * s01 * r0 * r1 + sa * r1 * r1) / (sa * sb - s01 * s01)
+
+
+@njit(cache=True)
+def _open_gate(p, cos_rho, gate_lo):
+    """The consistency test fired: raise the attitude covariance so that the residual angle ρ
+    sits at gate_lo σ, and the gate opens for the bias states to relearn."""
+    rho = np.arccos(min(max(cos_rho, -1.0), 1.0))
+    target = (0.5 * rho / gate_lo) ** 2
+    for k in range(3):
+        if p[k, k] < target:
+            p[k, k] = target
+
+
+@njit(cache=True, inline="always")
+def _low_passed_trust(l0, l1, l2, hv, tb, sa, sb, s01, g_a, norm_lo, norm_hi, gate_lo, gate_hi):
+    """The reading refused: the trust in the low-passed one (l0, l1, l2; ``accel_tau``) by the norm
+    and residual tests (0 where it has no length), and its residual r."""
+    ln = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
+    if not ln > 0.0:
+        return 0.0, 0.0, 0.0
+    r0, r1 = _tangent_residual(tb, hv, l0 / ln, l1 / ln, l2 / ln)
+    d2 = _gate_d2(sa, sb, s01, r0, r1)
+    w_low = ramp(abs(ln / g_a - 1.0), norm_lo, norm_hi)
+    if d2 > gate_lo * gate_lo:
+        w_low *= ramp(np.sqrt(d2), gate_lo, gate_hi)
+    return w_low, r0, r1
+
+
+@njit(cache=True, inline="always")
+def _heading_innovation(q, m0, m1, m2, cdec, sdec):
+    """γ = declination - azimuth(m_h), m_h the horizontal part of the measured field (m0, m1, m2)
+    turned to the navigation frame with Q̄: the signed angle from m_h to magnetic north. NaN
+    where m_h is zero."""
+    w_, x_, y_, z_ = q[0], q[1], q[2], q[3]
+    mx = ((1.0 - 2.0 * (y_ * y_ + z_ * z_)) * m0 + 2.0 * (x_ * y_ - w_ * z_) * m1 + 2.0 * (x_ * z_ + w_ * y_) * m2)
+    my = (2.0 * (x_ * y_ + w_ * z_) * m0 + (1.0 - 2.0 * (x_ * x_ + z_ * z_)) * m1 + 2.0 * (y_ * z_ - w_ * x_) * m2)
+    if mx * mx + my * my > 0.0:
+        return np.arctan2(mx * sdec - my * cdec, mx * cdec + my * sdec)
+    return np.nan
+
+
+@njit(cache=True, inline="always")
+def _scalar_update(p, hm3, v6, rr, gamma, x):
+    """A scalar update with H = [hm3, 0] and variance rr: x = K γ, P ← P - K (P Hᵀ)ᵀ, upper
+    triangle mirrored."""
+    for r in range(6):
+        v6[r] = p[r, 0] * hm3[0] + p[r, 1] * hm3[1] + p[r, 2] * hm3[2]
+    s = hm3[0] * v6[0] + hm3[1] * v6[1] + hm3[2] * v6[2] + rr
+    for r in range(6):
+        kr = v6[r] / s
+        x[r] = kr * gamma
+        for c in range(r, 6):
+            pv = p[r, c] - kr * v6[c]
+            p[r, c] = pv
+            p[c, r] = pv
+
+
+@njit(cache=True, inline="always")
+def _accel_state(low_used, w_acc):
+    """The accel_state code (``ACCEL_STATES``)."""
+    if low_used:
+        return 3
+    if w_acc >= 1.0:
+        return 0
+    return 1 if w_acc > 0.0 else 2
+
+
 @njit(cache=True)
 def eqkf_run(s, state, cfg, out_q, diag):
-    """Run the filter over a chunk of samples ``s`` (``base.Samples``; ``in_air`` gates the
-    turn compensation only); ``state`` (``EqKfState``) is updated in place. Writes the
-    attitude to ``out_q`` and trace(P), the trust w and the accel state code of each sample to
-    ``diag``."""
+    """Run the filter over a chunk of samples ``s`` (``base.Samples``; ``in_air`` gates the turn compensation
+    only); ``state`` (``EqKfState``) is updated in place. Writes the attitude to ``out_q`` and trace(P), the
+    trust w and the accel state code of each sample to ``diag``."""
     # the trust tests read the reading as it is; where they refuse it, the low-passed one (s.accel) may stand in
     t, gyro, accel, accel_low, mag, in_air = s.t, s.gyro, s.accel_read, s.accel, s.mag, s.in_air
     over_step = s.rate_over_step  # each gyro sample the mean over its step (timestep.step_rate)
     q, bias, p, t_prev, gyro_prev, aux = state.q, state.bias, state.p, state.t_prev, state.gyro_prev, state.aux
-    use_mag, max_step = cfg.use_mag, cfg.max_step
     out_trace, out_w, out_state = diag.cov_trace, diag.accel_weight, diag.accel_state
     # scratch, once per chunk
-    a = np.empty((3, 3))
-    b = np.empty((3, 3))
-    tp = np.empty((3, 6))
-    dth = np.empty(3)
-    qn = np.empty(4)
-    hv = np.empty(3)
-    tb = np.empty((2, 3))
-    hm = np.empty((2, 3))
-    ph = np.empty((6, 2))
-    hm3 = np.empty(3)
-    v6 = np.empty(6)
-    x = np.empty(6)
-    qe_var = 0.25 * cfg.gyro_noise * cfg.gyro_noise
-    qb_var = cfg.bias_walk * cfg.bias_walk
-    acc_var = cfg.accel_noise * cfg.accel_noise
-    mag_var = cfg.mag_noise * cfg.mag_noise
-    gate_var = cfg.gate_noise * cfg.gate_noise
-    kint2 = cfg.int_noise * cfg.int_noise
+    a, b, tp, dth, qn, x = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 6)), np.empty(3), np.empty(4), np.empty(6)
+    hv, tb, hm, ph, hm3, v6 = np.empty(3), np.empty((2, 3)), np.empty((2, 3)), np.empty((6, 2)), np.empty(3), np.empty(6)
+    qe_var, qb_var = 0.25 * cfg.gyro_noise * cfg.gyro_noise, cfg.bias_walk * cfg.bias_walk
+    acc_var, mag_var = cfg.accel_noise * cfg.accel_noise, cfg.mag_noise * cfg.mag_noise
+    gate_var, kint2 = cfg.gate_noise * cfg.gate_noise, cfg.int_noise * cfg.int_noise
     norm_lo, norm_hi, rate_lo, rate_hi = cfg.norm_lo, cfg.norm_hi, cfg.rate_lo, cfg.rate_hi
-    gate_lo, gate_hi = cfg.gate_lo, cfg.gate_hi
+    gate_lo, gate_hi, use_mag, max_step = cfg.gate_lo, cfg.gate_hi, cfg.use_mag, cfg.max_step
     tau, vib_tau, rise = cfg.trust_lpf, cfg.vib_time, cfg.trust_rise
-    still_rate2 = cfg.still_rate * cfg.still_rate
-    still_acc2 = cfg.still_accel * cfg.still_accel
-    still_time = cfg.still_time
-    cons_tol, cons_norm, cons_time = cfg.cons_tol, cfg.cons_norm, cfg.cons_time
-    cos_tol, sin_tol = np.cos(cons_tol), np.sin(cons_tol)
-    cdec, sdec = np.cos(cfg.declination), np.sin(cfg.declination)
-    airspeed = cfg.airspeed
-    # the auxiliary state, in locals for the loop
-    lp0, lp1, lp2 = aux[_A_LP], aux[_A_LP + 1], aux[_A_LP + 2]
-    dir0, dir1, dir2 = aux[_A_DIR], aux[_A_DIR + 1], aux[_A_DIR + 2]
-    vib, still_t, w_prev = aux[_A_VIB], aux[_A_STILL], aux[_A_W]
-    ref0, ref1, ref2 = aux[_A_REF], aux[_A_REF + 1], aux[_A_REF + 2]
-    g_a, cons_t = aux[_A_G], aux[_A_CONS]
-    learn_g = cfg.learn_g
+    still_rate2, still_acc2 = cfg.still_rate * cfg.still_rate, cfg.still_accel * cfg.still_accel
+    still_time, airspeed, learn_g, cons_norm, cons_time = cfg.still_time, cfg.airspeed, cfg.learn_g, cfg.cons_norm, cfg.cons_time
+    cos_tol, sin_tol, cdec, sdec = np.cos(cfg.cons_tol), np.sin(cfg.cons_tol), np.cos(cfg.declination), np.sin(cfg.declination)
+    lp0, lp1, lp2, dir0, dir1, dir2, vib, still_t, w_prev, ref0, ref1, ref2, g_a, cons_t = _load_aux(aux)
     for i in range(len(t)):
         gx, gy, gz = gyro[i, 0], gyro[i, 1], gyro[i, 2]
         ax, ay, az = accel[i, 0], accel[i, 1], accel[i, 2]
@@ -408,7 +548,8 @@ def eqkf_run(s, state, cfg, out_q, diag):
         if t[i] == t[i]:  # a sample without a time leaves the last one's
             t_prev[0] = t[i]
         step = integrates(dt, max_step) and gyro_ok
-        rx, ry, rz = step_rate(gx, gy, gz, gyro_prev[0], gyro_prev[1], gyro_prev[2], dt if step else 0.0, over_step)
+        rx, ry, rz = step_rate(gx, gy, gz, gyro_prev[0], gyro_prev[1], gyro_prev[2], dt if step else 0.0,
+                               over_step)
         rx, ry, rz = rx - bias[0], ry - bias[1], rz - bias[2]
         # the rate change across the step, for the integration noise
         dwx, dwy, dwz = gx - gyro_prev[0], gy - gyro_prev[1], gz - gyro_prev[2]
@@ -417,172 +558,80 @@ def eqkf_run(s, state, cfg, out_q, diag):
         an = np.sqrt(ax * ax + ay * ay + az * az)
         accel_ok = an > 0.0 and an == an
 
-        # ---- prediction: Picard attitude step (eq 5), P ← Φ P Φᵀ + Q
-        if step:
+        if step:  # the prediction: Picard attitude step (eq 5), P ← Φ P Φᵀ + Q
             dth[0], dth[1], dth[2] = rx * dt, ry * dt, rz * dt
             picard_step(q, dth, qn)
-            inv = 1.0 / np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
-            for k in range(4):
-                q[k] = qn[k] * inv
+            _normalise_into(qn, q)
             error_transition(dth, dt, a, b)
             q_e = qe_var * dt + 0.25 * kint2 * (dwx * dwx + dwy * dwy + dwz * dwz) * dt * dt
-            # tp = rows 0-2 of Φ P
-            for r in range(3):
-                for c in range(6):
-                    tp[r, c] = (a[r, 0] * p[0, c] + a[r, 1] * p[1, c] + a[r, 2] * p[2, c]
-                                + b[r, 0] * p[3, c] + b[r, 1] * p[4, c] + b[r, 2] * p[5, c])
-            # P_ee = tp Φ[0:3]ᵀ (upper triangle, mirrored); P_eb = tp[:, 3:6]; P_bb += Q_b
-            for r in range(3):
-                for c in range(r, 3):
-                    s = (tp[r, 0] * a[c, 0] + tp[r, 1] * a[c, 1] + tp[r, 2] * a[c, 2]
-                         + tp[r, 3] * b[c, 0] + tp[r, 4] * b[c, 1] + tp[r, 5] * b[c, 2])
-                    if r == c:
-                        s += q_e
-                    p[r, c] = s
-                    p[c, r] = s
-                for c in range(3, 6):
-                    p[r, c] = tp[r, c]
-                    p[c, r] = tp[r, c]
-            for r in range(3, 6):
-                p[r, r] += qb_var * dt
-
+            _propagate_covariance(p, a, b, tp, q_e, qb_var, dt)
         # ---- accelerometer bookkeeping, every vector carried along with the body rotation
         # (v ← C(p̂)ᵀ v): the low-pass f̃, the direction noise, the stillness test
         if step and accel_ok and lp0 == lp0:
-            f0, f1, f2 = carried(a, lp0, lp1, lp2)
-            alpha = dt / (tau + dt)
-            lp0 = f0 + alpha * (ax - f0)
-            lp1 = f1 + alpha * (ay - f1)
-            lp2 = f2 + alpha * (az - f2)
+            lp0, lp1, lp2 = _low_pass_carried(a, lp0, lp1, lp2, ax, ay, az, dt / (tau + dt))
             if dir0 == dir0:
-                # |Δu|² = 2 axes × 2 samples × σ², so σ² per axis = |Δu|²/4
-                d0 = ax / an - (a[0, 0] * dir0 + a[0, 1] * dir1 + a[0, 2] * dir2)
-                d1 = ay / an - (a[1, 0] * dir0 + a[1, 1] * dir1 + a[1, 2] * dir2)
-                d2 = az / an - (a[2, 0] * dir0 + a[2, 1] * dir1 + a[2, 2] * dir2)
-                vib += dt / (vib_tau + dt) * (0.25 * (d0 * d0 + d1 * d1 + d2 * d2) - vib)
+                vib = _direction_noise(a, dir0, dir1, dir2, ax / an, ay / an, az / an, vib, dt / (vib_tau + dt))
         elif accel_ok:  # start, after a gap or a bad sample: restart the low-pass here
             lp0, lp1, lp2 = ax, ay, az
         if accel_ok:
             dir0, dir1, dir2 = ax / an, ay / an, az / an
         else:
             dir0 = np.nan
-        # stillness: little rotation and a specific force that stays put in the navigation
-        # frame, for still_time
+        # stillness: little rotation and a specific force that stays put in the navigation frame, for still_time
+        rate2 = rx * rx + ry * ry + rz * rz
         ref0, ref1, ref2, still_t = track_stillness(ref0, ref1, ref2, still_t, ax, ay, az, a, step and accel_ok,
-                                                    rx * rx + ry * ry + rz * rz, still_rate2, still_acc2, dt)
+                                                    rate2, still_rate2, still_acc2, dt)
         still = still_t >= still_time
         if still and learn_g:  # learn the accelerometer's own reading of g (its scale error)
             g_a = learn_gravity(g_a, an, dt)
 
         # ---- accelerometer update with trust w
-        w_acc = 0.0
-        low_used = False
+        w_acc, low_used = 0.0, False
         fn = np.sqrt(lp0 ** 2 + lp1 ** 2 + lp2 ** 2)
         if step and accel_ok and fn > 0.0 and fn == fn:
-            w_, x_, y_, z_ = q[0], q[1], q[2], q[3]
-            hv[0] = -2.0 * (x_ * z_ - w_ * y_)  # C(Q̄)ᵀ [0, 0, -1]
-            hv[1] = -2.0 * (y_ * z_ + w_ * x_)
-            hv[2] = -(1.0 - 2.0 * (x_ * x_ + y_ * y_))
-            accel_tangent(hv, tb)
+            _gravity_direction(q, hv)
+            accel_tangent(hv, tb)  # T and H = Tᵀ 2[h̄]×
             accel_jacobian(hv, tb, hm)
             eps = fn / g_a - 1.0
             w_norm = ramp(abs(eps), norm_lo, norm_hi)
-            rate2 = rx * rx + ry * ry + rz * rz
             w_rate = 1.0 if rate2 <= rate_lo * rate_lo else ramp(np.sqrt(rate2), rate_lo, rate_hi)
-            # consistency: the residual angle ρ (f̃ against predicted gravity) beyond the
-            # angle φ_m a horizontal acceleration would explain given ‖f̃‖, held for
-            # cons_time with ‖f̃‖ ≈ g and modest rotation: attitude error, not a manoeuvre.
-            # Raise the attitude covariance so that the residual sits at gate_lo σ.
+            # consistency: the residual angle ρ (f̃ against predicted gravity) beyond the angle φ_m a horizontal
+            # acceleration would explain given ‖f̃‖, held for cons_time with ‖f̃‖ ≈ g and modest rotation: attitude error
             cosr = (lp0 * hv[0] + lp1 * hv[1] + lp2 * hv[2]) / fn
-            inconsistent = False
-            if w_rate >= 1.0 and abs(eps) < cons_norm:
-                inconsistent = attitude_error(cosr, eps, cos_tol, sin_tol)
-            if inconsistent:
-                cons_t += dt
-            else:
-                cons_t = 0.0
+            inconsistent = w_rate >= 1.0 and abs(eps) < cons_norm and attitude_error(cosr, eps, cos_tol, sin_tol)
+            cons_t = cons_t + dt if inconsistent else 0.0
             if cons_t >= cons_time:
-                rho = np.arccos(min(max(cosr, -1.0), 1.0))
-                target = (0.5 * rho / gate_lo) ** 2
-                for k in range(3):
-                    if p[k, k] < target:
-                        p[k, k] = target
-            # P Hᵀ (6×2) and H P Hᵀ (2×2)
-            for r in range(6):
-                for j in range(2):
-                    ph[r, j] = p[r, 0] * hm[j, 0] + p[r, 1] * hm[j, 1] + p[r, 2] * hm[j, 2]
-            s00 = hm[0, 0] * ph[0, 0] + hm[0, 1] * ph[1, 0] + hm[0, 2] * ph[2, 0]
-            s01 = hm[0, 0] * ph[0, 1] + hm[0, 1] * ph[1, 1] + hm[0, 2] * ph[2, 1]
-            s11 = hm[1, 0] * ph[0, 1] + hm[1, 1] * ph[1, 1] + hm[1, 2] * ph[2, 1]
-            # residual in the tangent plane, r = Tᵀ (a/‖a‖ - h̄)
-            e0, e1, e2 = ax / an - hv[0], ay / an - hv[1], az / an - hv[2]
-            r0 = tb[0, 0] * e0 + tb[0, 1] * e1 + tb[0, 2] * e2
-            r1 = tb[1, 0] * e0 + tb[1, 1] * e1 + tb[1, 2] * e2
+                _open_gate(p, cosr, gate_lo)
+            s00, s01, s11 = _innovation_covariance(p, hm, ph)
+            r0, r1 = _tangent_residual(tb, hv, ax / an, ay / an, az / an)
             # normalised residual d² = rᵀ S_g⁻¹ r, S_g = H P Hᵀ + (σ_gate² + σ_vib²) I
             sa, sb = s00 + gate_var + vib, s11 + gate_var + vib
-            d2 = (sb * r0 * r0 - 2.0 * s01 * r0 * r1 + sa * r1 * r1) / (sa * sb - s01 * s01)
+            d2 = _gate_d2(sa, sb, s01, r0, r1)
             w_res = 1.0 if still or d2 <= gate_lo * gate_lo else ramp(np.sqrt(d2), gate_lo, gate_hi)
             # trust falls at once but rises at most 1/trust_rise per second
             w_acc = min(w_norm * w_rate * w_res, w_prev + dt / rise)
             w_prev = w_acc
-            if w_acc > 0.0:
-                _tangent_update(p, ph, s00, s01, s11, r0, r1, acc_var / (dt * w_acc), x)  # R = R₀ / w, R₀ = σ_a²/Δt
+            w_upd = w_acc
+            if not w_acc > 0.0 and cfg.fallback:  # refused: the low-passed reading, through the norm and residual tests
+                w_upd, r0, r1 = _low_passed_trust(accel_low[i, 0], accel_low[i, 1], accel_low[i, 2], hv, tb, sa, sb, s01,
+                                                  g_a, norm_lo, norm_hi, gate_lo, gate_hi)
+                low_used = w_upd > 0.0
+            if w_upd > 0.0:
+                _tangent_update(p, ph, s00, s01, s11, r0, r1, acc_var / (dt * w_upd), x)  # R = R₀ / w, R₀ = σ_a²/Δt
                 inject(q, bias, x, qn)
-            elif cfg.fallback:  # the reading refused: the low-passed one through the norm and residual tests
-                l0, l1, l2 = accel_low[i, 0], accel_low[i, 1], accel_low[i, 2]
-                ln = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
-                if ln > 0.0:
-                    e0, e1, e2 = l0 / ln - hv[0], l1 / ln - hv[1], l2 / ln - hv[2]
-                    r0 = tb[0, 0] * e0 + tb[0, 1] * e1 + tb[0, 2] * e2
-                    r1 = tb[1, 0] * e0 + tb[1, 1] * e1 + tb[1, 2] * e2
-                    d2 = (sb * r0 * r0 - 2.0 * s01 * r0 * r1 + sa * r1 * r1) / (sa * sb - s01 * s01)
-                    w_low = ramp(abs(ln / g_a - 1.0), norm_lo, norm_hi)
-                    if d2 > gate_lo * gate_lo:
-                        w_low *= ramp(np.sqrt(d2), gate_lo, gate_hi)
-                    if w_low > 0.0:
-                        _tangent_update(p, ph, s00, s01, s11, r0, r1, acc_var / (dt * w_low), x)
-                        inject(q, bias, x, qn)
-                        low_used = True
-        if low_used:
-            out_state[i] = 3
-        elif w_acc >= 1.0:
-            out_state[i] = 0
-        elif w_acc > 0.0:
-            out_state[i] = 1
-        else:
-            out_state[i] = 2
+        out_state[i] = _accel_state(low_used, w_acc)
         out_w[i] = w_acc
 
-        # ---- magnetometer heading update
-        if use_mag and step and mag[i, 0] == mag[i, 0] and mag[i, 1] == mag[i, 1] and mag[i, 2] == mag[i, 2]:
-            w_, x_, y_, z_ = q[0], q[1], q[2], q[3]
-            mx = ((1.0 - 2.0 * (y_ * y_ + z_ * z_)) * mag[i, 0] + 2.0 * (x_ * y_ - w_ * z_) * mag[i, 1]
-                  + 2.0 * (x_ * z_ + w_ * y_) * mag[i, 2])
-            my = (2.0 * (x_ * y_ + w_ * z_) * mag[i, 0] + (1.0 - 2.0 * (x_ * x_ + z_ * z_)) * mag[i, 1]
-                  + 2.0 * (y_ * z_ - w_ * x_) * mag[i, 2])
-            if mx * mx + my * my > 0.0:
-                # innovation γ = declination - azimuth(m_h): signed angle from m_h to magnetic north
-                gamma = np.arctan2(mx * sdec - my * cdec, mx * cdec + my * sdec)
+        m0, m1, m2 = mag[i, 0], mag[i, 1], mag[i, 2]
+        if use_mag and step and m0 == m0 and m1 == m1 and m2 == m2:  # the magnetometer heading update
+            gamma = _heading_innovation(q, m0, m1, m2, cdec, sdec)
+            if gamma == gamma:
                 mag_jacobian(q, hm3)
-                for r in range(6):
-                    v6[r] = p[r, 0] * hm3[0] + p[r, 1] * hm3[1] + p[r, 2] * hm3[2]
-                s = hm3[0] * v6[0] + hm3[1] * v6[1] + hm3[2] * v6[2] + mag_var / dt
-                for r in range(6):
-                    kr = v6[r] / s
-                    x[r] = kr * gamma
-                    for c in range(r, 6):
-                        pv = p[r, c] - kr * v6[c]
-                        p[r, c] = pv
-                        p[c, r] = pv
+                _scalar_update(p, hm3, v6, mag_var / dt, gamma, x)
                 inject(q, bias, x, qn)
-
         out_q[i, 0], out_q[i, 1], out_q[i, 2], out_q[i, 3] = q[0], q[1], q[2], q[3]
         out_trace[i] = p[0, 0] + p[1, 1] + p[2, 2] + p[3, 3] + p[4, 4] + p[5, 5]
-    aux[_A_LP], aux[_A_LP + 1], aux[_A_LP + 2] = lp0, lp1, lp2
-    aux[_A_DIR], aux[_A_DIR + 1], aux[_A_DIR + 2] = dir0, dir1, dir2
-    aux[_A_VIB], aux[_A_STILL], aux[_A_W] = vib, still_t, w_prev
-    aux[_A_REF], aux[_A_REF + 1], aux[_A_REF + 2] = ref0, ref1, ref2
-    aux[_A_G], aux[_A_CONS] = g_a, cons_t
+    _save_aux(aux, lp0, lp1, lp2, dir0, dir1, dir2, vib, still_t, w_prev, ref0, ref1, ref2, g_a, cons_t)
     return out_q
 
 
@@ -593,7 +642,6 @@ class EqKf(Estimator):
     """Error-quaternion KF with accelerometer trust (paper 002); see the module docstring."""
     name = "eq-kf"
     Params = EqKfParams
-    uses_mag = True
     kernels = (lowpass_in_inertial_frame, eqkf_run, picard_step, error_transition, accel_tangent, accel_jacobian,
                mag_jacobian, ramp, inject)
     color = (0, 195, 195)
@@ -670,8 +718,7 @@ class EqKf(Estimator):
                 trust_lpf=0.0, vib_time=0.0, still_rate=0.0, still_accel=0.0, still_time=inf, cons_tol=0.0,
                 cons_norm=0.0, cons_time=inf, learn_g=False, airspeed=0.0, fallback=False)
         self._settings = settings
-        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
-        self.initialized = True
+        self._ready(q0, gyro_bias)
 
     def _run(self, s, out, aiding) -> dict:
         n = len(s.t)

@@ -64,7 +64,7 @@ from ..quaternion import (
     normalize_into,
     qmul_s,
 )
-from .base import MAX_STEP_S, Estimator, filter_state
+from .base import MAX_STEP_S, Estimator, filter_state, run_with_trace
 from .inertial_accel import lowpass_in_inertial_frame
 from .timestep import integrates, step_dt, step_rate
 
@@ -246,7 +246,6 @@ class Eskf(Estimator):
     """Body-frame error-state KF, the baseline of paper 001; see the module docstring."""
     name = "eskf"
     Params = EskfParams
-    uses_mag = False
     kernels = (lowpass_in_inertial_frame, eskf_run)
     color = (120, 15, 255)
     compile_seconds = 2.5  # CPU s, one core (scripts/compile_profile.py)
@@ -258,14 +257,7 @@ class Eskf(Estimator):
         self._state = filter_state(q0, np.eye(3) * np.radians(p.p0_deg) ** 2, gyro_bias)
         self._settings = EskfSettings(
             arw2=p.gyro_arw ** 2, acc2=p.accel_noise ** 2, gravity=GRAVITY, max_step=MAX_STEP_S)
-        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
-        self.initialized = True
+        self._ready(q0, gyro_bias)
 
     def _run(self, s, out, aiding) -> dict:
-        cov_trace = np.empty(len(s.t))
-        eskf_run(s, self._state, self._settings, out, cov_trace)
-        return {"cov_trace": cov_trace}
-
-    @property
-    def covariance(self) -> np.ndarray:
-        return self._state.P.copy()
+        return run_with_trace(eskf_run, s, self._state, self._settings, out)

@@ -162,7 +162,6 @@ class Mahony(Estimator):
     """Mahony complementary filter (paper 000 §2.3 (1)); see the module docstring."""
     name = "mahony"
     Params = MahonyParams
-    uses_mag = True
     kernels = (lowpass_in_inertial_frame, mahony_run)
     color = (255, 150, 0)
     compile_seconds = 1.5  # CPU s, one core (scripts/compile_profile.py)
@@ -176,8 +175,7 @@ class Mahony(Estimator):
         self._settings = MahonySettings(
             kp=float(p.kp), ki=float(p.ki), north_x=math.cos(self.declination), north_y=math.sin(self.declination),
             use_mag=bool(p.use_mag), max_step=MAX_STEP_S)
-        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
-        self.initialized = True
+        self._ready(q0, gyro_bias)
 
     def _run(self, s, out, aiding) -> dict:
         mahony_run(s, self._state, self._settings, out)

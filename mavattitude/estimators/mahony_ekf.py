@@ -395,7 +395,6 @@ class MahonyEkf(Estimator):
     """Mahony-EKF (paper 000): see the module docstring."""
     name = "mahony-ekf"
     Params = MahonyEkfParams
-    uses_mag = True
     kernels = (lowpass_in_inertial_frame, mahony_ekf_run)
     color = (120, 90, 0)
     compile_seconds = 3.0  # CPU s, one core (scripts/compile_profile.py)
@@ -435,8 +434,7 @@ class MahonyEkf(Estimator):
             ki_step=float(p.ki_step), gravity=GRAVITY if p.strict else float(accel_g),
             cos_dec=float(np.cos(self.declination)), sin_dec=float(np.sin(self.declination)), max_step=MAX_STEP_S)
         self.mahony_q = np.empty((0, 4))  # the internal Mahony attitude over the last chunk
-        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
-        self.initialized = True
+        self._ready(q0, gyro_bias)
 
     def _run(self, s, out, aiding) -> dict:
         n = len(s.t)
@@ -444,7 +442,3 @@ class MahonyEkf(Estimator):
         diag = MahonyEkfDiagnostics(np.empty(n), np.empty(n), np.empty(n))
         mahony_ekf_run(s, self._state, self._settings, out, diag, self.mahony_q)
         return diag._asdict()
-
-    @property
-    def covariance(self) -> np.ndarray:
-        return self._state.P.copy()

@@ -702,7 +702,6 @@ class NcsEskf(Estimator):
     module docstring."""
     name = "ncs-eskf"
     Params = NcsEskfParams
-    uses_mag = False
     kernels = (lowpass_in_inertial_frame, ncs_eskf_run)
     color = (210, 0, 120)
     compile_seconds = 7.0  # CPU s, one core (scripts/compile_profile.py)
@@ -764,8 +763,7 @@ class NcsEskf(Estimator):
             h_threshold_ground=p.h_threshold_ground, segmented=bool(p.segmented), lpf_hz=p.accel_lpf_hz,
             gate_sigma=p.gate_sigma, taper=p.taper, max_step=MAX_STEP_S, cons_tol=p.cons_tol, cons_norm=p.cons_norm,
             cons_rate=p.cons_rate, cons_time=p.cons_time, noise_gate=p.noise_gate, fallback=p.accel_tau > 0.0)
-        self._start_accel_lowpass(q0, gyro_bias, self.run_params().accel_tau)
-        self.initialized = True
+        self._ready(q0, gyro_bias)
 
     def _run(self, s, out, aiding) -> dict:
         n = len(s.t)
@@ -777,7 +775,3 @@ class NcsEskf(Estimator):
     def gyro_bias(self) -> np.ndarray:
         """The gyro bias in use, rad/s: the alignment's plus the learned part."""
         return self._state.bias + self._state.bias_est
-
-    @property
-    def covariance(self) -> np.ndarray:
-        return self._state.P.copy()

@@ -166,7 +166,6 @@ class Vqf(Rival):
     """VQF 2.1, Laidig & Seel 2023 (PyPI vqf): its online filter, 9D with the compass, 6D without"""
     name = "vqf"
     Params = VqfParams
-    uses_mag = True
     requires = "vqf"
     color = (255, 120, 255)
     DIAGNOSTICS = {
@@ -227,7 +226,6 @@ class Imufusion(Rival):
     """x-io's Fusion AHRS (PyPI imufusion), a complementary filter in C, called per sample from Python"""
     name = "imufusion"
     Params = ImufusionParams
-    uses_mag = True
     requires = "imufusion"
     color = (45, 105, 90)
 

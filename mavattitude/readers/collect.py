@@ -61,6 +61,17 @@ CORRUPT = -1
 
 
 @njit(cache=True)
+def _decide(held, n_held, label, res_index, res_label, n_res):
+    """The n_held held samples decided: ``label`` each, appended to ``res_index``/``res_label``
+    at n_res; returns the new count."""
+    for k in range(n_held):
+        res_index[n_res] = held[k]
+        res_label[n_res] = label
+        n_res += 1
+    return n_res
+
+
+@njit(cache=True)
 def _track(t, first_index, jump, confirm, state, held, out, res_index, res_label):
     """The clock-following of ``ClockTracker.push`` over ``t`` (see the module docstring).
     ``state``: [segment, clock_max, n_held, held_max, confirmed]; ``held``: global indices
@@ -82,19 +93,13 @@ def _track(t, first_index, jump, confirm, state, held, out, res_index, res_label
             if n_held == confirm:  # a clock: the first, or one that jumped
                 if confirmed and held_max < clock_max - jump:
                     current += 1  # it went back: a reboot
-                for k in range(n_held):
-                    res_index[n_res] = held[k]
-                    res_label[n_res] = current
-                    n_res += 1
+                n_res = _decide(held, n_held, current, res_index, res_label, n_res)
                 clock_max = held_max
                 confirmed = 1.0
                 n_held = 0
             continue
         if confirmed and clock_max - jump <= x <= clock_max + jump:  # the clock goes on
-            for k in range(n_held):  # what jumped was corrupt
-                res_index[n_res] = held[k]
-                res_label[n_res] = CORRUPT
-                n_res += 1
+            n_res = _decide(held, n_held, CORRUPT, res_index, res_label, n_res)  # what jumped was corrupt
             n_held = 0
             out[i] = current
             clock_max = max(clock_max, x)
@@ -103,10 +108,7 @@ def _track(t, first_index, jump, confirm, state, held, out, res_index, res_label
             out[i] = CORRUPT  # agrees with nothing: a corrupt time
             continue
         if n_held > 1:  # no clock yet: the samples that agree so far are the clock, this a jump
-            for k in range(n_held):
-                res_index[n_res] = held[k]
-                res_label[n_res] = current
-                n_res += 1
+            n_res = _decide(held, n_held, current, res_index, res_label, n_res)
             clock_max = held_max
             confirmed = 1.0
         elif n_held == 1:  # no clock yet, and two lone samples disagree: keep the newer
