@@ -349,13 +349,15 @@ def test_a_signal_mid_stream_ends_cleanly_with_a_complete_recording(tmp_path, fl
 @pytest.mark.slow
 def test_live_against_mavplayback_of_a_shared_sitl_log(tmp_path, monkeypatch):
     """9 s at 8x (some 70 s of the log); mavplayback answers no request: each rate request given up
-    after two tries of 0.3 s (1 s in use), then the fallback."""
-    from mavattitude.live import link
+    after two tries of 0.3 s (1 s in use), then the fallback. The log's 4.2 Hz IMU arrives at some
+    34 Hz at 8x: the low-rate warning's limit is raised to 8x its 20 Hz to match."""
+    from mavattitude.live import link, session
 
     log = SHARED / "sitl-quadplane-vtol.tlog"
     if not log.exists():
         pytest.skip(f"real log {log.name} not found in {SHARED} (it lives beside the project, not in it)")
     monkeypatch.setattr(link, "ACK_TIMEOUT_S", 0.3)
+    monkeypatch.setattr(session, "COARSE_RATE_HZ", 8 * session.COARSE_RATE_HZ)
     port = free_udp_port()
     script = Path(mavutil.__file__).parent / "tools" / "mavplayback.py"
     env = {**os.environ, "PYTHONPATH": str(ROOT / "tests" / "tkstub"), "MAVPLAYBACK_SPEED": "8",
@@ -379,8 +381,9 @@ def test_live_against_mavplayback_of_a_shared_sitl_log(tmp_path, monkeypatch):
     c = result.comparisons["mahony"]
     # (how many are scored before the span depends on how soon the estimators start: the machine's load)
     assert c.axes["roll"].n + c.n_excluded > 50 and c.axes["roll"].mae < 10.0
-    # the log's ATTITUDE (SITL) and AHRS3 (EKF2) disagree from 608.6 s: flagged live as by replay
-    assert [s.kind for s in est.suspects] == ["autopilot disagrees"] and "AHRS3 (EKF2)" in est.suspects[0].detail
+    # the log's ATTITUDE (SITL) and AHRS3 (EKF2) disagree from 608.6 s, and again later (how many
+    # of its five spans the play reaches depends on the machine's load): flagged live as by replay
+    assert est.suspects and all(s.kind == "autopilot disagrees" and "AHRS3 (EKF2)" in s.detail for s in est.suspects)
     assert len(recorded_packets(tmp_path / "live.tlog")) == result.recorded > 1000
 
 
