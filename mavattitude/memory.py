@@ -9,8 +9,11 @@ where what is freed stays in the process. Fixing the threshold turns the raising
 The threshold is a trade (hour at 400 Hz, all seven estimators, --rrd; ``ru_maxrss`` and CPU
 time of the replay, scripts/replay_memory.py or bench --read): glibc's own raising 881 MB, 12.3 +
 2.9 s of CPU; 4 MB 845-860 MB at the same CPU time; 1 MB 830-860 MB, 11.9 + 4.0 s; 256 kB 775 MB,
-12-13 + 6.4 s (every step's arrays mapped afresh: their page faults). Memory is what an hour's
-replay runs out of on a small machine, and 16 s of CPU is well inside its 30 s: 256 kB.
+12-13 + 6.4 s (every step's arrays mapped afresh: their page faults). 256 kB also slowed the
+readers (every decoded column mapped afresh: `bench --read`, the 4 MB .ulg read at 9.6x pyulog
+instead of 14.5-25x, the 78 MB .bin at 22x pymavlink instead of 25-34x). So: 4 MB, set once
+replay has read its log (a 4 MB .ulg still read 50 % slower with it), most of the memory for
+none of the time: the hour's peak 847 MB (826-828 MiB), 4.3x its decoded arrays.
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ import ctypes
 import sys
 
 M_MMAP_THRESHOLD = -3  # mallopt's parameter number (malloc.h)
-MMAP_THRESHOLD_BYTES = 256 << 10
+MMAP_THRESHOLD_BYTES = 4 << 20
 
 
 def give_back_freed_arrays() -> bool:

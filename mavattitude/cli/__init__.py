@@ -19,7 +19,7 @@ import argparse
 import os
 import sys
 
-from .. import __version__, memory, signals
+from .. import __version__, signals
 from ..errors import InputError, UsageError, is_interrupt
 from . import bench, estimators, evaluate, info, live, replay, simulate, tune
 from .args import Parser
@@ -63,7 +63,6 @@ def main(argv=None) -> int:
     program = argv is None  # the process's own command line, not a caller's (a test, a script)
     previous = signals.install()  # first: a stop signal during the imports below is one line too
     try:
-        memory.give_back_freed_arrays()  # a long replay's peak: what it holds, not what it once held
         code = _main(argv)
     except KeyboardInterrupt:  # before the command started, or as it ended
         code = _interrupted()

@@ -6,7 +6,7 @@ import sys
 import time
 from pathlib import Path
 
-from .. import signals
+from .. import memory, signals
 from ..errors import InputError
 from ..outputs import Outputs
 from ..trim import describe as describe_trim
@@ -55,6 +55,7 @@ def run(args) -> int:
         rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
         compiling = compile_kernels(names, args.quiet, args.log)  # in other processes, while the log is read
         flight = read_log_file(args.log, args.segment, args.quiet)
+        memory.give_back_freed_arrays()  # the estimation's peak: what it holds, not what it once held
         compiling.done("log reader")
         compiling.wait()
         with ProgressBar(f"estimating with {len(names)} estimator{'s' if len(names) > 1 else ''}",
