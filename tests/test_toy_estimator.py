@@ -233,3 +233,30 @@ def test_evaluate_on_a_dask_cluster_registers_the_toy_on_its_worker(toy, tmp_pat
     assert code == 0, err
     summary = json.loads((tmp_path / "dask" / "summary.json").read_text())
     assert summary["estimators"]["toy"]["logs"] == 2 and summary["failed"] == []
+
+
+def test_a_class_uses_the_compass_where_its_parameters_have_a_use_mag_switch():
+    """``Estimator.uses_mag`` unsaid: from whether its Params has ``use_mag``; said, as said."""
+    from dataclasses import dataclass
+
+    from mavattitude.estimators.base import Estimator
+
+    @dataclass
+    class WithSwitch:
+        use_mag: bool = True
+
+    @dataclass
+    class WithoutSwitch:
+        gain: float = 0.1
+
+    class Heading(Estimator):
+        Params = WithSwitch
+
+    class Tilt(Estimator):
+        Params = WithoutSwitch
+
+    class Said(Estimator):
+        Params = WithSwitch
+        uses_mag = False
+
+    assert Heading.uses_mag and not Tilt.uses_mag and not Said.uses_mag
