@@ -409,7 +409,7 @@ def _drawn_rows(flight: Flight, policy: RunPolicy, named: list[NamedAttitude], c
     primary = flight.attitude.source if against_truth and flight.attitude is not None else None
     streams = [] if ref is None else [flight.attitudes[n.key] for n in autopilot_streams(named, primary or chosen.stream)]
     drawn = [s for s in (ref, flight.attitude, flight.truth, *streams) if s is not None]
-    return drawn_rows(imu.t, drawn_duration(flight, [*drawn, AttitudeSeries("imu", imu.t, np.empty((0, 4)))]))
+    return drawn_rows(imu.t, drawn_duration(flight, [imu.t, *(s.t for s in drawn)]))  # an estimate is on imu.t
 
 
 def drop_other_imus(flight: Flight, source: str) -> None:

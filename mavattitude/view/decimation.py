@@ -106,10 +106,9 @@ def drawn_rows(t: np.ndarray, duration_s: float) -> np.ndarray:
                                  _bin_first(t, transform_rate_for(duration_s))), ends).astype(np.int64)
 
 
-
-def drawn_duration(flight, series) -> float:
+def drawn_duration(flight, times) -> float:
     """The length a replay's rates are chosen for (``scalar_rate_for``, ``transform_rate_for``):
-    the flight's span, or the longest of the attitude ``series`` drawn if longer (a stream logged
+    the flight's span, or the longest of the drawn series' ``times`` if longer (a stream logged
     past the flight's other series)."""
     a, b = flight.time_span
-    return max(b - a, max((float(s.t[-1] - s.t[0]) for s in series if len(s.t)), default=0.0))
+    return max(b - a, max((float(t[-1] - t[0]) for t in times if len(t)), default=0.0))

@@ -253,7 +253,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
                        and result.aiding is not None and result.aiding.origin is not None)
 
     b = fl.time_span[1]
-    duration = drawn_duration(fl, [s for _, _, s in series])
+    duration = drawn_duration(fl, [s.t for _, _, s in series])
     hz = scalar_rate_for(duration)
     hz3d = transform_rate_for(duration)
 
