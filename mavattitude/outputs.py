@@ -38,6 +38,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import signals
 from ._version import __version__
 from .errors import InputError, special_file
 
@@ -225,6 +226,7 @@ class Outputs:
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
             if exc_type is None:
+                signals.check()  # a stop that something swallowed: nothing put in place
                 for out in self.files:
                     out.commit()
         finally:  # what is not in place (an error, or Ctrl-C during the renames) is removed

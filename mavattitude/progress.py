@@ -15,6 +15,8 @@ import shutil
 import sys
 import time
 
+from . import signals
+
 SHOW_AFTER_S = 2.0
 REDRAW_S = 0.2
 
@@ -31,6 +33,7 @@ class ProgressBar:
         self.width = 0
 
     def __call__(self, fraction: float) -> None:
+        signals.check()  # every long loop reports here: a stop that something swallowed ends it now
         now = time.monotonic()
         if self.stream is None or now - self.start < SHOW_AFTER_S or now - self.last < REDRAW_S:
             return
@@ -86,6 +89,7 @@ class StepsLine:
 
     def tick(self) -> None:
         """Redraw the terminal line if its clock moved on (the work is not hung)."""
+        signals.check()
         if self.tty and time.monotonic() - self.last >= REDRAW_S:
             self._draw()
 

@@ -15,6 +15,10 @@ the cleanup short (``.partial`` files left), nor end the process by SIGINT, whic
 when a KeyboardInterrupt escapes the program. A third ends the process at once
 (``os._exit``), should the cleanup hang.
 
+Code that catches everything (pymavlink's ``except: pass`` around an import) can swallow the
+KeyboardInterrupt; the signal is noted all the same, and ``check`` raises it again where work
+reports progress and before outputs are committed.
+
 Once the command is done, they are ignored while the interpreter exits (``ignore``).
 
 ``live`` handles the same signals itself while its session runs (a signal ends the session,
@@ -71,7 +75,17 @@ def install() -> dict:
     return {sig: signal.signal(sig, _stop) for sig in STOP_SIGNALS}
 
 
+def check() -> None:
+    """Raise KeyboardInterrupt if a stop signal came and the code it landed in swallowed it.
+    (pymavlink's ``mavextra`` imports its quaternions inside ``try: ... except: pass``: a
+    SIGTERM landing there was lost, and the command went on to the end with exit 0.)"""
+    if _received:
+        raise KeyboardInterrupt
+
+
 def restore(previous: dict) -> None:
+    """Put back the handlers ``install`` replaced; the signals it saw are forgotten."""
+    _received.clear()
     for sig, handler in previous.items():
         if handler is not None:  # None: one set outside Python, which Python cannot set again
             signal.signal(sig, handler)

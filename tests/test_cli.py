@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import SAMPLE_LOGS, kernel_interrupt, process_group, shared_log, shared_log_params
+from conftest import SAMPLE_LOGS, kernel_interrupt, one_line, process_group, shared_log, shared_log_params
 from mavattitude.cli import main
 
 AXES = ("roll", "pitch", "yaw")
@@ -414,6 +414,53 @@ def test_live_without_a_viewer_does_not_import_rerun():
             "print('mavattitude.view.sink' in sys.modules, 'rerun' in sys.modules)")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert run.stdout.split()[-2:] == ["True", "False"], run.stdout + run.stderr
+
+
+def _swallowing_a_sigterm(*args, **kwargs):
+    """What pymavlink's ``mavextra`` does with a signal during its import of quaternions
+    (``try: ... except: pass``): the KeyboardInterrupt is caught and the work goes on."""
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(1.0)  # the handler raises here
+    except BaseException:
+        pass
+
+
+def test_a_stop_that_something_swallowed_still_ends_the_command_and_commits_nothing(tmp_path, capsys,
+                                                                                     monkeypatch):
+    """Found on CI: a SIGTERM landed in pymavlink's import inside the tlog reader, was caught by
+    its bare ``except``, and the replay ran to the end with exit 0. The signal is noted before
+    it is raised: the next progress report raises it again, and no output is put in place."""
+    from mavattitude.readers import tlog
+
+    collect_events = tlog._collect_events
+
+    def reading(*args, **kwargs):
+        _swallowing_a_sigterm()
+        return collect_events(*args, **kwargs)
+    monkeypatch.setattr(tlog, "_collect_events", reading)
+    code, out, err = run(capsys, "replay", SAMPLE_LOGS / "figure8.tlog", "--estimators", "mahony", "--no-view",
+                         "--json", tmp_path / "m.json")
+    assert code == 143 and one_line(err) == "terminated (SIGTERM)"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_outputs_are_not_committed_after_a_swallowed_stop(tmp_path):
+    from mavattitude import signals
+    from mavattitude.outputs import Outputs
+
+    previous = signals.install()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with Outputs() as outputs:
+                out = outputs.file(tmp_path / "m.json", "--json", "json")
+                out.write_path.write_text("{}")
+                _swallowing_a_sigterm()
+        assert signals.exit_code() == 143
+    finally:
+        signals.restore(previous)
+    assert list(tmp_path.iterdir()) == []
+    assert signals.received() is None  # forgotten with the handlers
 
 
 def test_an_interrupt_swallowed_by_the_code_it_landed_in_is_raised_after_it():
