@@ -41,6 +41,7 @@ from ..diagcolumns import Column, Series
 from ..events import Event
 from ..flight import AttitudeSeries
 from ..growing import Growing
+from .imurows import ImuRows
 from ..scoring.imucheck import rate_warning
 from ..phase import STALE_S, PhaseTracker, pressure_height
 from .scoredrows import ScoredRows
@@ -168,14 +169,17 @@ class Runner:
         """Baro samples in time order, rows of ``aiding.BARO_COLUMNS``."""
         self._add(BARO, rows)
 
-    def _add(self, kind: str, rows: np.ndarray) -> None:
+    def _add(self, kind: str, rows: np.ndarray | ImuRows) -> None:
         if len(rows):
             last = self.store[kind].last
             arrival = rows[:, -1]
             if kind in self._in_arrival_order and not (
                     (last is None or arrival[0] >= last[-1]) and np.all(arrival[1:] >= arrival[:-1])):
                 self._in_arrival_order.discard(kind)
-            self.store[kind].extend(rows)
+            if isinstance(rows, ImuRows):  # (the first rows given: see add_flight)
+                self.store[kind] = rows
+            else:
+                self.store[kind].extend(rows)
 
     def add_flight(self, flight) -> None:
         """A whole log (``flight.Flight``): its IMU and compass of the runner's sources, GPS and
@@ -188,7 +192,10 @@ class Runner:
 
         def arrival(s):
             return s.t if by_time else s.arrival
-        self.add_imu(imu.t, imu.gyro, imu.accel, arrival(imu))
+        if self.store[IMU].n or self.store[IMU].forgotten:
+            self.add_imu(imu.t, imu.gyro, imu.accel, arrival(imu))
+        else:  # read where the flight holds them, a step's rows at a time: not a second copy (``imurows``)
+            self._add(IMU, ImuRows(imu.t, imu.gyro, imu.accel, arrival(imu)))
         self._rows_expected = len(imu.t)
         for series in self.estimates.values():  # filled to exactly this size, never doubled
             series.reserve(len(imu.t) if self.shown is None else int(np.searchsorted(self.shown, len(imu.t))))
