@@ -324,7 +324,7 @@ def replay_policy(flight: Flight, policy: RunPolicy, progress=None, compact: boo
                             shown_rows=shown_rows)
     estimates = {name: runner.estimate(name) for name in names}
     # what scoring reads: the same series, or (compact) the float64 rows it reads
-    scored = {name: runner.scoring_estimate(name) for name in names} if compact else estimates
+    scored = {name: runner.scoring_estimate(name, release=True) for name in names} if compact else estimates
     events = _events(flight, runner, declination)
     imu = flight.imu[runner.imu_source]
     rate = imu_rate(imu)

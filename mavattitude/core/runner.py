@@ -468,12 +468,12 @@ class Runner:
         t = self.times() if self.shown is None else self.times()[self.shown[:len(q)]]
         return AttitudeSeries(name, t, q)
 
-    def scoring_estimate(self, name: str) -> AttitudeSeries:
+    def scoring_estimate(self, name: str, release: bool = False) -> AttitudeSeries:
         """What scoring reads of an estimator's attitude, as estimated: the whole estimate, or
-        with ``scored_rows`` the rows kept for it (``scoredrows``)."""
+        with ``scored_rows`` the rows kept for it (``scoredrows``; ``release``: let go by the runner)."""
         if self.scored is None:
             return self.estimate(name)
-        return self.scored[name].series(name, self.times())
+        return self.scored[name].series(name, self.times(), release)
 
     def release_inputs(self) -> None:
         """Drop the samples added (IMU, compass, GPS, baro) but the IMU's times, once a whole

@@ -183,11 +183,12 @@ def _diagnostic_ranges(diagnostics: dict[str, dict[str, np.ndarray]], t: np.ndar
             groups.setdefault(diagnostic_group(key)[0], []).append(key)
         for group, keys in groups.items():  # a group's series at a time (cpf-ekf's all at once: 250 MB for an hour)
             ys = []
-            for key in keys:
-                y = np.asarray(diag[key], dtype=np.float64)
+            for key in keys:  # as kept (float32 measures), and in float64 once joined: the same values
+                y = np.asarray(diag[key])
                 ys.append(y[inside & np.isfinite(y)] if len(y) == len(t) else y)
             y = np.concatenate(ys)
             del ys
+            y = y.astype(np.float64)
             if len(y) < 2:
                 continue
             lo, hi = np.percentile(y, [1.0, 99.0], overwrite_input=True)  # (y is ours: no copy of it)
