@@ -15,8 +15,10 @@ instead of 14.5-25x, the 78 MB .bin at 22x pymavlink instead of 25-34x). So: 4 M
 replay has read its log (a 4 MB .ulg still read 50 % slower with it), most of the memory for
 none of the time: the hour's peak 847 MB (826-828 MiB), 4.3x its decoded arrays.
 
-What the read freed inside the heap is given back first (``malloc_trim``: the free pages
-anywhere in it, not only at its top): 14 MB after the hour's read, for one call.
+What a phase freed inside the heap (arrays under the threshold, and everything freed while
+glibc's own raising was on) stays there, to be reused or not: ``give_back_free_pages`` gives
+its free pages back (``malloc_trim``), after the read (14 MB for the hour) and after the
+estimation (70 MB: the steps' arrays), one call each.
 """
 from __future__ import annotations
 
@@ -29,13 +31,24 @@ MMAP_THRESHOLD_BYTES = 4 << 20
 
 def give_back_freed_arrays() -> bool:
     """Give back the heap's free pages and fix glibc's mmap threshold (see the module
-    docstring); whether it was set (False off glibc: macOS and Windows give large blocks back
-    on their own)."""
+    docstring); whether the threshold was set (False off glibc: macOS and Windows give large
+    blocks back on their own)."""
     if not sys.platform.startswith("linux"):
         return False
+    give_back_free_pages()
     try:  # the process's own symbols, libc's among them (find_library would run ldconfig)
-        libc = ctypes.CDLL(None)
-        libc.malloc_trim(0)  # (0: keep no free space at the heap's top)
-        return bool(libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
+        return bool(ctypes.CDLL(None).mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
     except (OSError, AttributeError):  # not glibc (musl has no mallopt)
         return False
+
+
+def give_back_free_pages() -> None:
+    """The heap's free pages given back to the system, wherever they lie in it (glibc's
+    ``malloc_trim``; not at its top alone, as every ``free`` does): what a phase of a replay
+    freed between the arrays it keeps (see the module docstring)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        ctypes.CDLL(None).malloc_trim(0)  # (0: keep no free space at the heap's top)
+    except (OSError, AttributeError):  # not glibc
+        pass

@@ -47,7 +47,7 @@ import numpy as np
 from ..estimators.alignment import MAX_PLAUSIBLE_BIAS_RAD_S, MIN_STILL_S, MIN_STILL_SAMPLES, STILL_ACCEL_MS2, \
     STILL_GYRO_RAD_S
 from ..estimators.gravity import G_BOUND, plausible_g
-from ..flight import GRAVITY
+from ..flight import GRAVITY, median_step
 from ..quaternion import row_norms
 
 MEANINGFUL_RATE_HZ = 9.5  # Hz: below it, scores are not meaningful (see the module docstring)
@@ -89,7 +89,7 @@ def accel_at_rest(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> tuple[f
     whole = float(np.median(norm, overwrite_input=True))  # (our own copy: the same median)
     if len(t) < MIN_STILL_SAMPLES:
         return whole, False
-    window = max(MIN_STILL_S, MIN_STILL_SAMPLES * float(np.median(np.diff(t))))
+    window = max(MIN_STILL_S, MIN_STILL_SAMPLES * median_step(t))
     k = np.floor((t - t[0]) / window).astype(np.int64)
     starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
     counts = np.diff(np.r_[starts, len(t)])

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..flight import median_step
+
 # What a screen can show: a time plot is 500-800 px wide; zoomed to 10 s, 50 Hz is a point
 # every 1-2 px, and the error and diagnostic lines keep each bin's minimum and maximum, so no
 # spike is lost. The 3D boxes move at 25 frames per second. (Was 200 Hz and 50 Hz: 4.7-19.6 MB
@@ -33,7 +35,7 @@ def _bin_first(t: np.ndarray, hz: float) -> np.ndarray:
     # The first sample opens a bin unless the sample before it (one typical step earlier,
     # possibly in the previous chunk) was in the same bin: chunks then keep what the
     # whole series would.
-    step = float(np.median(np.diff(t)))
+    step = median_step(t)
     keep[0] = np.floor((t[0] - step) * hz) != b[0]
     keep[1:] = b[1:] != b[:-1]
     return np.flatnonzero(keep)
