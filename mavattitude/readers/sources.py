@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import re
 
-
 from ..flight import DEFAULT_FAMILIES, IMU_FAMILIES, Flight, ImuSeries, imu_family, median_step
 
 # IMU sources, best first, among those with the same sample rate: float SI data beats
