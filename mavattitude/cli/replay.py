@@ -105,6 +105,7 @@ def run(args) -> int:
                       paths={name: out.write_path for name, out in csv_outs.items()})
             print(f"CSV written to {export}/ ({', '.join(out.path.name for out in csv_outs.values())})")
         if sink is not None:
+            memory.give_back_free_pages()  # what scoring freed, before the view's imports and arrays
             _view(result, rec or open_sink(sink, "mavattitude", Path(args.log).name), sink)
     return 0
 

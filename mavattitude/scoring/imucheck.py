@@ -87,10 +87,13 @@ def accel_at_rest(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> tuple[f
     if not len(norm):
         return None, False
     whole = float(np.median(norm, overwrite_input=True))  # (our own copy: the same median)
+    del norm
     if len(t) < MIN_STILL_SAMPLES:
         return whole, False
     window = max(MIN_STILL_S, MIN_STILL_SAMPLES * median_step(t))
-    k = np.floor((t - t[0]) / window).astype(np.int64)
+    k = t - t[0]  # (then in place: the same numbers, one temporary of the hour's rows, not three)
+    k /= window
+    k = np.floor(k, out=k).astype(np.int64)
     starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
     counts = np.diff(np.r_[starts, len(t)])
 

@@ -30,7 +30,8 @@ def _bin_first(t: np.ndarray, hz: float) -> np.ndarray:
     n = len(t)
     if not _faster_than(t, hz):
         return np.arange(n)
-    b = np.floor(t * hz)
+    b = t * hz
+    np.floor(b, out=b)  # (in place: one temporary of the series, not two)
     keep = np.empty(n, dtype=bool)
     # The first sample opens a bin unless the sample before it (one typical step earlier,
     # possibly in the previous chunk) was in the same bin: chunks then keep what the
@@ -48,7 +49,8 @@ def _bin_minmax(t: np.ndarray, y: np.ndarray, hz: float) -> np.ndarray:
     n = len(t)
     if not _faster_than(t, hz):
         return np.arange(n)
-    b = np.floor(t * (hz / 2.0))
+    b = t * (hz / 2.0)
+    np.floor(b, out=b)
     if np.any(np.diff(b) < 0):  # unsorted time: keep the simple rule
         return _bin_first(t, hz)
     picks, a = [], 0
