@@ -50,9 +50,10 @@ from .scoredrows import ScoredRows
 # vehicle may be anywhere (logging paused while disarmed, a crash and a pick-up).
 REINIT_GAP_S = 2.0
 GAP_KIND = f"IMU gap over {REINIT_GAP_S:g} s, estimators re-initialised"  # the gap events' Event.kind
-# Rows estimated per kernel call at most (5.5 min at 400 Hz): an hour-long log's per-sample
-# scratch and diagnostics (cpf-ekf: 29 float64 a row) stay a few tens of MB, not gigabytes.
-STEP_ROWS = 1 << 16
+# Rows estimated per kernel call at most (82 s at 400 Hz): an hour-long log's per-sample
+# scratch and diagnostics (cpf-ekf: 29 float64 a row) stay some 15 MB, not gigabytes (65,536
+# rows: 30 MB, at the top of a replay's memory; the same estimates to the bit either way).
+STEP_ROWS = 1 << 15
 # A magnetometer sample older than this many of its own intervals (or MAG_STALE_MIN_S) is stale.
 MAG_STALE_PERIODS = 3.0
 MAG_STALE_MIN_S = 0.5

@@ -13,6 +13,7 @@ from ..declination import NO_DECLINATION
 from ..diagcolumns import only
 from ..events import Event
 from ..flight import AttitudeSeries
+from ..memory import give_back_free_pages
 from ..scoring.metrics import AXES
 from ..commands.report import spread_lines
 from ..core.runner import REINIT_GAP_S, STEP_ROWS
@@ -274,8 +275,10 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
         kept = key in result.estimates and result.shown_rows is not None  # at the rows drawn only
         log_attitude_columns(rec, key, imu_t if kept else s.t, s.q, scalar_max_hz=hz, transform_max_hz=hz3d,
                              ghost_in=others if key == ref_key else (), rows=result.shown_rows if kept else None)
+        give_back_free_pages()  # what Rerun's threads freed once they sent a batch (an hour's: 20 MB)
     for key, c in scored.items():
         log_error_columns(rec, key, c.t, c.error_deg, c.scored, max_hz=hz)
+    give_back_free_pages()
 
     for name, diag in diagnostics.items():
         states = _accel_states(name, diag)
@@ -287,6 +290,7 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
         del lines
         if states:
             log_state_spans(rec, name, imu_t, diag["accel_state"], states)
+        give_back_free_pages()
     if result.phase is not None:
         log_phase_columns(rec, result.phase.t, result.phase.in_air, result.phase.height_m)
     if has_gps:
