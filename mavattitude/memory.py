@@ -17,8 +17,9 @@ none of the time: the hour's peak 847 MB (826-828 MiB), 4.3x its decoded arrays.
 
 What a phase freed inside the heap (arrays under the threshold, and everything freed while
 glibc's own raising was on) stays there, to be reused or not: ``give_back_free_pages`` gives
-its free pages back (``malloc_trim``), after the read (14 MB for the hour) and after the
-estimation (70 MB: the steps' arrays), one call each.
+its free pages back (``malloc_trim``, a few ms): after the read (14 MB for the hour), the
+estimation (70 MB: the steps' arrays), the joining of the scoring rows (40 MB), and each batch
+the view hands Rerun (its threads free what they sent into their own heaps: 20 MB).
 """
 from __future__ import annotations
 
