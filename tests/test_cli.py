@@ -482,6 +482,7 @@ def test_an_interrupt_swallowed_by_the_code_it_landed_in_is_raised_after_it():
         signals.restore(previous)
 
 
+@pytest.mark.slow  # a replay in a process of its own: seconds, kept out of the quick loop
 def test_replay_to_a_file_imports_rerun_only_once_estimated(tmp_path):
     """An .rrd is checked and made before the read (``plan_sink``); Rerun (57 MB imported) is
     opened for it only when there is a recording to write, not held through the estimation."""
