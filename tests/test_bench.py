@@ -268,6 +268,7 @@ def test_log_without_read_is_a_usage_error(capsys):
     assert "--log is for --read" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # three processes, one of them at 300 MB: kept out of the quick loop
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux's accounting of a child's peak memory")
 def test_the_end_to_end_peak_is_the_replays_own_not_the_benchs():
     """A process started from this one begins its ru_maxrss at this one's peak (Linux keeps the
