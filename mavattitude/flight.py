@@ -45,6 +45,12 @@ def imu_family(key: str) -> str:
     return "raw" if key.startswith("GYR[") else "delta" if key.startswith(("IMT[", "vehicle_imu[")) else "imu"
 
 
+def median_step(t: np.ndarray) -> float:
+    """The median interval of sample times ``t`` (increasing), as ``np.median(np.diff(t))`` gives
+    it, without its copy of the intervals (an hour at 400 Hz: 11.5 MB)."""
+    return float(np.median(np.diff(t), overwrite_input=True))
+
+
 def means_over_steps(key: str) -> bool:
     """Whether a series' samples are means over the step ending at each (``ImuSeries.rate_over_step``):
     the deltas, integrated over each logged interval. ArduPilot's IMU and MAVLink's *_IMU hold

@@ -88,6 +88,15 @@ def normalize(q) -> np.ndarray:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
+def row_norms(x: np.ndarray, rows: int = 1 << 16) -> np.ndarray:
+    """``np.linalg.norm(x, axis=1)``, the same numbers, made a block of rows at a time: without
+    its temporary of every value squared (an hour's gyro at 400 Hz: 35 MB)."""
+    out = np.empty(len(x), dtype=np.linalg.norm(x[:1], axis=1).dtype)
+    for a in range(0, len(x), rows):
+        out[a:a + rows] = np.linalg.norm(x[a:a + rows], axis=1)
+    return out
+
+
 def to_dcm(q) -> np.ndarray:
     """Direction cosine matrices C(q) (..., 3, 3), body -> navigation."""
     q = np.asarray(q, dtype=float)

@@ -21,7 +21,7 @@ PHASES = [("mavattitude.readers", "read_log", "read"),
           ("mavattitude.commands.replay", "run_estimators", "estimate"),
           ("mavattitude.commands.replay", "check_reference", "check the reference"),
           ("mavattitude.commands.replay", "compare", "score"),
-          ("mavattitude.view", "log_replay", "view"),
+          ("mavattitude.cli.replay", "_view", "view"),  # (not mavattitude.view: that imports Rerun now)
           ("mavattitude.commands.report", "write_csv", "export")]
 phase = ["imports"]
 order: list[str] = []

@@ -266,3 +266,24 @@ def test_read_figures_run_and_report(capsys, tmp_path):
 def test_log_without_read_is_a_usage_error(capsys):
     assert main(["bench", "--log", "x.bin"]) == 2
     assert "--log is for --read" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # three processes, one of them at 300 MB: kept out of the quick loop
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux's accounting of a child's peak memory")
+def test_the_end_to_end_peak_is_the_replays_own_not_the_benchs():
+    """A process started from this one begins its ru_maxrss at this one's peak (Linux keeps the
+    peak of the memory a process leaves at exec: its parent's, under vfork): ``bench --read``
+    starts the replay from a small process of its own (``LAUNCH``), as pymavlink's read of the
+    hour takes the bench to some 700 MB, above the replay's own peak."""
+    import os
+    import subprocess
+
+    from mavattitude.commands.bench_read import LAUNCH
+
+    big = np.ones(300_000_000 // 8)  # this process at 300 MB and more, for a moment
+    del big
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    direct = os.wait4(child.pid, 0)[2].ru_maxrss * 1024 / 1e6
+    code, peak, wall = subprocess.run([sys.executable, "-c", LAUNCH, sys.executable, "-c", "pass"],
+                                      capture_output=True, text=True, check=True).stdout.split()
+    assert direct > 300 and code == "0" and int(peak) * 1024 / 1e6 < 100 and float(wall) > 0

@@ -480,3 +480,19 @@ def test_an_interrupt_swallowed_by_the_code_it_landed_in_is_raised_after_it():
         assert signals.received() == signal.SIGINT
     finally:
         signals.restore(previous)
+
+
+@pytest.mark.slow  # a replay in a process of its own: seconds, kept out of the quick loop
+def test_replay_to_a_file_imports_rerun_only_once_estimated(tmp_path):
+    """An .rrd is checked and made before the read (``plan_sink``); Rerun (57 MB imported) is
+    opened for it only when there is a recording to write, not held through the estimation."""
+    code = ("import sys; import mavattitude.commands.replay as r; inner = r.replay_flight\n"
+            "def seen(*a, **k):\n    print('rerun before', 'rerun' in sys.modules); return inner(*a, **k)\n"
+            "r.replay_flight = seen\nfrom mavattitude.cli import main\n"
+            "code = main(['replay', sys.argv[1], '--estimators', 'mahony', '--rrd', sys.argv[2], '-q'])\n"
+            "print('code', code, 'rerun after', 'rerun' in sys.modules)")
+    out = tmp_path / "x.rrd"
+    run = subprocess.run([sys.executable, "-c", code, str(SAMPLE_LOGS / "static.bin"), str(out)],
+                         capture_output=True, text=True, timeout=180)
+    assert "rerun before False" in run.stdout and "code 0 rerun after True" in run.stdout, run.stdout + run.stderr
+    assert out.stat().st_size > 0

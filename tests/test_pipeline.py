@@ -183,3 +183,40 @@ def test_the_aiding_kept_is_what_the_estimator_was_handed(sim_logs):
         np.testing.assert_array_equal(getattr(full, f), seen)  # NaN where NaN
         np.testing.assert_array_equal(getattr(given, f), seen[rows])
     assert full.origin == given.origin is not None
+
+
+def test_a_flight_estimated_in_place_equals_its_rows_given_a_few_at_a_time(sim_logs):
+    """``add_flight`` reads the flight's own IMU arrays (``imurows``) where ``add_imu`` keeps
+    rows: the estimates and diagnostics are the same to the bit, whether the rows come at
+    once or in packets of 100 with a step after each, as on a live link."""
+    from mavattitude import aiding as aid
+    from mavattitude.core.imurows import ImuRows
+    from mavattitude.core.runner import Runner
+
+    flight = read_log(str(sim_logs["figure8.bin"][1]))
+    imu, mag = flight.imu["IMU[0]"], flight.mag["MAG[0]"]
+    whole = Runner(["mahony", "eq-kf"], imu_source="IMU[0]", mag_source="MAG[0]")
+    whole.add_flight(flight)
+    rows = whole.store["imu"]
+    assert isinstance(rows, ImuRows)
+    stacked = np.column_stack([imu.t, imu.gyro, imu.accel, imu.arrival])
+    for index in (np.s_[3:40], np.s_[-5:], np.s_[:, 0], np.s_[7:9, -1], np.s_[12, 0], np.s_[:, 3], 17):
+        np.testing.assert_array_equal(rows.view()[index], stacked[index])
+    np.testing.assert_array_equal(rows.last, stacked[-1])
+    whole.step(final=True, chunk=False)
+
+    live = Runner(["mahony", "eq-kf"], imu_source="IMU[0]", mag_source="MAG[0]")
+    live.add_mag(mag.t, mag.field, mag.arrival)
+    live.add_gps(aid.gps_rows(flight.gps, flight.gps.arrival))
+    live.add_baro(aid.baro_rows(flight.baro, flight.baro.arrival))
+    for a in range(0, len(imu.t), 100):
+        live.add_imu(imu.t[a:a + 100], imu.gyro[a:a + 100], imu.accel[a:a + 100], imu.arrival[a:a + 100])
+        live.step()
+    live.step(final=True)
+    assert live.done == whole.done == len(imu.t)
+    for name in whole.names:
+        np.testing.assert_array_equal(live.estimate(name).q, whole.estimate(name).q)
+        a, b = live.diagnostic_series(name), whole.diagnostic_series(name)
+        assert list(a) == list(b)
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key])

@@ -354,3 +354,39 @@ def test_the_pymavlink_fallback_reads_what_the_bulk_reader_reads(sim_logs, monke
         np.testing.assert_array_equal(slow.imu[key].gyro, bulk.imu[key].gyro)
     np.testing.assert_array_equal(slow.attitude.q, bulk.attitude.q)
     np.testing.assert_array_equal(slow.gps.lat_deg, bulk.gps.lat_deg)
+
+
+def test_a_series_filled_in_place_is_the_series_joined_from_its_parts():
+    """A sensor type read in parts, two instances interleaved: given its record count
+    (``capacity``) each series is filled in place, and comes out as the parts joined would,
+    to the bit, with the clock followed the same."""
+    rng = np.random.default_rng(4)
+    n = 1000
+    order = np.arange(n) * 3
+    t = np.repeat(np.arange(n // 2) * 0.01, 2)
+    values = rng.normal(size=(n, 6))
+    cols = []
+    for capacity in (0, n):
+        col = Collector()
+        col.add_columns("baro", "BARO", order[::5] + 1, t[::5], values[::5, :2])
+        for a in range(0, n, 300):  # parts of 300 records, each split by instance
+            for i in (0, 1):
+                mine = slice(a + i, a + 300, 2)
+                col.add_columns("imu", f"IMU[{i}]", order[mine], t[mine], values[mine], capacity=capacity)
+        col.finish()
+        cols.append(col)
+    assert cols[0].keys("imu") == cols[1].keys("imu") == ["IMU[0]", "IMU[1]"]
+    assert cols[0].segments == cols[1].segments
+    for key in ("IMU[0]", "IMU[1]"):
+        a, b = (c.columns("imu", key, 0) for c in cols)
+        assert len(a.t) == n // 2
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_row_norms_are_numpys_to_the_bit():
+    x = np.random.default_rng(1).normal(size=(70_001, 3)) * 1e3
+    np.testing.assert_array_equal(quat.row_norms(x, rows=4096), np.linalg.norm(x, axis=1))
+    x32 = x.astype(np.float32)
+    assert quat.row_norms(x32).dtype == np.float32
+    np.testing.assert_array_equal(quat.row_norms(x32), np.linalg.norm(x32, axis=1))

@@ -52,7 +52,10 @@ def run(args) -> int:
         csv_outs = {n: outputs.file(export / csv_file_name(n), "--export", "csv")
                     for n in ("reference", *names)} if export else {}
         sink = None if args.no_view else plan_sink_of(args, outputs, default_rrd=Path(args.log).stem + ".rrd")
-        rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink else None  # fails now, not later
+        # a viewer is opened now, so that one that is not there fails before the read, not after;
+        # a file was checked and made by plan_sink, and Rerun (its import: 57 MB, held through the
+        # read and the estimation) is opened for it when there is something to write
+        rec = open_sink(sink, "mavattitude", Path(args.log).name) if sink and sink.kind != "rrd" else None
         compiling = compile_kernels(names, args.quiet, args.log)  # in other processes, while the log is read
         flight = read_log_file(args.log, args.segment, args.quiet)
         memory.give_back_freed_arrays()  # the estimation's peak: what it holds, not what it once held
@@ -101,8 +104,9 @@ def run(args) -> int:
             write_csv(export, result.reference, {n: s for n, s in result.estimates.items() if n in csv_outs},
                       paths={name: out.write_path for name, out in csv_outs.items()})
             print(f"CSV written to {export}/ ({', '.join(out.path.name for out in csv_outs.values())})")
-        if rec is not None:
-            _view(result, rec, sink)
+        if sink is not None:
+            memory.give_back_free_pages()  # what scoring freed, before the view's imports and arrays
+            _view(result, rec or open_sink(sink, "mavattitude", Path(args.log).name), sink)
     return 0
 
 

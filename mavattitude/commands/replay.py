@@ -15,6 +15,7 @@ from .. import quaternion as quat
 from .. import estimators as est
 from ..scoring.broadscore import broad_measures
 from ..errors import InputError
+from ..memory import give_back_free_pages
 from ..events import Event
 from ..flight import GRAVITY, AttitudeSeries, Flight
 from ..scoring.imucheck import accel_at_rest, accel_scale_warning, rate_not_meaningful
@@ -266,6 +267,7 @@ def run_estimators(flight: Flight, policy: RunPolicy, progress=None,
     runner.add_flight(flight)
     runner.step(final=True, chunk=False, progress=progress)
     runner.release_inputs()  # the flight holds them; the runner's copy would double the IMU
+    give_back_free_pages()  # what the steps freed between the arrays kept (an hour's: 70 MB)
     return runner
 
 
@@ -308,7 +310,8 @@ def replay_policy(flight: Flight, policy: RunPolicy, progress=None, compact: boo
     its own (``RunPolicy.trim_for``); not against another stream, which the autopilot logs untrimmed.
     ``compact``: the estimates are kept whole for the view only (``ReplayResult.estimates`` in
     float32; scored from the float64 rows scoring reads, the same numbers to the bit: ``scoredrows``),
-    and ``flight`` keeps only the IMU series the estimators run on (``drop_other_imus``).
+    and ``flight`` keeps only the IMU series the estimators run on (``drop_other_imus``), and of
+    it, once the reference is checked, its times (``keep_imu_times_only``).
     """
     names, warmup_s = policy.names, policy.warmup_s
     if compact:
@@ -324,7 +327,8 @@ def replay_policy(flight: Flight, policy: RunPolicy, progress=None, compact: boo
                             shown_rows=shown_rows)
     estimates = {name: runner.estimate(name) for name in names}
     # what scoring reads: the same series, or (compact) the float64 rows it reads
-    scored = {name: runner.scoring_estimate(name) for name in names} if compact else estimates
+    scored = {name: runner.scoring_estimate(name, release=True) for name in names} if compact else estimates
+    give_back_free_pages()  # the rows kept a step at a time, now joined (an hour's: 40 MB)
     events = _events(flight, runner, declination)
     imu = flight.imu[runner.imu_source]
     rate = imu_rate(imu)
@@ -357,6 +361,8 @@ def replay_policy(flight: Flight, policy: RunPolicy, progress=None, compact: boo
         notes = whole_log_notes(ref, flight.repeated.get(ref.source, 0))
         events += [suspect_event(s) for s in suspects]
         events += [Event(float(ref.t[0]), "warn", note.detail) for note in notes]
+    if compact:  # nothing reads the IMU's samples from here on
+        keep_imu_times_only(flight, runner.imu_source)
     if ref is not None:
         for name, series in scored.items():
             comparisons[name] = compare(ref, series, warmup_s=warmup_s, align_yaw=not runner.has_heading[name],
@@ -410,6 +416,15 @@ def _drawn_rows(flight: Flight, policy: RunPolicy, named: list[NamedAttitude], c
     streams = [] if ref is None else [flight.attitudes[n.key] for n in autopilot_streams(named, primary or chosen.stream)]
     drawn = [s for s in (ref, flight.attitude, flight.truth, *streams) if s is not None]
     return drawn_rows(imu.t, drawn_duration(flight, [imu.t, *(s.t for s in drawn)]))  # an estimate is on imu.t
+
+
+def keep_imu_times_only(flight: Flight, source: str) -> None:
+    """Let go of the gyro and accelerometer samples of IMU ``source`` (left with no rows, so that
+    a reader of them fails rather than reads nothing) and of their order in the log (None, as
+    where a log has none): what a replay reads of it after checking the reference, and all the
+    view draws of it, is its times (81 MB of an hour at 400 Hz)."""
+    imu = flight.imu[source]  # (the series itself: whoever holds it)
+    imu.gyro, imu.accel, imu.arrival = imu.gyro[:0].copy(), imu.accel[:0].copy(), None
 
 
 def drop_other_imus(flight: Flight, source: str) -> None:

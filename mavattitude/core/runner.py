@@ -41,6 +41,7 @@ from ..diagcolumns import Column, Series
 from ..events import Event
 from ..flight import AttitudeSeries
 from ..growing import Growing
+from .imurows import ImuRows
 from ..scoring.imucheck import rate_warning
 from ..phase import STALE_S, PhaseTracker, pressure_height
 from .scoredrows import ScoredRows
@@ -49,9 +50,10 @@ from .scoredrows import ScoredRows
 # vehicle may be anywhere (logging paused while disarmed, a crash and a pick-up).
 REINIT_GAP_S = 2.0
 GAP_KIND = f"IMU gap over {REINIT_GAP_S:g} s, estimators re-initialised"  # the gap events' Event.kind
-# Rows estimated per kernel call at most (5.5 min at 400 Hz): an hour-long log's per-sample
-# scratch and diagnostics (cpf-ekf: 29 float64 a row) stay a few tens of MB, not gigabytes.
-STEP_ROWS = 1 << 16
+# Rows estimated per kernel call at most (82 s at 400 Hz): an hour-long log's per-sample
+# scratch and diagnostics (cpf-ekf: 29 float64 a row) stay some 15 MB, not gigabytes (65,536
+# rows: 30 MB, at the top of a replay's memory; the same estimates to the bit either way).
+STEP_ROWS = 1 << 15
 # A magnetometer sample older than this many of its own intervals (or MAG_STALE_MIN_S) is stale.
 MAG_STALE_PERIODS = 3.0
 MAG_STALE_MIN_S = 0.5
@@ -168,14 +170,17 @@ class Runner:
         """Baro samples in time order, rows of ``aiding.BARO_COLUMNS``."""
         self._add(BARO, rows)
 
-    def _add(self, kind: str, rows: np.ndarray) -> None:
+    def _add(self, kind: str, rows: np.ndarray | ImuRows) -> None:
         if len(rows):
             last = self.store[kind].last
             arrival = rows[:, -1]
             if kind in self._in_arrival_order and not (
                     (last is None or arrival[0] >= last[-1]) and np.all(arrival[1:] >= arrival[:-1])):
                 self._in_arrival_order.discard(kind)
-            self.store[kind].extend(rows)
+            if isinstance(rows, ImuRows):  # (the first rows given: see add_flight)
+                self.store[kind] = rows
+            else:
+                self.store[kind].extend(rows)
 
     def add_flight(self, flight) -> None:
         """A whole log (``flight.Flight``): its IMU and compass of the runner's sources, GPS and
@@ -188,7 +193,10 @@ class Runner:
 
         def arrival(s):
             return s.t if by_time else s.arrival
-        self.add_imu(imu.t, imu.gyro, imu.accel, arrival(imu))
+        if self.store[IMU].n or self.store[IMU].forgotten:
+            self.add_imu(imu.t, imu.gyro, imu.accel, arrival(imu))
+        else:  # read where the flight holds them, a step's rows at a time: not a second copy (``imurows``)
+            self._add(IMU, ImuRows(imu.t, imu.gyro, imu.accel, arrival(imu)))
         self._rows_expected = len(imu.t)
         for series in self.estimates.values():  # filled to exactly this size, never doubled
             series.reserve(len(imu.t) if self.shown is None else int(np.searchsorted(self.shown, len(imu.t))))
@@ -461,18 +469,19 @@ class Runner:
         t = self.times() if self.shown is None else self.times()[self.shown[:len(q)]]
         return AttitudeSeries(name, t, q)
 
-    def scoring_estimate(self, name: str) -> AttitudeSeries:
+    def scoring_estimate(self, name: str, release: bool = False) -> AttitudeSeries:
         """What scoring reads of an estimator's attitude, as estimated: the whole estimate, or
-        with ``scored_rows`` the rows kept for it (``scoredrows``)."""
+        with ``scored_rows`` the rows kept for it (``scoredrows``; ``release``: let go by the runner)."""
         if self.scored is None:
             return self.estimate(name)
-        return self.scored[name].series(name, self.times())
+        return self.scored[name].series(name, self.times(), release)
 
     def release_inputs(self) -> None:
         """Drop the samples added (IMU, compass, GPS, baro) but the IMU's times, once a whole
         log is estimated (``step(final=True)``): a replay keeps its results, not a second copy
         of its inputs (92 MB of IMU rows for an hour at 400 Hz). No more stepping after it."""
-        self._imu_t = self.store[IMU].column(0)[:self.done].copy()
+        times = self.store[IMU].column(0)[:self.done]  # (a log's own times are not copied: ``imurows``)
+        self._imu_t = times if isinstance(self.store[IMU], ImuRows) else times.copy()
         self.store = {kind: Growing(width) for kind, width in WIDTH.items()}
 
     @property

@@ -3,9 +3,7 @@ from __future__ import annotations
 
 import re
 
-import numpy as np
-
-from ..flight import DEFAULT_FAMILIES, IMU_FAMILIES, Flight, ImuSeries, imu_family
+from ..flight import DEFAULT_FAMILIES, IMU_FAMILIES, Flight, ImuSeries, imu_family, median_step
 
 # IMU sources, best first, among those with the same sample rate: float SI data beats
 # integer mG/mrad/s, and the primary instance beats the others.
@@ -42,7 +40,7 @@ def imu_rate(series: ImuSeries) -> float:
     """Median sample rate, Hz."""
     if len(series.t) < 2:
         return 0.0
-    return float(1.0 / np.median(np.diff(series.t)))
+    return 1.0 / median_step(series.t)
 
 
 def best_imu_source(flight: Flight, family: str | None = None) -> str:

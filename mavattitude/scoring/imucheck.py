@@ -47,7 +47,8 @@ import numpy as np
 from ..estimators.alignment import MAX_PLAUSIBLE_BIAS_RAD_S, MIN_STILL_S, MIN_STILL_SAMPLES, STILL_ACCEL_MS2, \
     STILL_GYRO_RAD_S
 from ..estimators.gravity import G_BOUND, plausible_g
-from ..flight import GRAVITY
+from ..flight import GRAVITY, median_step
+from ..quaternion import row_norms
 
 MEANINGFUL_RATE_HZ = 9.5  # Hz: below it, scores are not meaningful (see the module docstring)
 COARSE_RATE_HZ = 20.0  # Hz: below it, a warning that estimates are coarse and lag
@@ -81,15 +82,18 @@ def accel_at_rest(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> tuple[f
     bias. Not the alignment's own still start: that is refused when ‖a‖ is more than
     G_BOUND from g, and a log may not start still. With no window at rest, the whole
     series' median (False): a vehicle in steady flight reads g on average too. None: no sample."""
-    norm = np.linalg.norm(accel, axis=1)
-    norm = norm[np.isfinite(norm)]
+    norms = row_norms(accel)  # (kept for the rows at rest below: not a copy of those rows)
+    norm = norms[np.isfinite(norms)]
     if not len(norm):
         return None, False
-    whole = float(np.median(norm))
+    whole = float(np.median(norm, overwrite_input=True))  # (our own copy: the same median)
+    del norm
     if len(t) < MIN_STILL_SAMPLES:
         return whole, False
-    window = max(MIN_STILL_S, MIN_STILL_SAMPLES * float(np.median(np.diff(t))))
-    k = np.floor((t - t[0]) / window).astype(np.int64)
+    window = max(MIN_STILL_S, MIN_STILL_SAMPLES * median_step(t))
+    k = t - t[0]  # (then in place: the same numbers, one temporary of the hour's rows, not three)
+    k /= window
+    k = np.floor(k, out=k).astype(np.int64)
     starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
     counts = np.diff(np.r_[starts, len(t)])
 
@@ -99,7 +103,7 @@ def accel_at_rest(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> tuple[f
     with np.errstate(invalid="ignore"):
         rest = ((counts >= MIN_STILL_SAMPLES) & (spread(gyro) < 2 * STILL_GYRO_RAD_S)
                 & (spread(accel) < 2 * STILL_ACCEL_MS2) & (turning < MAX_PLAUSIBLE_BIAS_RAD_S))
-    at_rest = np.linalg.norm(accel[np.repeat(rest, counts)], axis=1)
+    at_rest = norms[np.repeat(rest, counts)]
     at_rest = at_rest[np.isfinite(at_rest)]
     if not len(at_rest):
         return whole, False

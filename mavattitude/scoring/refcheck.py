@@ -214,7 +214,7 @@ def _tilt_at_rest(ref: AttitudeSeries, imu: ImuSeries, trim, in_air_at, gps) -> 
     t0 = imu.t[0]
     bins = np.floor(imu.t - t0).astype(np.int64)
     n = int(bins[-1]) + 1
-    count, rate, acc = bin_means(bins, n, np.linalg.norm(imu.gyro, axis=1), imu.accel)
+    count, rate, acc = bin_means(bins, n, quat.row_norms(imu.gyro), imu.accel)
     centre = t0 + np.arange(n) + 0.5
     rest = resting(count, rate, acc, in_air_at(centre), _moving(gps, centre)) & (centre > ref.t[0]) & (centre < ref.t[-1])
     if not rest.any():
@@ -264,7 +264,7 @@ def rest_suspect(source: str, first_centre: float, last_centre: float, off: np.n
 def _tilt_jumps(ref: AttitudeSeries, imu: ImuSeries) -> list[Suspect]:
     if len(imu.t) < 2 or len(ref.t) < 2:
         return []
-    turned = np.concatenate([[0.0], np.cumsum(np.linalg.norm(imu.gyro[1:], axis=1) * np.diff(imu.t))])
+    turned = np.concatenate([[0.0], np.cumsum(quat.row_norms(imu.gyro[1:]) * np.diff(imu.t))])
     down = quat.rotate(quat.conjugate(ref.q), np.array([0.0, 0.0, 1.0]))
     with np.errstate(invalid="ignore"):
         step = np.degrees(np.arccos(np.clip((down[:-1] * down[1:]).sum(axis=1), -1.0, 1.0)))

@@ -289,7 +289,10 @@ def estimated_tracks(result: ReplayResult) -> dict[str, tuple[np.ndarray, np.nda
         if all(k in diag for k in ("pos_n", "pos_e", "pos_d")):
             ned = np.column_stack([diag["pos_n"], diag["pos_e"], diag["pos_d"]])
             ok = np.isfinite(ned).all(axis=1)
-            if ok.any():
+            first = int(np.argmax(ok))
+            if ok[first:].all() and ok[first]:  # finite from the first fix on: the same rows, not copied
+                out[name] = (imu_t[first:], ned[first:])
+            elif ok.any():
                 out[name] = (imu_t[ok], ned[ok])
     return out
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..flight import median_step
+
 # What a screen can show: a time plot is 500-800 px wide; zoomed to 10 s, 50 Hz is a point
 # every 1-2 px, and the error and diagnostic lines keep each bin's minimum and maximum, so no
 # spike is lost. The 3D boxes move at 25 frames per second. (Was 200 Hz and 50 Hz: 4.7-19.6 MB
@@ -28,12 +30,13 @@ def _bin_first(t: np.ndarray, hz: float) -> np.ndarray:
     n = len(t)
     if not _faster_than(t, hz):
         return np.arange(n)
-    b = np.floor(t * hz)
+    b = t * hz
+    np.floor(b, out=b)  # (in place: one temporary of the series, not two)
     keep = np.empty(n, dtype=bool)
     # The first sample opens a bin unless the sample before it (one typical step earlier,
     # possibly in the previous chunk) was in the same bin: chunks then keep what the
     # whole series would.
-    step = float(np.median(np.diff(t)))
+    step = median_step(t)
     keep[0] = np.floor((t[0] - step) * hz) != b[0]
     keep[1:] = b[1:] != b[:-1]
     return np.flatnonzero(keep)
@@ -46,7 +49,8 @@ def _bin_minmax(t: np.ndarray, y: np.ndarray, hz: float) -> np.ndarray:
     n = len(t)
     if not _faster_than(t, hz):
         return np.arange(n)
-    b = np.floor(t * (hz / 2.0))
+    b = t * (hz / 2.0)
+    np.floor(b, out=b)
     if np.any(np.diff(b) < 0):  # unsorted time: keep the simple rule
         return _bin_first(t, hz)
     picks, a = [], 0

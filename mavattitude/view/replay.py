@@ -13,6 +13,7 @@ from ..declination import NO_DECLINATION
 from ..diagcolumns import only
 from ..events import Event
 from ..flight import AttitudeSeries
+from ..memory import give_back_free_pages
 from ..scoring.metrics import AXES
 from ..commands.report import spread_lines
 from ..core.runner import REINIT_GAP_S, STEP_ROWS
@@ -183,11 +184,12 @@ def _diagnostic_ranges(diagnostics: dict[str, dict[str, np.ndarray]], t: np.ndar
             groups.setdefault(diagnostic_group(key)[0], []).append(key)
         for group, keys in groups.items():  # a group's series at a time (cpf-ekf's all at once: 250 MB for an hour)
             ys = []
-            for key in keys:
-                y = np.asarray(diag[key], dtype=np.float64)
+            for key in keys:  # as kept (float32 measures), and in float64 once joined: the same values
+                y = np.asarray(diag[key])
                 ys.append(y[inside & np.isfinite(y)] if len(y) == len(t) else y)
             y = np.concatenate(ys)
             del ys
+            y = y.astype(np.float64)
             if len(y) < 2:
                 continue
             lo, hi = np.percentile(y, [1.0, 99.0], overwrite_input=True)  # (y is ours: no copy of it)
@@ -273,17 +275,22 @@ def log_replay(result: ReplayResult, rec: rr.RecordingStream, *, blueprint: bool
         kept = key in result.estimates and result.shown_rows is not None  # at the rows drawn only
         log_attitude_columns(rec, key, imu_t if kept else s.t, s.q, scalar_max_hz=hz, transform_max_hz=hz3d,
                              ghost_in=others if key == ref_key else (), rows=result.shown_rows if kept else None)
+        give_back_free_pages()  # what Rerun's threads freed once they sent a batch (an hour's: 20 MB)
     for key, c in scored.items():
         log_error_columns(rec, key, c.t, c.error_deg, c.scored, max_hz=hz)
+    give_back_free_pages()
 
     for name, diag in diagnostics.items():
         states = _accel_states(name, diag)
-        lines = {k: diag[k] for k in diag if not (states and k == "accel_state")}
+        # each line made as it is drawn: cpf-ekf's 30 all at once were 170 MB for an hour
+        lines = only(diag, [k for k in diag if not (states and k == "accel_state")])
         if lines:
             setup_diagnostics(rec, name, lines, color=colors.get(name, (200, 200, 200)))
             log_diagnostic_columns(rec, name, imu_t, lines, max_hz=min(hz, DIAGNOSTIC_MAX_HZ))
+        del lines
         if states:
             log_state_spans(rec, name, imu_t, diag["accel_state"], states)
+        give_back_free_pages()
     if result.phase is not None:
         log_phase_columns(rec, result.phase.t, result.phase.in_air, result.phase.height_m)
     if has_gps:
