@@ -118,7 +118,8 @@ def write_rrd(result: ReplayResult, path) -> None:
 
 # ---------------------------------------------------------------- helpers
 
-RERUN = shutil.which("rerun")
+# the rerun-sdk's CLI beside this Python (a venv not activated has it off the PATH), else the PATH's
+RERUN = next((str(p) for p in [Path(sys.executable).with_name("rerun")] if p.exists()), shutil.which("rerun"))
 
 
 def _rrd_text(path) -> str:
