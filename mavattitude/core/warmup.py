@@ -22,8 +22,8 @@ from ..estimators.base import DEFAULT_COMPILE_S
 
 def compile_seconds(name: str) -> float:
     """How long estimator ``name``'s kernels take to compile the first time, one core, as its
-    class says (``Estimator.compile_seconds``; unsaid: ``DEFAULT_COMPILE_S``): to share the
-    work out fairly between processes."""
+    class says (``Estimator.compile_seconds``; unsaid: ``DEFAULT_COMPILE_S``): the longest are
+    handed out first, so that the processes end close together."""
     seconds = ESTIMATORS[name].compile_seconds
     return DEFAULT_COMPILE_S if seconds is None else float(seconds)
 
@@ -167,7 +167,8 @@ def precompile(names: list[str], progress=None, also=()) -> Compiling:
     if not pending and not also:
         return Compiling()
     plugins = plugin_paths(pending)
-    queue = longest_first([n for n in pending if plugins.get(n, "") is not None])  # no module holds it: wait() compiles it
+    # one that no module holds (None) is left to wait()
+    queue = longest_first([n for n in pending if plugins.get(n, "") is not None])
     paths = [path for path in plugins.values() if path is not None]
     extra = min(len(queue), os.cpu_count() or 1) - 1  # this process is one of the compiling ones
     if extra < 1:
