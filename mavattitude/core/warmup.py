@@ -86,7 +86,8 @@ class Compiling:
 
     def _share_out(self, interrupted: list) -> None:
         """Hand the queue out, an estimator at a time, to a thread here and to each process as
-        it says "NAME TIME" (``compile_kernels(report=)``) for the last; until all is compiled
+        it says "NAME TIME" (``compile_kernels(report=)``) for the last, the thread loading
+        what the processes compiled once the queue is empty; until all is compiled and loaded
         and the processes end (or an interrupt came), ticking the progress line meanwhile."""
         import selectors
 
@@ -94,10 +95,10 @@ class Compiling:
         for p in self.processes:
             if p.stdout is not None:
                 selector.register(p.stdout, selectors.EVENT_READ, [b"", p])
-        here = None
-        while (selector.get_map() or here or self.queue) and not interrupted:
-            if here is None and self.queue:
-                here = _Here(self.queue.pop(0))
+        here, theirs = None, []  # theirs: what the processes compiled, for the thread to load meanwhile
+        while (selector.get_map() or here or self.queue or theirs) and not interrupted:
+            if here is None and (self.queue or theirs):  # loaded now, not after the last is compiled
+                here = _Here(self.queue.pop(0) if self.queue else theirs.pop(0))
             for key, _ in selector.select(timeout=0.05 if here else 0.5):
                 chunk = os.read(key.fd, 4096)
                 if not chunk:
@@ -111,6 +112,8 @@ class Compiling:
                         self.done(name, float(at))
                     except ValueError:
                         continue  # not a report (something the process printed): its estimators are said at the end
+                    if name in ESTIMATORS:
+                        theirs.append(name)
                     _hand(key.data[1], self.queue.pop(0) if self.queue else None)
             if here is not None and not here.thread.is_alive():
                 if here.compiled:
