@@ -7,8 +7,10 @@ neither read nor touched), in a child process.
 
 Prints the steps as the command said them (each estimator, the log reader and the estimation
 core, with the time it was done), the wall time, the CPU time of the command and its compiling
-processes, and the load average before and after: a loaded machine takes several times an idle
-one's wall time for the same CPU.
+processes, in all and each (read from /proc every 0.1 s, so each process's last tenth of a
+second may be missing: on a shared machine the longest of them decides the wall time an idle
+one would take), and the load average before and after: a loaded machine takes several times
+an idle one's wall time for the same CPU.
 """
 from __future__ import annotations
 
@@ -33,9 +35,17 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="mavattitude-numba-") as cache:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
         start = time.perf_counter()
-        done = subprocess.run([sys.executable, "-m", "mavattitude", "replay", args.log, "--estimators",
-                               args.estimators, "--no-view"], env=env, capture_output=True, text=True)
-        wall = time.perf_counter() - start
+        with tempfile.TemporaryFile("w+") as err:
+            proc = subprocess.Popen([sys.executable, "-m", "mavattitude", "replay", args.log, "--estimators",
+                                     args.estimators, "--no-view"], env=env, stdout=subprocess.DEVNULL, stderr=err,
+                                    text=True)
+            each = {}  # pid: CPU seconds, the last seen
+            while proc.poll() is None:
+                each.update(_cpu_of_tree(proc.pid))
+                time.sleep(0.1)
+            wall = time.perf_counter() - start
+            err.seek(0)
+            done = subprocess.CompletedProcess(proc.args, proc.returncode, "", err.read())
     if done.returncode != 0:
         print(done.stderr.strip(), file=sys.stderr)
         return 1
@@ -46,7 +56,27 @@ def main() -> int:
     print(f"wall {wall:.1f} s; CPU {cpu.ru_utime + cpu.ru_stime:.1f} s (the command and its compiling processes); "
           f"load average (1 min) {load_before[0]:.1f} before, {os.getloadavg()[0]:.1f} after, "
           f"on {os.cpu_count()} cores")
+    main_cpu, *others = each.values()
+    print(f"CPU per process: the command {main_cpu:.1f} s" + "".join(f", compiling process {k} {c:.1f} s"
+                                                               for k, c in enumerate(others, 1)))
     return 0
+
+
+def _cpu_of_tree(pid: int) -> dict[int, float]:
+    """CPU seconds (user + system) of process ``pid`` and its descendants, now, by pid; those
+    that have just ended are left out."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out, todo = {}, [pid]
+    while todo:
+        p = todo.pop(0)
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+            children = Path(f"/proc/{p}/task/{p}/children").read_text().split()
+        except OSError:
+            continue
+        out[p] = (int(fields[11]) + int(fields[12])) / tick  # utime, stime (fields 14, 15 of stat)
+        todo += [int(c) for c in children]
+    return out
 
 
 if __name__ == "__main__":

@@ -140,8 +140,8 @@ def test_what_the_tool_reads_from_the_class(toy, monkeypatch):
     monkeypatch.setattr(toy.Toy, "color", (10, 20, 30))
     assert view.assign_colors(["toy", "mahony"]) == {"toy": (10, 20, 30), "mahony": ESTIMATORS["mahony"].color}
     assert warmup.compile_seconds("toy-jit") == DEFAULT_COMPILE_S and needs_compile(["toy"]) == []
-    # shared out by cost, longest first to the lightest process: cpf-ekf 13 s; the toy 5 s (the default), mahony 1.5 s
-    assert warmup.shares(["mahony", "toy-jit", "cpf-ekf"], 2) == [["cpf-ekf"], ["toy-jit", "mahony"]]
+    # handed out by cost, longest first, each to the first process free: cpf-ekf 13 s; the toy 5 s (the default), mahony 1.5 s
+    assert warmup.longest_first(["mahony", "toy-jit", "cpf-ekf"]) == ["cpf-ekf", "toy-jit", "mahony"]
     assert not create("toy").has_heading_reference(True)
     assert plugin_paths(["mahony", "toy", "toy-jit"]) == {"toy": f"{TOY_MODULE}:Toy", "toy-jit": f"{TOY_MODULE}:ToyJit"}
     # tune: its search space from the class, and nothing left once --set fixes the one field

@@ -56,8 +56,8 @@ class Estimator:
     # What the rest of the tool reads about an estimator, so that none of it names one: a new
     # estimator is its module and its test (each default below suits one that states nothing).
     color: tuple[int, int, int] | None = None  # its lines in the view (RGB); None: one of the view's spare colours
-    # seconds its kernels take to compile the first time, one core (``warmup.precompile`` shares
-    # the work out by it); None with ``kernels``: ``DEFAULT_COMPILE_S``
+    # seconds its kernels take to compile the first time, one core (``warmup.precompile`` hands
+    # the longest out first); None with ``kernels``: ``DEFAULT_COMPILE_S``
     compile_seconds: float | None = None
     # diagnostics that mark events (1.0 at each): key -> ``Marked``, the warnings and counts they make
     MARKS: dict = {}
@@ -159,7 +159,7 @@ class Estimator:
 
 
 # The first compile of an estimator whose class states no ``compile_seconds`` (about a Kalman
-# filter's of ours), for sharing the work out.
+# filter's of ours), for the order the work is handed out in.
 DEFAULT_COMPILE_S = 5.0
 
 

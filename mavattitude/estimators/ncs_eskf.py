@@ -397,16 +397,11 @@ def ncs_eskf_run(s, state, cfg, out, diag):
             gate = math.sqrt(base * base + noise_gate * noise_gate * sn2
                              + gate_sigma * gate_sigma * (P[0, 0] + P[1, 1]))
             # at most one update a sample, from the reading or the low-passed one: written once (the
-            # kernel compiles in a third of the time with one inlined copy of ncs_update, not three)
+            # kernel compiles in a third of the time with one inlined copy of ncs_update, not three;
+            # the low-passed residual too, once)
             u0 = u1 = u2 = weight = 0.0
-            low_tried = False
             l0, l1, l2 = accel_low[i, 0], accel_low[i, 1], accel_low[i, 2]
-            if stepped and cfg.fallback and _gravity_residual(q, l0, l1, l2, gravity)[3] < resid_h:
-                low_tried = True  # the closer of the two first
-                u0, u1, u2, weight = _low_passed_residual(q, l0, l1, l2, gravity, total_threshold, gate, taper)
-                if weight > 0.0:
-                    state = ACCEL_LOWPASSED
-            if state != ACCEL_LOWPASSED and stepped:
+            if stepped:
                 if abs(math.sqrt(ax * ax + ay * ay + az * az) - gravity) > total_threshold * gravity:
                     state = ACCEL_TOTAL
                 else:
@@ -417,10 +412,15 @@ def ncs_eskf_run(s, state, cfg, out, diag):
                     else:
                         state = ACCEL_USED
                         u0, u1, u2 = r0, r1, r2
-                if state != ACCEL_USED and cfg.fallback and not low_tried:
-                    u0, u1, u2, weight = _low_passed_residual(q, l0, l1, l2, gravity, total_threshold, gate, taper)
-                    if weight > 0.0:
+                # the low-passed reading where it is the closer of the two (it stands before the
+                # reading, if it passes), or where the reading is refused
+                closer = cfg.fallback and _gravity_residual(q, l0, l1, l2, gravity)[3] < resid_h
+                if closer or (state != ACCEL_USED and cfg.fallback):
+                    v0, v1, v2, low_weight = _low_passed_residual(q, l0, l1, l2, gravity, total_threshold, gate,
+                                                                  taper)
+                    if low_weight > 0.0:
                         state = ACCEL_LOWPASSED
+                        u0, u1, u2, weight = v0, v1, v2, low_weight
             if state == ACCEL_USED or state == ACCEL_LOWPASSED:
                 ncs_update(q, P, bias_est, u0, u1, u2, acc2 / (dt * weight), gravity)
         if stepped:  # one normalisation per sample, after the last product
