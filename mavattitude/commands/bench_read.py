@@ -22,8 +22,9 @@ hour-long replay costs end to end.
   (some 700 MB).
 
 Ours: best of ``repeat`` runs (the first compiles or loads the scan kernels); pymavlink's: one
-run (it takes seconds to minutes), pyulog's likewise. A read shorter than that is run again until
-``MIN_TIMED_S`` of CPU is spent, ours and the reference alike, and the best run counts: a read of
+run (it takes seconds to minutes), pyulog's likewise. With ``repeat`` above 1, a read shorter than
+that is run again until ``MIN_TIMED_S`` of CPU is spent, ours and the reference alike, and the
+best run counts (``--repeat 1``: one run each, for a quick look): a read of
 a few milliseconds moves by half with the heap from one run to the next (the 4 MB ``.ulg`` read
 8-14x pyulog in single runs).
 
@@ -51,11 +52,11 @@ MIN_TIMED_S = 1.0  # CPU s: a short read is repeated until this much is spent, i
 MAX_RUNS = 500
 
 
-def _cpu(fn, repeat: int) -> float:
+def _cpu(fn, repeat: int, at_least_s: float) -> float:
     """The best CPU time of at least ``repeat`` calls of ``fn``, and of more while they have
-    taken less than ``MIN_TIMED_S`` together (at most ``MAX_RUNS``)."""
+    taken less than ``at_least_s`` together (at most ``MAX_RUNS``)."""
     best, spent, runs = float("inf"), 0.0, 0
-    while runs < repeat or (spent < MIN_TIMED_S and runs < MAX_RUNS):
+    while runs < repeat or (spent < at_least_s and runs < MAX_RUNS):
         start = time.process_time()
         fn()
         took = time.process_time() - start
@@ -108,9 +109,10 @@ def read_figures(path: str, repeat: int = 3) -> dict:
     reader, reference, theirs_fn = {"bin": (read_dataflash, "pymavlink", _pymavlink_bin),
                                     "tlog": (read_tlog, "pymavlink", _pymavlink_tlog),
                                     "ulg": (read_ulog, "pyulog", _pyulog)}[kind]
-    ours = _cpu(lambda: reader(path), repeat)
-    loaded = _cpu(lambda: read_log(path), repeat)
-    theirs = _cpu(lambda: theirs_fn(path), 1)
+    at_least_s = MIN_TIMED_S if repeat > 1 else 0.0
+    ours = _cpu(lambda: reader(path), repeat, at_least_s)
+    loaded = _cpu(lambda: read_log(path), repeat, at_least_s)
+    theirs = _cpu(lambda: theirs_fn(path), 1, at_least_s)
     mb = os.path.getsize(path) / 1e6
     return {"log": path, "format": kind, "mb": round(mb, 2), "reference": reference, "ours_s": round(ours, 6),
             f"{reference}_s": round(theirs, 6), "ours_mb_s": round(mb / ours, 1),
