@@ -78,7 +78,7 @@ def _track(t, first_index, jump, confirm, state, held, out, res_index, res_label
     of the held samples. Writes a label per sample to ``out`` (HELD for one held) and the
     labels of held samples decided here to ``res_index``/``res_label``; returns how many."""
     current, clock_max, n_held, held_max, confirmed = int(state[0]), state[1], int(state[2]), state[3], state[4]
-    n_res = 0
+    n_res = np.int64(0)  # (not the literal 0, nor CORRUPT's -1 below: _decide compiled once, not four times)
     for i in range(len(t)):
         x = t[i]
         g = first_index + i
@@ -99,7 +99,7 @@ def _track(t, first_index, jump, confirm, state, held, out, res_index, res_label
                 n_held = 0
             continue
         if confirmed and clock_max - jump <= x <= clock_max + jump:  # the clock goes on
-            n_res = _decide(held, n_held, CORRUPT, res_index, res_label, n_res)  # what jumped was corrupt
+            n_res = _decide(held, n_held, np.int64(CORRUPT), res_index, res_label, n_res)  # what jumped was corrupt
             n_held = 0
             out[i] = current
             clock_max = max(clock_max, x)
