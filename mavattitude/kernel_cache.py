@@ -1,4 +1,5 @@
-"""Keep numba's cache of our kernels in step with the sources.
+"""How our kernels are compiled (``kernel``), and numba's cache of them kept in step with the
+sources.
 
 numba stamps a cached kernel with its own source file only, not with the files whose
 functions it compiled in (quaternion.py, estimators/consistency.py, mahony_step in
@@ -13,16 +14,35 @@ import hashlib
 import os
 from pathlib import Path
 
+from numba import njit
+
 PACKAGE = Path(__file__).resolve().parent
 STAMP = "mavattitude-kernels.stamp"
 
 
+def kernel(function=None, *, inline: str = "never"):
+    """numba's ``njit`` as every kernel of the package takes it, ``@kernel`` or
+    ``@kernel(inline="always")``: cached (compiled on a first run, loaded after), and without
+    the C-callable wrapper numba builds by default (``.ctypes``, ``.address``), which nothing
+    here calls: a first compile of the seven estimators takes about a tenth less CPU without it
+    (scripts/first_compile.py). The CPython wrapper stays: the estimators and the tests call
+    kernels from Python."""
+    jit = njit(cache=True, no_cfunc_wrapper=True, inline=inline)
+    return jit if function is None else jit(function)
+
+
+def holds_kernels(source: bytes) -> bool:
+    """Whether a source file's text defines kernels (``@kernel``, or numba's own decorator)."""
+    return b"@kernel" in source or b"njit" in source
+
+
 def sources_stamp(kernels_only: bool = True) -> str:
-    """A hash of every package source file that defines numba kernels (or of every one)."""
+    """A hash of every package source file that defines kernels (``holds_kernels``), or of
+    every one."""
     digest = hashlib.sha1()
     for path in sorted(PACKAGE.rglob("*.py")):
         text = path.read_bytes()
-        if b"njit" in text or not kernels_only:
+        if holds_kernels(text) or not kernels_only:
             digest.update(str(path.relative_to(PACKAGE)).encode() + b"\0" + text)
     return digest.hexdigest()
 

@@ -20,11 +20,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from .earth import pressure_height
 from .flight import BaroSeries, Flight, GpsSeries
 from .growing import Growing
+from .kernel_cache import kernel
 
 AIR_ABOVE_M = 3.0  # m above the start: in the air
 GROUND_BELOW_M = 1.5  # m above the start: back on the ground
@@ -79,7 +79,7 @@ def _gps_height(gps: GpsSeries | None):
     return "GPS height", gps.t[ok], gps.alt_m[ok]
 
 
-@njit(cache=True)
+@kernel
 def _median(v, work):
     """np.median of ``v`` (finite values, at least one): the middle value, or the mean of the
     two middle ones, by quickselect in ``work`` (scratch at least as long). Not numba's
@@ -117,7 +117,7 @@ def _median(v, work):
     return (low + high) / 2
 
 
-@njit(cache=True)
+@kernel
 def _track(t, h, start, lo, state):
     """Heights above the start and the phase for samples [start, len(t)) of the accepted ones
     (``t`` increasing): the median of the last SMOOTH_S of samples, minus the median of the

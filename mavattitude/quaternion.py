@@ -6,14 +6,15 @@ rotating body (FRD) to navigation (NED): v_n = C(q) v_b. Euler angles are ZYX
 
 Two kinds of function live here:
 - vectorised numpy functions over (N, 4) / (N, 3) arrays, for readers, metrics and the view;
-- small ``@njit`` kernels on single samples, for the compiled estimator loops.
+- small compiled kernels (``@kernel``) on single samples, for the compiled estimator loops.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-from numba import njit
+
+from .kernel_cache import kernel
 
 # ---------------------------------------------------------------- vectorised (numpy)
 
@@ -183,7 +184,7 @@ def heading_from_mag(roll, pitch, mag, declination=0.0):
 # Single-sample helpers for the estimator loops; inputs and outputs are float64 arrays.
 
 
-@njit(cache=True)
+@kernel
 def qmul(p, q):
     out = np.empty(4)
     out[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
@@ -193,12 +194,12 @@ def qmul(p, q):
     return out
 
 
-@njit(cache=True)
+@kernel
 def qnormalize(q):
     return q / np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
 
 
-@njit(cache=True)
+@kernel
 def qdcm(q):
     """C(q), body -> navigation."""
     c = np.empty((3, 3))
@@ -206,7 +207,7 @@ def qdcm(q):
     return c
 
 
-@njit(cache=True)
+@kernel
 def cross(a, b):
     out = np.empty(3)
     out[0] = a[1] * b[2] - a[2] * b[1]
@@ -215,7 +216,7 @@ def cross(a, b):
     return out
 
 
-@njit(cache=True)
+@kernel
 def omega_matrix(w):
     """Ω(ω) with q̇ = ½ Ω(ω) q (ALGORITHMS.md "Conventions")."""
     m = np.zeros((4, 4))
@@ -226,7 +227,7 @@ def omega_matrix(w):
     return m
 
 
-@njit(cache=True)
+@kernel
 def integrate_gyro(q, w, dt):
     """Rotate q by body rate w over dt, exactly for constant w: q ⊗ Exp(w dt)."""
     angle = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) * dt
@@ -241,7 +242,7 @@ def integrate_gyro(q, w, dt):
     return qnormalize(qmul(q, dq))
 
 
-@njit(cache=True)
+@kernel
 def integrate_gyro_scalar(q0, q1, q2, q3, wx, wy, wz, dt):
     """``integrate_gyro`` on scalars, allocating nothing, for per-sample loops: returns the
     rotated quaternion as a tuple (w, x, y, z). The same operations in the same order as
@@ -265,7 +266,7 @@ def integrate_gyro_scalar(q0, q1, q2, q3, wx, wy, wz, dt):
 # estimator's loop uses these, so a product or a rotation is written once.
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def qmul_s(a0, a1, a2, a3, b0, b1, b2, b3):
     """Hamilton product a ⊗ b on scalars."""
     return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
@@ -274,13 +275,13 @@ def qmul_s(a0, a1, a2, a3, b0, b1, b2, b3):
             a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def qmul_into(p, q, out):
     """out = p ⊗ q (arrays of 4)."""
     out[0], out[1], out[2], out[3] = qmul_s(p[0], p[1], p[2], p[3], q[0], q[1], q[2], q[3])
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def exp_s(vx, vy, vz):
     """Exp(v): the unit quaternion of rotation vector v (rad)."""
     a2 = vx * vx + vy * vy + vz * vz
@@ -293,14 +294,14 @@ def exp_s(vx, vy, vz):
     return math.cos(0.5 * angle), vx * s, vy * s, vz * s
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def normalize_into(q, w, x, y, z):
     """q[:4] = [w, x, y, z] / norm."""
     n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
     q[0], q[1], q[2], q[3] = w * n, x * n, y * n, z * n
 
 
-@njit(cache=True)
+@kernel
 def normalize_head(x):
     """The quaternion in x[:4] to unit length, in place (a state vector's attitude part)."""
     n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
@@ -308,7 +309,7 @@ def normalize_head(x):
         x[i] /= n
 
 
-@njit(cache=True)
+@kernel
 def dcm_into(w, x, y, z, c):
     """c = C(q), body -> navigation, for a unit quaternion q."""
     c[0, 0] = 1.0 - 2.0 * (y * y + z * z)
@@ -322,13 +323,13 @@ def dcm_into(w, x, y, z, c):
     c[2, 2] = 1.0 - 2.0 * (x * x + y * y)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def dcm_transposed_into(w, x, y, z, M):
     """M = C(q)ᵀ = C(q*) for a unit quaternion q."""
     dcm_into(w, -x, -y, -z, M)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def gravity_in_body_s(w, x, y, z, g):
     """C(q)ᵀ [0, 0, -g]: what an accelerometer reads at rest at attitude q (not necessarily
     unit: divided by |q|²), as a tuple."""
@@ -337,7 +338,7 @@ def gravity_in_body_s(w, x, y, z, g):
             -g * (1.0 - 2.0 * (x * x + y * y) / n2))
 
 
-@njit(cache=True)
+@kernel
 def rotate_into(q, a, out):
     """out = C(q) a, C in the homogeneous quadratic form (= C(q) at |q| = 1; differentiable
     in q without the unit constraint, as an EKF with q in its state needs)."""
@@ -350,7 +351,7 @@ def rotate_into(q, a, out):
               + (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3) * a[2])
 
 
-@njit(cache=True)
+@kernel
 def right_matrix_into(p, out):
     """R(p), the 4×4 matrix with q ⊗ p = R(p) q."""
     out[0, 0], out[0, 1], out[0, 2], out[0, 3] = p[0], -p[1], -p[2], -p[3]
@@ -359,7 +360,7 @@ def right_matrix_into(p, out):
     out[3, 0], out[3, 1], out[3, 2], out[3, 3] = p[3], p[2], -p[1], p[0]
 
 
-@njit(cache=True)
+@kernel
 def left_matrix_into(q, out):
     """L(q), the 4×4 matrix with q ⊗ p = L(q) p."""
     out[0, 0], out[0, 1], out[0, 2], out[0, 3] = q[0], -q[1], -q[2], -q[3]
@@ -368,7 +369,7 @@ def left_matrix_into(q, out):
     out[3, 0], out[3, 1], out[3, 2], out[3, 3] = q[3], -q[2], q[1], q[0]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def cross_matrix_into(x, y, z, M):
     """M = [v]×, the matrix with [v]× u = v × u."""
     M[0, 0], M[0, 1], M[0, 2] = 0.0, -z, y
@@ -376,7 +377,7 @@ def cross_matrix_into(x, y, z, M):
     M[2, 0], M[2, 1], M[2, 2] = -y, x, 0.0
 
 
-@njit(cache=True)
+@kernel
 def euler_s(q0, q1, q2, q3):
     """ZYX Euler angles (roll, pitch, yaw; radians) of a unit quaternion, on scalars."""
     roll = math.atan2(2 * (q0 * q1 + q2 * q3), 1 - 2 * (q1 * q1 + q2 * q2))
@@ -387,7 +388,7 @@ def euler_s(q0, q1, q2, q3):
     return roll, pitch, yaw
 
 
-@njit(cache=True)
+@kernel
 def wrap_pi_s(a):
     """An angle to [-π, π), on a scalar."""
     return (a + math.pi) % (2.0 * math.pi) - math.pi

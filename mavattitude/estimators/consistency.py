@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from ..kernel_cache import kernel
 
-@njit(cache=True, inline="always")
+
+@kernel(inline="always")
 def step_rotation_into(dx, dy, dz, a):
     """a = C(p̂)ᵀ for the step rotation p = [1 - θ²/8, (½ - θ²/48) Δθ] (θ = |Δθ|, second order),
     normalised: the matrix that carries a navigation-fixed vector's body coordinates across
@@ -43,7 +44,7 @@ def step_rotation_into(dx, dy, dz, a):
     a[1, 2] = (py * pz + pw * px) * n2
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def carried(a, v0, v1, v2):
     """a v: a body vector carried across a step."""
     return (a[0, 0] * v0 + a[0, 1] * v1 + a[0, 2] * v2,
@@ -51,7 +52,7 @@ def carried(a, v0, v1, v2):
             a[2, 0] * v0 + a[2, 1] * v1 + a[2, 2] * v2)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def track_stillness(ref0, ref1, ref2, still_t, ax, ay, az, a, stepped, rate2, still_rate2, still_acc2, dt):
     """Still: rotating slower than √still_rate2 with the accelerometer within √still_acc2 of
     its reading at the span's start, carried with the rotation. Returns the reference and
@@ -70,7 +71,7 @@ def track_stillness(ref0, ref1, ref2, still_t, ax, ay, az, a, stepped, rate2, st
     return ref0, ref1, ref2, still_t
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def attitude_error(cos_rho, eps, cos_tol, sin_tol):
     """Whether the residual angle ρ exceeds φ_m + tol: cos ρ < cos(φ_m + tol), with
     cos φ_m = g_a/‖f̃‖ = 1 / (1 + eps) (no lengthening: φ_m = 0)."""

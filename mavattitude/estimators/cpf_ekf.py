@@ -72,9 +72,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from ..flight import GRAVITY
+from ..kernel_cache import kernel
 from ..paramspec import param
 from ..quaternion import left_matrix_into, right_matrix_into, rotate_into
 from .base import Estimator, Marked
@@ -134,7 +134,7 @@ class CpfEkfParams:
     accel_tau: float = param(1.0, "[0, 60]", "linear [0, 5]")  # s: the complementary filter's accelerometer low-passed in an almost-inertial frame (inertial_accel), as mahony's; 0: the reading as it is
     strict: bool = param(False)  # the paper's filter: published thresholds, every addition below the paper off, whatever the values above
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _write_row(x, P, out, drow):
     """The attitude and the per-sample diagnostics (DIAG_KEYS' units)."""
     out[0], out[1], out[2], out[3] = x[0], x[1], x[2], x[3]
@@ -151,7 +151,7 @@ def _write_row(x, P, out, drow):
     drow[D_BA] = x[IA]
 
 
-@njit(cache=True)
+@kernel
 def cpf_ekf_run(s, aid, state, cfg, out, diag):
     """Run the filter over a chunk of samples ``s`` (``base.Samples``) with its aiding ``aid``
     (``AidingRows``); ``state`` (``CpfEkfState``) is updated in place. Writes the attitude to

@@ -33,9 +33,9 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from ..flight import GRAVITY
+from ..kernel_cache import kernel
 from ..quaternion import left_matrix_into, normalize_head, right_matrix_into, rotate_into
 from .base import MAX_STEP_S
 
@@ -158,10 +158,10 @@ class AidingRows(NamedTuple):
     use_baro: bool
 
 
-# ---------------------------------------------------------------- model functions (njit)
+# ---------------------------------------------------------------- model functions (compiled)
 
 
-@njit(cache=True)
+@kernel
 def exp_dexp_pair(v, e, d, eh, dh):
     """e = Exp(v) (4,) and d = ∂Exp(v)/∂v (4×3), and likewise eh, dh of v/2, written in place
     from one sine and cosine (of θ/4, θ = |v|; series below θ = 1e-4):
@@ -200,7 +200,7 @@ def exp_dexp_pair(v, e, d, eh, dh):
         dh[1 + i, i] += f1h
 
 
-@njit(cache=True)
+@kernel
 def rot_jacobian(q, a, out):
     """J = ∂(C(q) a)/∂q (3×4), C in the homogeneous quadratic form of eq 2."""
     q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
@@ -219,7 +219,7 @@ def rot_jacobian(q, a, out):
     out[2, 3] = 2 * (q1 * ax + q2 * ay + q3 * az)
 
 
-@njit(cache=True)
+@kernel
 def _step_rotations(x, w_mean, a_mean, dt):
     """What a step turns by (see the module docstring): Exp(φ) and its derivative, Exp(φ/2)
     and its derivative, R(Exp(φ/2)), the mid-step attitude q_mid and the specific force a'
@@ -240,7 +240,7 @@ def _step_rotations(x, w_mean, a_mean, dt):
     return e, d, dh, rh, qm, ap
 
 
-@njit(cache=True)
+@kernel
 def predict_state(x, w_mean, a_mean, dt, g, xn):
     """The state step f(x) of eq 5-7 as implemented (see the module docstring), into ``xn``."""
     e, d, dh, rh, qm, ap = _step_rotations(x, w_mean, a_mean, dt)
@@ -261,7 +261,7 @@ def predict_state(x, w_mean, a_mean, dt, g, xn):
         xn[k] = x[k]
 
 
-@njit(cache=True)
+@kernel
 def transition_blocks(x, w_mean, a_mean, dt, fqq, fqb, fvq, fvb, fva):
     """The non-trivial blocks of F (see the module docstring)."""
     e, d, dh, rh, qm, ap = _step_rotations(x, w_mean, a_mean, dt)
@@ -317,7 +317,7 @@ def transition_matrix(x, w_mean, a_mean, dt) -> np.ndarray:
 # ------------------------------------------------ P₀
 
 
-@njit(cache=True)
+@kernel
 def _init_attitude_cov(P, q, sig_tilt, sig_yaw):
     """P_qq = ¼ Σ_k σ_k² (e_k ⊗ q)(e_k ⊗ q)ᵀ: navigation-frame tilt and yaw errors."""
     rq = np.empty((4, 4))
@@ -331,7 +331,7 @@ def _init_attitude_cov(P, q, sig_tilt, sig_yaw):
             P[i, j] = 0.25 * s
 
 
-@njit(cache=True)
+@kernel
 def init_covariance(P, x, cfg, heading, bias_var):
     """P₀: attitude, velocity and position from the parameters; the bias blocks get
     ``bias_var`` (7,: ω_b (3), a_zb, ...) on the diagonal; earth field and body field P₀."""
@@ -354,7 +354,7 @@ def init_covariance(P, x, cfg, heading, bias_var):
 # passed on every sample) the prediction ran at half the speed; these three are inlined.
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def propagate_covariance(P, fp, fqq, fqb, fvq, fvb, fva, dt):
     """P ← F P Fᵀ with F's sparsity: only its q, V and S rows differ from I (rows 0-9 of
     F P into ``fp``, then against every column)."""
@@ -403,7 +403,7 @@ def propagate_covariance(P, fp, fqq, fqb, fvq, fvb, fva, dt):
                 P[IS + c, r] = v
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def step_state(x, q_new, acc_ned, dt, ring, aux, ti, delayed):
     """Eq 5-7: the new attitude, and V, S from the NED acceleration (trapezoidal); with a GPS
     delay, the increments go into the ring a delayed fix is compared through."""
@@ -426,7 +426,7 @@ def step_state(x, q_new, acc_ned, dt, ring, aux, ti, delayed):
         aux[A_FILL] = min(aux[A_FILL] + 1.0, RING)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def add_process_noise(x, P, dt, cfg):
     """G Q Gᵀ (gyro noise on q, accelerometer noise on V) + Q_s (the random walks)."""
     qg = 0.25 * cfg.gyro_noise ** 2 * dt

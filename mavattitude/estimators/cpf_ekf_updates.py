@@ -80,8 +80,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from ..kernel_cache import kernel
 from ..quaternion import normalize_head, right_matrix_into, rotate_into, wrap_pi_s
 from .cpf_ekf_model import (A_FILL, A_GPOS, A_GVEL, A_HEAD, A_MAGINIT, A_TBARO, A_TGPS, D_IB, D_IM, D_IP, D_IV, IM,
                             IMB, IS, IV, NX, RING)
@@ -90,7 +90,7 @@ from .cpf_ekf_model import (A_FILL, A_GPOS, A_GVEL, A_HEAD, A_MAGINIT, A_TBARO, 
 # ------------------------------------------------ measurement models
 
 
-@njit(cache=True)
+@kernel
 def mag_model(x, axis, h_q):
     """Predicted magnetometer axis ``axis`` (eq 11), m = C(q)ᵀ M + m_b, and ∂m/∂q into h_q (4,).
     ∂m/∂M is row ``axis`` of C(q)ᵀ (column of C), ∂m/∂m_b the unit vector: see ``mag_jacobian``."""
@@ -120,7 +120,7 @@ def mag_model(x, axis, h_q):
     return h + x[IMB + axis]
 
 
-@njit(cache=True)
+@kernel
 def mag_jacobian(x, axis, H):
     """The full 20-element H row of magnetometer axis ``axis`` (eq 12-13), for tests."""
     h_q = np.zeros(4)
@@ -138,7 +138,7 @@ def mag_jacobian(x, axis, H):
     H[IMB + axis] = 1.0
 
 
-@njit(cache=True)
+@kernel
 def yaw_model(x, h_q):
     """The ZYX yaw ψ of the attitude in ``x`` and ∂ψ/∂q into h_q (4,), from the homogeneous
     form (ψ does not change with |q|): ψ = atan2(n, d), n = 2(q0q3 + q1q2),
@@ -161,7 +161,7 @@ def yaw_model(x, h_q):
 # ------------------------------------------------ scalar updates
 
 
-@njit(cache=True)
+@kernel
 def _scalar_update(x, P, idx, val, nh, innov, r, gate, pht):
     """One scalar Kalman update with a sparse H (``nh`` entries ``idx``/``val``). Returns the
     innovation variance S, or -1 when skipped (S not positive, or outside the gate)."""
@@ -189,7 +189,7 @@ def _scalar_update(x, P, idx, val, nh, innov, r, gate, pht):
     return s_inn
 
 
-@njit(cache=True)
+@kernel
 def _state_update(x, P, k, innov, r, gate, pht, idx, val):
     """Scalar update of a directly measured state ``k``."""
     idx[0] = k
@@ -197,7 +197,7 @@ def _state_update(x, P, k, innov, r, gate, pht, idx, val):
     return _scalar_update(x, P, idx, val, np.int64(1), innov, r, gate, pht)
 
 
-@njit(cache=True)
+@kernel
 def hold_heading(x, P, sigma, pht, idx, val, h_q):
     """Zero-innovation heading measurement (no yaw source): the state stays, the yaw's
     variance and its correlations shrink, so the next update cannot turn the yaw."""
@@ -208,7 +208,7 @@ def hold_heading(x, P, sigma, pht, idx, val, h_q):
         _scalar_update(x, P, idx, val, np.int64(4), 0.0, sigma * sigma, 0.0, pht)
 
 
-@njit(cache=True)
+@kernel
 def _reset_yaw_covariance(P, x, sigma, rq):
     """Forget what P says of the heading (the attitude's rotation about the vertical) and give
     it variance σ²: P ← T P Tᵀ + ¼σ² u uᵀ, T = I - u uᵀ on the q block, u = e_z ⊗ q."""
@@ -253,7 +253,7 @@ class Work(NamedTuple):
     body_field_var: np.ndarray  # (3,)
 
 
-@njit(cache=True)
+@kernel
 def new_work():
     """A ``Work`` for one chunk."""
     return Work(vec=np.empty(3), ned=np.empty(3), col=np.empty(3), unit=np.zeros(3), rq=np.empty((4, 4)),
@@ -265,7 +265,7 @@ def new_work():
 # ------------------------------------------------ measurement updates (eq 11-19)
 
 
-@njit(cache=True)
+@kernel
 def start_earth_field(x, mg0, mg1, mg2, cfg, wk):
     """M from a compass sample (gauss) through the current attitude, its horizontal part along
     the declination (the heading's reference), with P_M = σ₀² I and no correlations."""
@@ -277,7 +277,7 @@ def start_earth_field(x, mg0, mg1, mg2, cfg, wk):
         x[IM + r] = wk.ned[r]
 
 
-@njit(cache=True)
+@kernel
 def fuse_compass(x, P, aux, mg0, mg1, mg2, cfg, wk, drow):
     """Eq 11-16: a fresh compass sample (gauss), one axis at a time, then the declination
     pseudo-measurement. The first sample starts M instead. Unless ``mag_tilt``, ∂m/∂q keeps
@@ -332,7 +332,7 @@ def fuse_compass(x, P, aux, mg0, mg1, mg2, cfg, wk, drow):
         normalize_head(x)
 
 
-@njit(cache=True)
+@kernel
 def fuse_baro(x, P, ti, height, aux, cfg, wk, drow):
     """Eq 19's height: baro height (m, up) on S_d."""
     aux[A_TBARO] = ti
@@ -342,7 +342,7 @@ def fuse_baro(x, P, ti, height, aux, cfg, wk, drow):
     normalize_head(x)
 
 
-@njit(cache=True)
+@kernel
 def fuse_gps(x, P, ring, aux, ti, pos, vel, hacc, vacc, gps_active, baro_fresh, cfg, wk, drow):
     """Eq 17-19: a GPS fix (NED position and velocity, NaN where the fix has none), compared
     with the state ``gps_delay`` ago; on the first fix after a spell without GPS, V and S are
@@ -416,7 +416,7 @@ def fuse_gps(x, P, ring, aux, ti, pos, vel, hacc, vacc, gps_active, baro_fresh, 
             aux[A_GPOS + r] = pos[r]
 
 
-@njit(cache=True)
+@kernel
 def fuse_zero_velocity(x, P, baro_fresh, cfg, wk):
     """Non-aiding mode: a synthetic zero velocity keeps the tilt observable without GPS
     (vertically too when no height source is fresh)."""

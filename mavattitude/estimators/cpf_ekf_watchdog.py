@@ -16,15 +16,14 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
+from ..kernel_cache import kernel
 from ..quaternion import euler_s, wrap_pi_s
 from .cpf_ekf_model import (A_COUNT, A_GPOS, A_GVEL, A_LASTMAG, A_RESETS, D_RESET, D_WD, IA, IB, IMB, IS, IV, TESLA_TO_GAUSS,
                             init_covariance)
 from .cpf_ekf_updates import start_earth_field
 
 
-@njit(cache=True)
+@kernel
 def watchdog_distance(x, qc, heading):
     """Eq 21's (Δθ)² + (Δφ)² (+ (Δψ)² with a heading reference) between the EKF's and the
     complementary filter's Euler angles, differences wrapped to ±π."""
@@ -38,7 +37,7 @@ def watchdog_distance(x, qc, heading):
     return dist
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def watchdog_due(ti, period, last_bin):
     """Whether the watchdog checks at time ti, once per period (every sample with period 0), and
     the period's number, the next sample's last_bin."""
@@ -48,7 +47,7 @@ def watchdog_due(ti, period, last_bin):
     return True, last_bin
 
 
-@njit(cache=True)
+@kernel
 def watchdog_cycle(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk, drow):
     """One watchdog cycle (eq 21): the distance into the row; with the watchdog on, the count of
     consecutive cycles over N, and at reset_cycles the reset (counted in aux, marked in the row)."""
@@ -63,7 +62,7 @@ def watchdog_cycle(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk, drow
             reset_from_cpf(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk)
 
 
-@njit(cache=True)
+@kernel
 def reset_from_cpf(x, P, qc, aux, heading, gps_active, baro_fresh, cfg, wk):
     """Eq 21's reset: attitude from the complementary filter, P, V and S re-initialised (V, S
     to the last GPS fix when GPS is active), bias estimates kept, M from the last compass

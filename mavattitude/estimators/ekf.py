@@ -67,9 +67,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from ..flight import GRAVITY
+from ..kernel_cache import kernel
 from ..paramspec import param
 from ..quaternion import wrap_pi_s
 from .base import MAX_STEP_S, Estimator, filter_state, run_with_trace
@@ -87,12 +87,12 @@ class EkfParams:
     strict: bool = param(False)  # the filter as published: accel_tau = 0, whatever it says
 
 
-# ---------------------------------------------------------------- model functions (njit)
+# ---------------------------------------------------------------- model functions (compiled)
 # The scalar cores (``*_s``) are what the kernel runs; the array forms wrap them for tests
 # (Jacobians against finite differences, the same model in filterpy).
 
 
-@njit(cache=True)
+@kernel
 def transition(w, dt, out):
     """Φ = I + (T/2) Ω(ω) into out (4, 4), paper 000 eq 14."""
     a0, a1, a2 = 0.5 * dt * w[0], 0.5 * dt * w[1], 0.5 * dt * w[2]
@@ -103,7 +103,7 @@ def transition(w, dt, out):
     return out
 
 
-@njit(cache=True)
+@kernel
 def accel_model_s(w, x, y, z):
     """h_a(q) = C(q/|q|)ᵀ [0, 0, -1] and its Jacobian H_a (3×4, row-major): a 15-tuple
     (h0, h1, h2, H00 .. H23)."""
@@ -119,7 +119,7 @@ def accel_model_s(w, x, y, z):
             f * (-w - h2 * w), f * (x - h2 * x), f * (y - h2 * y), f * (-z - h2 * z))
 
 
-@njit(cache=True)
+@kernel
 def accel_model(q, h, H):
     """h_a(q) into h (3,), its Jacobian into H (3, 4); returns h."""
     r = accel_model_s(q[0], q[1], q[2], q[3])
@@ -130,7 +130,7 @@ def accel_model(q, h, H):
     return h
 
 
-@njit(cache=True)
+@kernel
 def heading_model_s(w, x, y, z, v0, v1, v2):
     """h_m(q) = azimuth of C(q) v, v = (v0, v1, v2) a body-frame vector (the levelled field),
     and its Jacobian: (h, H0, H1, H2, H3). h = atan2(U_y, U_x) with U = |q|² C(q/|q|) v, so h
@@ -152,7 +152,7 @@ def heading_model_s(w, x, y, z, v0, v1, v2):
             f * (ux * dy2 - uy * dx2), f * (ux * dy3 - uy * dx3))
 
 
-@njit(cache=True)
+@kernel
 def heading_model(q, v, H):
     """h_m(q) for the body vector v (3,); its Jacobian into H (1, 4). Returns h_m."""
     r = heading_model_s(q[0], q[1], q[2], q[3], v[0], v[1], v[2])
@@ -160,7 +160,7 @@ def heading_model(q, v, H):
     return r[0]
 
 
-@njit(cache=True)
+@kernel
 def level_field(q, m0, m1, m2):
     """The field m with its component along the vertical of attitude q removed (body frame):
     m - (m·d) d, d = C(q/|q|)ᵀ [0, 0, 1]. Returns a 3-tuple."""
@@ -171,12 +171,12 @@ def level_field(q, m0, m1, m2):
     return m0 - k * d0, m1 - k * d1, m2 - k * d2
 
 
-# ---------------------------------------------------------------- in-place filter steps (njit)
+# ---------------------------------------------------------------- in-place filter steps (compiled)
 # Written out element by element on local scalars (P symmetric: its upper triangle is read
 # once and written once): small-matrix loops over arrays ran 3-5× slower.
 
 
-@njit(cache=True, inline='always')
+@kernel(inline="always")
 def predict(x, P, w0, w1, w2, dt, q_gyro):
     """X⁻ = Φ X, P⁻ = Φ P Φᵀ + G Q Gᵀ (paper 000 eq 18-19), in place. Φ = I + (T/2) Ω(ω)
     (eq 14); G = (T/2) Ξ(X) at the state before the step (eq 15), so
@@ -223,7 +223,7 @@ def predict(x, P, w0, w1, w2, dt, q_gyro):
     P[3, 3] = a2 * b30 + a1 * b31 - a0 * b32 + b33 + g * (n2 - q3 * q3)
 
 
-@njit(cache=True, inline='always')
+@kernel(inline="always")
 def accel_update(x, P, u0, u1, u2, r):
     """Kalman update with the normalised accelerometer (u0, u1, u2) against h_a(X), R = r I₃,
     Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ, in place (the 3×3 innovation covariance
@@ -333,7 +333,7 @@ def accel_update(x, P, u0, u1, u2, r):
     P[3, 3] = b30 * a30 + b31 * a31 + b32 * a32 + b33 * a33 + r * (k30 * k30 + k31 * k31 + k32 * k32)
 
 
-@njit(cache=True, inline='always')
+@kernel(inline="always")
 def scalar_update(x, P, H0, H1, H2, H3, innov, r):
     """Kalman update with a scalar measurement, H = [H0..H3], innovation ``innov``, R = r,
     Joseph form (A P = P - k (P H)ᵀ for A = I - k H), in place."""
@@ -384,7 +384,7 @@ def scalar_update(x, P, H0, H1, H2, H3, innov, r):
     P[3, 3] = b33 - c3 * k3 + r * k3 * k3
 
 
-@njit(cache=True, inline='always')
+@kernel(inline="always")
 def normalize_project(x, P):
     """X ← X / |X|, P ← J P Jᵀ with J = (I - q̂ q̂ᵀ) / |X|, the Jacobian of the normalisation;
     in place."""
@@ -424,7 +424,7 @@ class EkfSettings(NamedTuple):
     max_step: float  # s
 
 
-@njit(cache=True)
+@kernel
 def ekf_run(s, state, cfg, out, cov_trace):
     """Run the filter over a chunk of samples ``s`` (``base.Samples``); ``state``
     (``base.FilterState``, the quaternion as ``q``) is updated in place. Writes the attitude

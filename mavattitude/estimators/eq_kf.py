@@ -215,9 +215,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from ..flight import GRAVITY
+from ..kernel_cache import kernel
 from ..paramspec import param
 from .base import MAX_STEP_S, Estimator
 from .consistency import attitude_error, carried, track_stillness
@@ -330,7 +330,7 @@ class EqKfDiagnostics(NamedTuple):
     accel_state: np.ndarray  # int8
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _tangent_update(p, ph, s00, s01, s11, r0, r1, rr, x):
     """The 2-D tangent-plane update with measurement variance rr per axis: K = P Hᵀ S⁻¹ (6×2);
     x = K r; P ← P - K (P Hᵀ)ᵀ, upper triangle mirrored."""
@@ -347,7 +347,7 @@ def _tangent_update(p, ph, s00, s01, s11, r0, r1, rr, x):
             p[c, r] = s
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _normalise_into(qn, q):
     """q ← qn / ‖qn‖."""
     inv = 1.0 / np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
@@ -355,7 +355,7 @@ def _normalise_into(qn, q):
         q[k] = qn[k] * inv
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _propagate_covariance(p, a, b, tp, q_e, qb_var, dt):
     """P ← Φ P Φᵀ + Q for Φ = [[a, b], [0, I]] (``error_transition``), Q = diag(q_e I, qb_var Δt I)."""
     # tp = rows 0-2 of Φ P
@@ -379,14 +379,14 @@ def _propagate_covariance(p, a, b, tp, q_e, qb_var, dt):
         p[r, r] += qb_var * dt
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _low_pass_carried(a, lp0, lp1, lp2, ax, ay, az, alpha):
     """The low-pass f̃ carried across the step (f̃ ← a f̃, a = C(p̂)ᵀ), then moved by alpha toward the sample."""
     f0, f1, f2 = carried(a, lp0, lp1, lp2)
     return f0 + alpha * (ax - f0), f1 + alpha * (ay - f1), f2 + alpha * (az - f2)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _direction_noise(a, dir0, dir1, dir2, u0, u1, u2, vib, alpha):
     """σ_vib² moved by alpha toward the change of the direction u = a/‖a‖ since the last
     sample's (carried across the step): |Δu|² = 2 axes × 2 samples × σ², so σ² per axis = |Δu|²/4."""
@@ -396,14 +396,14 @@ def _direction_noise(a, dir0, dir1, dir2, u0, u1, u2, vib, alpha):
     return vib + alpha * (0.25 * (d0 * d0 + d1 * d1 + d2 * d2) - vib)
 
 
-@njit(cache=True)
+@kernel
 def _load_aux(aux):
     """The auxiliary state as the loop's locals (the _A_* indices, in order)."""
     return (aux[_A_LP], aux[_A_LP + 1], aux[_A_LP + 2], aux[_A_DIR], aux[_A_DIR + 1], aux[_A_DIR + 2], aux[_A_VIB],
             aux[_A_STILL], aux[_A_W], aux[_A_REF], aux[_A_REF + 1], aux[_A_REF + 2], aux[_A_G], aux[_A_CONS])
 
 
-@njit(cache=True)
+@kernel
 def _save_aux(aux, lp0, lp1, lp2, dir0, dir1, dir2, vib, still_t, w_prev, ref0, ref1, ref2, g_a, cons_t):
     """The loop's locals back into the auxiliary state (``_load_aux``'s order)."""
     aux[_A_LP], aux[_A_LP + 1], aux[_A_LP + 2] = lp0, lp1, lp2
@@ -413,7 +413,7 @@ def _save_aux(aux, lp0, lp1, lp2, dir0, dir1, dir2, vib, still_t, w_prev, ref0, 
     aux[_A_G], aux[_A_CONS] = g_a, cons_t
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _gravity_direction(q, hv):
     """h̄ = C(Q̄)ᵀ [0, 0, -1] into hv: where the accelerometer of a vehicle at rest points."""
     w_, x_, y_, z_ = q[0], q[1], q[2], q[3]
@@ -422,7 +422,7 @@ def _gravity_direction(q, hv):
     hv[2] = -(1.0 - 2.0 * (x_ * x_ + y_ * y_))
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _innovation_covariance(p, hm, ph):
     """P Hᵀ (6×2) into ph; returns H P Hᵀ (2×2) as s00, s01, s11."""
     for r in range(6):
@@ -434,20 +434,20 @@ def _innovation_covariance(p, hm, ph):
     return s00, s01, s11
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _tangent_residual(tb, hv, u0, u1, u2):
     """r = Tᵀ (u - h̄), the residual of a unit vector u in the tangent plane."""
     e0, e1, e2 = u0 - hv[0], u1 - hv[1], u2 - hv[2]
     return tb[0, 0] * e0 + tb[0, 1] * e1 + tb[0, 2] * e2, tb[1, 0] * e0 + tb[1, 1] * e1 + tb[1, 2] * e2
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _gate_d2(sa, sb, s01, r0, r1):
     """d² = rᵀ S_g⁻¹ r for S_g = [[sa, s01], [s01, sb]]."""
     return (sb * r0 * r0 - 2.0 * s01 * r0 * r1 + sa * r1 * r1) / (sa * sb - s01 * s01)
 
 
-@njit(cache=True)
+@kernel
 def _open_gate(p, cos_rho, gate_lo):
     """The consistency test fired: raise the attitude covariance so that the residual angle ρ
     sits at gate_lo σ, and the gate opens for the bias states to relearn."""
@@ -458,7 +458,7 @@ def _open_gate(p, cos_rho, gate_lo):
             p[k, k] = target
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _low_passed_trust(l0, l1, l2, hv, tb, sa, sb, s01, g_a, norm_lo, norm_hi, gate_lo, gate_hi):
     """The reading refused: the trust in the low-passed one (l0, l1, l2; ``accel_tau``) by the norm
     and residual tests (0 where it has no length), and its residual r."""
@@ -473,7 +473,7 @@ def _low_passed_trust(l0, l1, l2, hv, tb, sa, sb, s01, g_a, norm_lo, norm_hi, ga
     return w_low, r0, r1
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _heading_innovation(q, m0, m1, m2, cdec, sdec):
     """γ = declination - azimuth(m_h), m_h the horizontal part of the measured field (m0, m1, m2)
     turned to the navigation frame with Q̄: the signed angle from m_h to magnetic north. NaN
@@ -486,7 +486,7 @@ def _heading_innovation(q, m0, m1, m2, cdec, sdec):
     return np.nan
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _scalar_update(p, hm3, v6, rr, gamma, x):
     """A scalar update with H = [hm3, 0] and variance rr: x = K γ, P ← P - K (P Hᵀ)ᵀ, upper
     triangle mirrored."""
@@ -502,7 +502,7 @@ def _scalar_update(p, hm3, v6, rr, gamma, x):
             p[c, r] = pv
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _accel_state(low_used, w_acc):
     """The accel_state code (``ACCEL_STATES``)."""
     if low_used:
@@ -512,7 +512,7 @@ def _accel_state(low_used, w_acc):
     return 1 if w_acc > 0.0 else 2
 
 
-@njit(cache=True)
+@kernel
 def eqkf_run(s, state, cfg, out_q, diag):
     """Run the filter over a chunk of samples ``s`` (``base.Samples``; ``in_air`` gates the turn compensation
     only); ``state`` (``EqKfState``) is updated in place. Writes the attitude to ``out_q`` and trace(P), the

@@ -6,18 +6,18 @@ is: ``eq_kf``.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from ..kernel_cache import kernel
 from ..quaternion import dcm_into, qmul_into
 from .consistency import step_rotation_into
 
 
-# ---------------------------------------------------------------- model functions (njit)
+# ---------------------------------------------------------------- model functions (compiled)
 # Written with output arguments so the kernel calls them without allocating; the tests call
 # the same functions to check them against finite differences and the exact rotation.
 
 
-@njit(cache=True)
+@kernel
 def picard_step(q, dtheta, out):
     """Eq 5 to 3rd order: out = [(1 - Δθ₀²/8) I + (½ - Δθ₀²/48) Ω(Δθ)] q (not normalised)."""
     dx, dy, dz = dtheta[0], dtheta[1], dtheta[2]
@@ -36,7 +36,7 @@ def picard_step(q, dtheta, out):
     out[3] = c0 * z + c1 * o3
 
 
-@njit(cache=True)
+@kernel
 def error_transition(dtheta, dt, a, b):
     """Φ's blocks for one step: a = C(p̂)ᵀ (∂e'/∂e), b = -½Δt (I - ½[Δθ]×) (∂e'/∂β)."""
     dx, dy, dz = dtheta[0], dtheta[1], dtheta[2]
@@ -48,14 +48,14 @@ def error_transition(dtheta, dt, a, b):
     b[2, 0], b[2, 1], b[2, 2] = -k * dy, k * dx, h
 
 
-@njit(cache=True)
+@kernel
 def _error_quaternion(e):
     """Q_e = [√(1 - |e|²), e] from its vector part (allocates: tests and setup only)."""
     s = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
     return np.array([np.sqrt(max(1.0 - s, 0.0)), e[0], e[1], e[2]])
 
 
-@njit(cache=True)
+@kernel
 def error_propagate(e, beta, rate, dt, out):
     """The nonlinear error step the Jacobians linearise: out = vec(p̂(Δθ)⁻¹ ⊗ Q_e ⊗ p̂(Δθ - βΔt)),
     Δθ = rate·Δt, p̂ the normalised Picard increment (tests only; allocates)."""
@@ -76,7 +76,7 @@ def error_propagate(e, beta, rate, dt, out):
     out[0], out[1], out[2] = res[1], res[2], res[3]
 
 
-@njit(cache=True)
+@kernel
 def accel_predict(qbar, e, out):
     """h(e) = C(Q̄ ⊗ Q_e)ᵀ [0, 0, -1]: the accelerometer direction the attitude predicts."""
     q = np.empty(4)
@@ -87,7 +87,7 @@ def accel_predict(qbar, e, out):
     out[2] = -(1.0 - 2.0 * (x * x + y * y))
 
 
-@njit(cache=True)
+@kernel
 def accel_tangent(h, t):
     """Rows of t (2×3): an orthonormal basis of the plane ⟂ the unit vector h."""
     ax, ay, az = abs(h[0]), abs(h[1]), abs(h[2])
@@ -107,7 +107,7 @@ def accel_tangent(h, t):
     t[1, 2] = h[0] * t1 - h[1] * t0
 
 
-@njit(cache=True)
+@kernel
 def accel_jacobian(h, t, hm):
     """hm (2×3) = ∂(Tᵀ h(e))/∂e at e = 0 = Tᵀ 2[h̄]×, rows 2 (tᵢ × h̄)."""
     for r in range(2):
@@ -116,7 +116,7 @@ def accel_jacobian(h, t, hm):
         hm[r, 2] = 2.0 * (t[r, 0] * h[1] - t[r, 1] * h[0])
 
 
-@njit(cache=True)
+@kernel
 def mag_predict(qbar, e, u):
     """h(e) = azimuth (rad) of C(Q̄ ⊗ Q_e) u, u the body-frame image of the field's
     horizontal part (see ``eq_kf``'s docstring)."""
@@ -129,7 +129,7 @@ def mag_predict(qbar, e, u):
     return np.arctan2(vy, vx)
 
 
-@njit(cache=True)
+@kernel
 def mag_jacobian(qbar, hm):
     """hm (3,) = ∂(azimuth)/∂e at e = 0 = 2 × third row of C(Q̄)."""
     w, x, y, z = qbar[0], qbar[1], qbar[2], qbar[3]
@@ -138,7 +138,7 @@ def mag_jacobian(qbar, hm):
     hm[2] = 2.0 * (1.0 - 2.0 * (x * x + y * y))
 
 
-@njit(cache=True)
+@kernel
 def ramp(x, lo, hi):
     if x <= lo:
         return 1.0
@@ -147,7 +147,7 @@ def ramp(x, lo, hi):
     return (hi - x) / (hi - lo)
 
 
-@njit(cache=True)
+@kernel
 def inject(q, bias, x, qtmp):
     """Q̄ ← Q̄ ⊗ [√(1-|e|²), e] (normalised), b̂ ← b̂ + β."""
     s = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]

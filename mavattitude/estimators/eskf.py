@@ -52,9 +52,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from ..flight import GRAVITY
+from ..kernel_cache import kernel
 from ..paramspec import param
 from ..quaternion import (
     cross_matrix_into,
@@ -82,14 +82,14 @@ class EskfParams:
 # Scalars in, tuples out: no heap allocation in the per-sample loops.
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def set_q(q, w, x, y, z):
     """q[:] = [w, x, y, z], not normalised: the loops normalise once per sample, after the
     last product (the products of unit quaternions in between stay unit to rounding)."""
     q[0], q[1], q[2], q[3] = w, x, y, z
 
 
-@njit(cache=True)
+@kernel
 def kalman_update3(P, H, r0, r1, r2, R, PHt, K, A, T):
     """Kalman update of a 3-state error with a 3-vector measurement, in place.
 
@@ -145,7 +145,7 @@ def kalman_update3(P, H, r0, r1, r2, R, PHt, K, A, T):
 # ---------------------------------------------------------------- models (for the tests too)
 
 
-@njit(cache=True)
+@kernel
 def eskf_accel_model(q, dtheta):
     """What the accelerometer reads with no manoeuvre at attitude q ⊗ Exp(δθ):
     C(q ⊗ Exp(δθ))ᵀ (-g_n), m/s². ``eskf_accel_jacobian`` is its derivative at δθ = 0."""
@@ -156,7 +156,7 @@ def eskf_accel_model(q, dtheta):
     return out
 
 
-@njit(cache=True)
+@kernel
 def eskf_accel_jacobian(q):
     """H = ∂h/∂δθ = [h]× with h = C(q)ᵀ(-g_n), the body-frame error convention q ⊗ Exp(δθ)."""
     h = eskf_accel_model(q, np.zeros(3))
@@ -165,7 +165,7 @@ def eskf_accel_jacobian(q):
     return H
 
 
-@njit(cache=True)
+@kernel
 def eskf_error_transition(omega, dt):
     """F = ∂δθ⁺/∂δθ over one step at body rate ω: Exp(ω dt)ᵀ as a rotation matrix."""
     F = np.empty((3, 3))
@@ -185,7 +185,7 @@ class EskfSettings(NamedTuple):
     max_step: float  # s
 
 
-@njit(cache=True)
+@kernel
 def eskf_run(s, state, cfg, out, cov_trace):
     """Run the body-frame ESKF over a chunk of samples ``s`` (``base.Samples``); ``state``
     (``base.FilterState``) is updated in place; its ``bias`` is subtracted from the gyro.

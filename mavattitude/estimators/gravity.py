@@ -13,9 +13,9 @@ accelerometer reading g, and a sustained acceleration learned as g would hide ma
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from ..flight import GRAVITY
+from ..kernel_cache import kernel
 
 G_BOUND = 0.25  # a reading of g is taken within ±25 % of standard gravity
 G_MIN = GRAVITY * (1.0 - G_BOUND)
@@ -36,7 +36,7 @@ def reading_at_rest(accel) -> float:
     return float(np.clip(np.median(norms), G_MIN, G_MAX)) if len(norms) else GRAVITY
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def learn_gravity(g_a, accel_norm, dt):
     """One step of learning the accelerometer's reading of g (while still), bounded."""
     g_a += dt / (G_LEARN_S + dt) * (accel_norm - g_a)

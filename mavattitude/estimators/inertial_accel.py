@@ -35,8 +35,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from ..kernel_cache import kernel
 from ..quaternion import integrate_gyro_scalar
 from .timestep import integrates, step_dt, step_rate
 
@@ -58,7 +58,7 @@ def start(q0, gyro_bias) -> InertialAccelState:
                               np.zeros(3), np.array(gyro_bias, dtype=np.float64).reshape(3))
 
 
-@njit(cache=True)
+@kernel
 def lowpass_in_inertial_frame(s, state, tau, max_step, out):
     """Steps 1-4 of the module docstring over a chunk of samples ``s`` (``base.Samples``): the
     low-passed accelerometer into ``out`` (N, 3); ``state`` (``InertialAccelState``) updated in place."""

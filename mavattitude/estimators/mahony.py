@@ -47,9 +47,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from ..flight import GRAVITY
+from ..kernel_cache import kernel
 from ..quaternion import integrate_gyro_scalar
 from ..paramspec import param
 from .base import MAX_STEP_S, Estimator
@@ -66,7 +66,7 @@ class MahonyParams:
     strict: bool = param(False)  # the filter as published: accel_tau = 0, whatever it says
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def mahony_step(q0, q1, q2, q3, bc0, bc1, bc2, r0, r1, r2, a0, a1, a2, m0, m1, m2, use_mag,
                 north_x, north_y, kp, ki, dt, step, accel_weight=1.0):
     """One sample of the filter on scalars (steps 1-3 of the module docstring): attitude
@@ -126,7 +126,7 @@ class MahonySettings(NamedTuple):
     max_step: float  # s: a longer step is a gap, not integrated
 
 
-@njit(cache=True)
+@kernel
 def mahony_run(s, state, cfg, out):
     """Run the filter over a chunk of samples ``s`` (``base.Samples``); ``state``
     (``MahonyState``) is updated in place. Writes the attitude after each sample to ``out``.

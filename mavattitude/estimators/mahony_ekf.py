@@ -125,9 +125,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from ..flight import GRAVITY
+from ..kernel_cache import kernel
 from ..paramspec import param
 from .alignment import STILL_GYRO_RAD_S
 from .base import MAX_STEP_S, Estimator
@@ -159,7 +159,7 @@ class MahonyEkfParams:
     strict: bool = param(False)  # the paper's Mahony-EKF: unweighted Mahony measurement, none of the additions
 
 
-@njit(cache=True, inline='always')
+@kernel(inline="always")
 def quaternion_update(x, P, z0, z1, z2, z3, r):
     """Update with Z = (z0..z3), H = I₄, R = r I₄ (eq 20-22), in place. S = P + r I is
     inverted by its adjugate (one division); K = P S⁻¹ = I - r S⁻¹ is symmetric and I - K =
@@ -295,7 +295,7 @@ class MahonyEkfDiagnostics(NamedTuple):
     mahony_weight: np.ndarray
 
 
-@njit(cache=True)
+@kernel
 def mahony_ekf_run(s, state, cfg, out, diag, mahony_out):
     """Run the filter over a chunk of samples ``s`` (``base.Samples``); ``state``
     (``MahonyEkfState``) is updated in place. Writes per sample: the attitude to ``out``, the

@@ -178,9 +178,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from ..flight import GRAVITY
+from ..kernel_cache import kernel
 from ..paramspec import param
 from ..quaternion import exp_s, gravity_in_body_s, normalize_into, qmul_s
 from .consistency import attitude_error, carried, step_rotation_into, track_stillness
@@ -236,7 +236,7 @@ N_NOISE = 4
 # ---------------------------------------------------------------- models (for the tests too)
 
 
-@njit(cache=True)
+@kernel
 def ncs_accel_model(q, dtheta):
     """What the accelerometer reads with no manoeuvre when the true attitude is
     Exp(δθ) ⊗ q (navigation-frame error): C(Exp(δθ) ⊗ q)ᵀ (-g_n), m/s²."""
@@ -247,7 +247,7 @@ def ncs_accel_model(q, dtheta):
     return out
 
 
-@njit(cache=True)
+@kernel
 def ncs_accel_jacobian(q):
     """H = ∂z/∂δθ = C(q)ᵀ [G]× with G = -g_n (eq 12 in our conventions)."""
     H = np.empty((3, 3))
@@ -255,7 +255,7 @@ def ncs_accel_jacobian(q):
     return H
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _ncs_jacobian_into(w, x, y, z, gravity, H):
     # [G]× for G = [0, 0, -g] is [[0, g, 0], [-g, 0, 0], [0, 0, 0]], so
     # column 0 = -g · (row 1 of C)ᵀ, column 1 = g · (row 0 of C)ᵀ, column 2 = 0.
@@ -270,7 +270,7 @@ def _ncs_jacobian_into(w, x, y, z, gravity, H):
     H[2, 2] = 0.0
 
 
-@njit(cache=True)
+@kernel
 def ncs_error_propagate(q, dtheta, omega, dt):
     """Propagate a navigation-frame error over one gyro step: the error of
     Exp(δθ) ⊗ q ⊗ Exp(ω dt) relative to q ⊗ Exp(ω dt), as a rotation vector. It equals δθ
@@ -337,7 +337,7 @@ class NcsEskfDiagnostics(NamedTuple):
     h_gate: np.ndarray  # g
 
 
-@njit(cache=True)
+@kernel
 def ncs_eskf_run(s, state, cfg, out, diag):
     """Run NCS-ESKF over a chunk of samples ``s`` (``base.Samples``, the phase in
     ``in_air``); ``state`` (``NcsEskfState``) is updated in place. Writes the attitude after
@@ -433,7 +433,7 @@ def ncs_eskf_run(s, state, cfg, out, diag):
     return out
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _gravity_residual(q, ax, ay, az, gravity):
     """The manoeuvre acceleration: the residual z - C(q⁻)ᵀ(-g_n), body frame (eq 8, 14), and its
     horizontal part's size in g."""
@@ -444,7 +444,7 @@ def _gravity_residual(q, ax, ay, az, gravity):
     return r0, r1, r2, math.sqrt(r0 * r0 + r1 * r1) / gravity
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _low_passed_residual(q, ax, ay, az, gravity, total_threshold, gate, taper):
     """The residual of the low-passed reading (``inertial_accel``) and its weight in the update,
     for where the reading itself is refused: weight 0 (not used) unless it passes the same two
@@ -459,7 +459,7 @@ def _low_passed_residual(q, ax, ay, az, gravity, total_threshold, gate, taper):
     return r0, r1, r2, weight
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _residual_noise(noise, e0, e1, dt):
     """The running per-axis variance of the horizontal residual's sample-to-sample noise, g²:
     half the mean square of the step difference per axis (white noise of variance σ² differs
@@ -475,7 +475,7 @@ def _residual_noise(noise, e0, e1, dt):
     return noise[N_SUM] / noise[N_W] if noise[N_W] > 0.0 else 0.0
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _consistency(q, P, cons, a, ax, ay, az, w0, w1, w2, dt, cos_tol, sin_tol, cons_norm, cons_rate,
                  cons_time, gate_sigma):
     """The consistency test (module docstring; ``consistency``, eq-kf's): carry f̃ and the
@@ -518,7 +518,7 @@ def _consistency(q, P, cons, a, ax, ay, az, w0, w1, w2, dt, cos_tol, sin_tol, co
                 P[k, k] = target
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def ncs_predict(q, P, bias_est, w0, w1, w2, dt, q_theta, q_bias):
     """Time update (eq 3-6), in place. Nominal: q ⊗ Exp(ω dt), then the drift of the learned
     bias removed about the horizontal axes only, q ← Exp(B b̂) ⊗ q, so the heading stays the
@@ -600,7 +600,7 @@ def ncs_predict(q, P, bias_est, w0, w1, w2, dt, q_theta, q_bias):
     P[5, 5] += q_bias
 
 
-@njit(cache=True)
+@kernel
 def ncs_update(q, P, bias_est, r0, r1, r2, R, gravity):
     """Accelerometer update (eq 12-16), in place, in the exactly equivalent navigation-frame
     form; returns δθ.

@@ -2,17 +2,17 @@
 to integrate over it. One rule for every kernel."""
 from __future__ import annotations
 
-from numba import njit
+from ..kernel_cache import kernel
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def step_dt(t_i, t_prev, before_first=0.0):
     """Seconds from the previous sample's time ``t_prev`` to ``t_i``; ``before_first`` where
     there is no previous sample (``t_prev`` NaN)."""
     return t_i - t_prev if t_prev == t_prev else before_first
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def integrates(dt, max_step):
     """Whether a step of ``dt`` is one to integrate: not the first sample (dt 0) and not a gap
     in the data (longer than ``max_step``, ``base.MAX_STEP_S``: the vehicle may be anywhere
@@ -20,7 +20,7 @@ def integrates(dt, max_step):
     return 0.0 < dt <= max_step
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def step_rate(g0, g1, g2, gp0, gp1, gp2, dt, rate_over_step):
     """The rate to integrate over a step of ``dt`` that ends at sample g (gp: the sample before):
     the mean of the two ends where a sample is the rate at its time (trapezoidal: ArduPilot and

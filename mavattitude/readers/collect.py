@@ -39,7 +39,8 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+
+from ..kernel_cache import kernel
 
 # Between two samples in file order the clock moves by less than this: ArduPilot writes a
 # sample at most a few hundred ms after it was taken. A larger step is a jump of the clock.
@@ -60,7 +61,7 @@ HELD = -2  # a label: waiting for the samples after it to say which clock it is 
 CORRUPT = -1
 
 
-@njit(cache=True)
+@kernel
 def _decide(held, n_held, label, res_index, res_label, n_res):
     """The n_held held samples decided: ``label`` each, appended to ``res_index``/``res_label``
     at n_res; returns the new count."""
@@ -71,7 +72,7 @@ def _decide(held, n_held, label, res_index, res_label, n_res):
     return n_res
 
 
-@njit(cache=True)
+@kernel
 def _track(t, first_index, jump, confirm, state, held, out, res_index, res_label):
     """The clock-following of ``ClockTracker.push`` over ``t`` (see the module docstring).
     ``state``: [segment, clock_max, n_held, held_max, confirmed]; ``held``: global indices

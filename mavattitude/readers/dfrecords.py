@@ -29,7 +29,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+
+from ..kernel_cache import kernel
 
 HEAD1, HEAD2 = 0xA3, 0x95
 FMT_TYPE = 0x80
@@ -108,7 +109,7 @@ class Scan:
 USED, UNUSABLE, IGNORED, BAD_HEADER = 0, 1, 2, 3  # IGNORED: its type defined before; BAD_HEADER: not a record
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _append(values, n, value):
     """``values`` with ``value`` at ``n``, twice as long when full."""
     if n == len(values):
@@ -117,7 +118,7 @@ def _append(values, n, value):
     return values
 
 
-@njit(cache=True)
+@kernel
 def _scan(data, wanted_names, char_sizes, fix_at, fix_types, fix_lengths):
     """One pass over the records. ``wanted_names``: (K, 4) uint8, the names whose records are
     kept. ``fix_at``: offsets (ascending) of damaged FMT records to take as defining the wanted
@@ -234,7 +235,7 @@ def _scan(data, wanted_names, char_sizes, fix_at, fix_types, fix_lengths):
             stretches, first_skip, tail)
 
 
-@njit(cache=True)
+@kernel
 def _line_up(data, starts, types, lengths):
     """For each candidate k: the headers ``A3 95 types[k]`` from ``starts[k]`` on, and how
     many of them have another header (or the file end) ``lengths[k]`` bytes further."""
@@ -455,7 +456,7 @@ def _gather(data: np.ndarray, offsets: np.ndarray, start: int, size: int) -> np.
     return rows[:, :size]
 
 
-@njit(cache=True)
+@kernel
 def _gather_words(words, offsets, start, out):
     """``_gather``'s copy (words: the file as aligned uint64), but for rows that run into its
     last word."""

@@ -5,10 +5,10 @@ Shared by both readers (and, for its limits and compass-unit rule, by the live l
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from .. import quaternion as quat
 from ..flight import AttitudeSeries, BaroSeries, Flight, GpsSeries, ImuSeries, MagSeries, means_over_steps
+from ..kernel_cache import kernel
 from .collect import Collector
 
 # Beyond what any autopilot IMU measures (ArduPilot: ±16 g, ±2000 °/s) or any magnetometer
@@ -103,7 +103,7 @@ def row_checks(v: np.ndarray, limits: list[tuple[slice, float]]) -> tuple[np.nda
     return ok, nonzero
 
 
-@njit(cache=True)
+@kernel
 def _row_checks(v, bounds, ok, nonzero):
     for i in range(v.shape[0]):
         good, any_set = True, False
@@ -138,7 +138,7 @@ def sensor_rate_imu(gyro: tuple, accel: tuple, max_gap_s: float = ACCEL_GAP_S) -
     return t[near], values[:n], arrival[near]
 
 
-@njit(cache=True)
+@kernel
 def _resample_onto(t, rate, ta, specific_force, max_gap_s, near, values):
     """``sensor_rate_imu``'s work in one merge of the two sorted clocks (it was a searchsorted,
     three np.interp and their copies): ``near`` per gyro sample, and the rows kept in

@@ -22,7 +22,8 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+
+from ..kernel_cache import kernel
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 MAGIC_V1, MAGIC_V2 = 0xFE, 0xFD
@@ -43,7 +44,7 @@ def _crc_extras() -> np.ndarray:
 CRC_EXTRAS = _crc_extras()
 
 
-@njit(cache=True)
+@kernel
 def _crc_ok(data, start, end, extra, crc):
     """MAVLink's X.25 CRC over data[start:end] and the message's CRC_EXTRA, against ``crc``."""
     acc = 0xFFFF
@@ -55,7 +56,7 @@ def _crc_ok(data, start, end, extra, crc):
     return acc == crc
 
 
-@njit(cache=True)
+@kernel
 def _packet_end(data, p):
     """Where the packet starting at ``p`` ends (its signature included), or -1 if not a packet
     start. Returns (end, header length)."""
@@ -68,7 +69,7 @@ def _packet_end(data, p):
     return -1, 0
 
 
-@njit(cache=True)
+@kernel
 def _scan(data, start, crc_extras, wanted):
     """One pass over the records from ``start``. Returns (packet offsets, message ids, system
     ids, payload starts, payload lengths) of the wanted packets, the count of every good
@@ -178,7 +179,7 @@ def _dtype(cls) -> np.dtype:
     return np.dtype({"names": list(cls.ordered_fieldnames), "formats": formats})
 
 
-@njit(cache=True)
+@kernel
 def _gather(data, starts, lengths, size):
     """Each payload, zero-padded or cut to ``size`` bytes, as MAVLink 2 and pymavlink do."""
     out = np.zeros((len(starts), size), np.uint8)

@@ -20,7 +20,8 @@ import struct
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+
+from ..kernel_cache import kernel
 
 MAGIC = b"ULog\x01\x12\x35"
 VERSION = 1
@@ -188,7 +189,7 @@ def _last_data(walk: "_Walk", data_at: np.ndarray, n_data: int) -> int:
 PASSED = np.array([k in TYPES and k not in b"FAD" for k in range(256)])
 
 
-@njit(cache=True)
+@kernel
 def _pass(data, pos, sizes, data_at, data_ids, n_data, other_at, n_other):
     """Step over valid messages from ``pos``: data messages of their topic's known size (kept in
     ``data_at`` with their topic id) and those of a PASSED type (kept in ``other_at``); returns
@@ -217,7 +218,7 @@ def _pass(data, pos, sizes, data_at, data_ids, n_data, other_at, n_other):
     return pos, n_data, n_other
 
 
-@njit(cache=True)
+@kernel
 def _split_by_id(data_ids, data_at, wanted, next_at, out):
     for i in range(len(data_ids)):
         msg_id = data_ids[i]
