@@ -29,7 +29,6 @@ def compile_seconds(name: str) -> float:
 
 
 CORE = "estimation core"  # the runner's own kernels: a step of every first compile
-COMPILE_GC_THRESHOLD = 10_000  # allocations between the collector's young-generation runs while compiling (Python: 700)
 
 
 class Compiling:
@@ -193,7 +192,8 @@ def compiling_process(names: list[str], plugins: list[str] = ()):
             "from mavattitude.signals import end_with_parent; end_with_parent(int(sys.argv[1])); "
             "from mavattitude.estimators import register_from; register_from(json.loads(sys.argv[3])); "
             "from mavattitude.core.warmup import compile_kernels; "
-            "[compile_kernels([n.strip()], report=sys.stdout) for n in iter(sys.stdin.readline, '') if n.strip()]")
+            "[compile_kernels([n.strip()], report=sys.stdout) for n in iter(sys.stdin.readline, '') if n.strip()]; "
+            "import os; os._exit(0)")  # all said and cached: no teardown for the command to wait for (0.6 s)
     process = subprocess.Popen([sys.executable, "-c", code, str(os.getpid()), json.dumps([str(p) for p in sys.path]),
                                 json.dumps(list(plugins))], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                stderr=subprocess.DEVNULL)
@@ -228,20 +228,19 @@ def compile_kernels(names: list[str], report=None) -> None:
 
 @contextmanager
 def fewer_collections():
-    """Python's cycle collector run a fourteenth as often within: numba's compile makes objects
-    by the hundred thousand, and at the default thresholds a first compile spent 12-16 % of its
-    CPU in collections (2.5 s of 16 for ncs-eskf, eq-kf and ekf; 0.6 s at this threshold, for
-    35 MB more at the peak). Put back after; within another one (a thread compiling inside
-    ``Compiling.wait``), nothing is changed or put back."""
-    previous = gc.get_threshold()
-    if previous[0] >= COMPILE_GC_THRESHOLD:
+    """Python's cycle collector off within: numba's compile makes objects by the hundred
+    thousand, and a first compile spent 12-16 % of its CPU in collections at Python's
+    thresholds, 4-5 % at a fourteenth as often (1.3-1.7 s of 30-37 for the seven estimators in
+    one process; their peak 420 MB, 607 MB with it off). Back on after, where it was on; what
+    the compile left is collected then, as it would have been."""
+    if not gc.isenabled():  # within another one (a thread compiling inside ``Compiling.wait``)
         yield
         return
-    gc.set_threshold(COMPILE_GC_THRESHOLD, *previous[1:])
+    gc.disable()
     try:
         yield
     finally:
-        gc.set_threshold(*previous)
+        gc.enable()
 
 
 def warm_up(names: list[str], params: dict | None = None) -> None:
