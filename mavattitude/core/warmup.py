@@ -53,7 +53,7 @@ class Compiling:
         meanwhile (in a thread, so that a stop signal ends the command at once rather than
         after the compile), and here, one by one, what a failed process left."""
         try:
-            with signals.holding_interrupts() as interrupted, fewer_collections():
+            with signals.holding_interrupts() as interrupted, collector_off():
                 if self.progress is not None or self.processes:
                     warm_up([])  # the estimation core's own kernels, here, first
                     self.done(CORE)
@@ -217,7 +217,7 @@ def compile_kernels(names: list[str], report=None) -> None:
     n = 5
     t = np.arange(n) * 0.01
     for name in names:
-        with fewer_collections():
+        with collector_off():
             e = create(name)
             e.initialize(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3))
             e.update(t, np.zeros((n, 3)), np.tile([0.0, 0.0, -9.80665], (n, 1)),
@@ -227,7 +227,7 @@ def compile_kernels(names: list[str], report=None) -> None:
 
 
 @contextmanager
-def fewer_collections():
+def collector_off():
     """Python's cycle collector off within: numba's compile makes objects by the hundred
     thousand, and a first compile spent 12-16 % of its CPU in collections at Python's
     thresholds, 4-5 % at a fourteenth as often (1.3-1.7 s of 30-37 for the seven estimators in
