@@ -112,3 +112,28 @@ def test_a_log_whose_reader_is_cached_needs_no_compile(tmp_path):
         assert not reader_needs_compile(str(SAMPLE_LOGS / name))
     (tmp_path / "notes.bin").write_text("not a log")
     assert not reader_needs_compile(str(tmp_path / "notes.bin")) and not reader_needs_compile(str(tmp_path / "none"))
+
+
+def test_every_kernel_of_the_package_is_compiled_as_kernel_says():
+    """Cached, and without numba's C-callable wrapper: a kernel decorated with numba's own njit
+    would compile slower on a first run, or not be cached at all."""
+    import importlib
+    import pkgutil
+
+    from numba.core.caching import NullCache
+    from numba.core.registry import CPUDispatcher
+
+    import mavattitude
+
+    kernels = {}
+    for info in pkgutil.walk_packages(mavattitude.__path__, "mavattitude."):
+        if info.name.endswith("__main__") or ".view" in info.name or ".sim" in info.name:
+            continue  # the command line itself; no kernels in the view or the simulator (Rerun's import is slow)
+        module = importlib.import_module(info.name)
+        for name, value in vars(module).items():
+            if isinstance(value, CPUDispatcher) and value.py_func.__module__ == info.name:
+                kernels[f"{info.name}.{name}"] = value
+    assert len(kernels) > 100
+    for name, dispatcher in kernels.items():
+        assert dispatcher.targetoptions.get("no_cfunc_wrapper") is True, name
+        assert not isinstance(dispatcher._cache, NullCache), name
