@@ -16,8 +16,10 @@ when a KeyboardInterrupt escapes the program. A third ends the process at once
 (``os._exit``), should the cleanup hang.
 
 Code that catches everything (pymavlink's ``except: pass`` around an import) can swallow the
-KeyboardInterrupt; the signal is noted all the same, and ``check`` raises it again where work
-reports progress and before outputs are committed.
+KeyboardInterrupt, and Python itself drops one raised where it cannot pass it on (a weakref or
+import-lock callback: "Exception ignored", with a traceback). The signal is noted all the same,
+the dropped one is not reported (``_unraisable``), and ``check`` raises it again where work
+reports progress, before outputs are committed and when the command returns.
 
 Once the command is done, they are ignored while the interpreter exits (``ignore``).
 
@@ -66,13 +68,30 @@ def _in_numba(frame) -> bool:
     return False
 
 
+def _unraisable(report) -> None:
+    """``sys.unraisablehook`` while installed: a stop's KeyboardInterrupt that Python could not
+    pass on is noted already, and raised again by ``check``; anything else is reported as before."""
+    if isinstance(report.exc_value, KeyboardInterrupt) and _received:
+        return
+    _unraisable_before(report)
+
+
+_unraisable_before = sys.unraisablehook  # the hook ``_unraisable`` hands the rest to
+
+
 def install() -> dict:
     """Handle SIGINT and SIGTERM as above (from the main thread only: the others get no
-    signals); returns the handlers replaced, for ``restore``."""
+    signals), and Python's unraisable exceptions (``_unraisable``); returns the handlers
+    replaced, for ``restore``."""
+    global _unraisable_before
     if threading.current_thread() is not threading.main_thread():
         return {}
     _received.clear()
-    return {sig: signal.signal(sig, _stop) for sig in STOP_SIGNALS}
+    previous = {sig: signal.signal(sig, _stop) for sig in STOP_SIGNALS}
+    if sys.unraisablehook is not _unraisable:
+        previous["unraisablehook"] = _unraisable_before = sys.unraisablehook
+        sys.unraisablehook = _unraisable
+    return previous
 
 
 def check() -> None:
@@ -87,7 +106,9 @@ def restore(previous: dict) -> None:
     """Put back the handlers ``install`` replaced; the signals it saw are forgotten."""
     _received.clear()
     for sig, handler in previous.items():
-        if handler is not None:  # None: one set outside Python, which Python cannot set again
+        if sig == "unraisablehook":
+            sys.unraisablehook = handler
+        elif handler is not None:  # None: one set outside Python, which Python cannot set again
             signal.signal(sig, handler)
 
 

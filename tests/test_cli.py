@@ -473,6 +473,41 @@ def test_a_stop_that_something_swallowed_still_ends_the_command_and_commits_noth
     assert list(tmp_path.iterdir()) == []
 
 
+def _dropping_a_sigint():
+    """What Python does with a signal that lands in a weakref callback (seen on CI: importlib's
+    module-lock callback, in an import of the command's first second): the KeyboardInterrupt is
+    reported ("Exception ignored in ...", with a traceback) and dropped, and the work goes on."""
+    import weakref
+
+    class Held:
+        pass
+
+    def callback(ref):
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(1.0)  # the handler raises here, in the callback
+
+    held = Held()
+    ref = weakref.ref(held, callback)
+    del held  # the callback runs now
+    return ref
+
+
+def test_a_stop_that_python_dropped_ends_the_command_as_a_stop(capsys, monkeypatch):
+    """The command reports no progress and writes nothing after it: it ends with 130 and its one
+    line when it returns, and the dropped exception is not reported."""
+    from mavattitude.cli import estimators
+
+    list_them = estimators.run
+
+    def listing(args):
+        _dropping_a_sigint()
+        return list_them(args)
+    monkeypatch.setattr(estimators, "run", listing)
+    code, out, err = run(capsys, "estimators")
+    assert code == 130 and one_line(err) == "interrupted"
+    assert "Exception ignored" not in err and "Traceback" not in err
+
+
 def test_outputs_are_not_committed_after_a_swallowed_stop(tmp_path):
     from mavattitude import signals
     from mavattitude.outputs import Outputs

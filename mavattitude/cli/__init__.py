@@ -138,7 +138,9 @@ def _run(args) -> int:
     """Run the command; every error becomes one line on stderr and its exit status."""
     try:
         try:
-            return args.func(args)
+            code = args.func(args)
+            signals.check()  # a stop that something swallowed on the way still ends it as a stop
+            return code
         except (SystemError, InputError, UsageError, OSError) as exc:
             # a Ctrl-C inside a compiled kernel comes back as a SystemError; and once told to
             # stop, whatever ends the command is the stop's doing
