@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import math
+import shutil
+import sys
 from pathlib import Path
 
 import pytest
@@ -9,6 +11,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_LOGS = ROOT.parent / "shared" / "logs"
 SAMPLE_LOGS = ROOT / "sample_logs"
+# the rerun-sdk's CLI beside this Python (a venv not activated has it off the PATH), else the PATH's; None: neither
+RERUN_CLI = next((str(p) for p in [Path(sys.executable).with_name("rerun")] if p.exists()), shutil.which("rerun"))
 
 
 def installed_estimators() -> list[str]:

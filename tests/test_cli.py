@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import SAMPLE_LOGS, kernel_interrupt, one_line, process_group, shared_log, shared_log_params
+from conftest import RERUN_CLI, SAMPLE_LOGS, kernel_interrupt, one_line, process_group, shared_log, shared_log_params
 from mavattitude.cli import main
 
 AXES = ("roll", "pitch", "yaw")
@@ -26,8 +26,7 @@ def run(capsys, *args) -> tuple[int, str, str]:
 
 
 def rrd_verifies(path: Path) -> bool:
-    rerun = Path(sys.executable).with_name("rerun")
-    cmd = [str(rerun)] if rerun.exists() else [sys.executable, "-m", "rerun"]
+    cmd = [RERUN_CLI] if RERUN_CLI else [sys.executable, "-m", "rerun"]
     done = subprocess.run(cmd + ["rrd", "verify", str(path)], capture_output=True, text=True)
     return done.returncode == 0
 

@@ -5,7 +5,6 @@ Run as a script to write the synthetic recording for a look in a viewer:
 """
 from __future__ import annotations
 
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -24,6 +23,7 @@ from mavattitude.events import Event  # noqa: E402
 from mavattitude.commands.replay import ReplayResult  # noqa: E402
 from mavattitude.outputs import Outputs  # noqa: E402
 from mavattitude.view.sink import close_sink, open_sink, plan_sink  # noqa: E402
+from conftest import RERUN_CLI as RERUN  # noqa: E402  (the rerun CLI, or None)
 
 # ---------------------------------------------------------------- synthetic replay
 
@@ -117,9 +117,6 @@ def write_rrd(result: ReplayResult, path) -> None:
 
 
 # ---------------------------------------------------------------- helpers
-
-# the rerun-sdk's CLI beside this Python (a venv not activated has it off the PATH), else the PATH's
-RERUN = next((str(p) for p in [Path(sys.executable).with_name("rerun")] if p.exists()), shutil.which("rerun"))
 
 
 def _rrd_text(path) -> str:
